@@ -1,0 +1,68 @@
+//! The library's error type. Every variant names the file, field or value at fault so a user can act on it.
+
+use std::path::PathBuf;
+
+/// Errors returned by the spinedrr library.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file was read but its content is not what the format requires.
+    #[error("{path}: {message}")]
+    Format { path: PathBuf, message: String },
+    /// A parameter (CLI flag, config key, JSON field) has a value that cannot be used.
+    #[error("invalid {field}: {message}")]
+    Invalid { field: String, message: String },
+    /// A numerical procedure could not produce a result (degenerate input, singular system).
+    #[error("{0}")]
+    Numerical(String),
+    /// An external library (Embree, OpenCV) reported an error.
+    #[error("{library}: {message}")]
+    External {
+        library: &'static str,
+        message: String,
+    },
+}
+
+/// Shorthand result type of the library.
+pub type Result<T> = std::result::Result<T, Error>;
+
+impl Error {
+    /// An [`Error::Invalid`] for `field` with a message.
+    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Error::Invalid {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    /// An [`Error::Format`] for `path`.
+    pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Error::Format {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+
+    /// An [`Error::Io`] for `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+}
+
+impl From<opencv::Error> for Error {
+    fn from(e: opencv::Error) -> Self {
+        Error::External {
+            library: "OpenCV",
+            message: e.to_string(),
+        }
+    }
+}

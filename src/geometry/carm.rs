@@ -1,0 +1,257 @@
+//! The C-arm: one detector and a set of named views, loaded from a geometry TOML file or the defaults.
+
+use std::path::Path;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use super::{Intrinsics, RigidTransform, View};
+use crate::{Error, Result};
+
+/// The default geometry as an annotated TOML document: `spinedrr geometry` prints it, and
+/// [`CArm::default_paper`] parses it, so the printed file and the defaults cannot drift apart.
+pub const DEFAULT_GEOMETRY_TOML: &str = r#"# spinedrr C-arm geometry. World frame: millimetres, RAS+ (x = patient right, y = anterior,
+# z = superior). Camera frame: OpenCV's (origin at the X-ray source, +z along the central ray toward
+# the detector, +x along detector rows = u, +y down the detector = v). Pixel centres at integers.
+
+[detector]
+width = 1024                      # pixels (u)
+height = 1024                     # pixels (v)
+pixel_spacing_mm = [0.30, 0.30]   # [u, v]
+sdd_mm = 1350.0                   # source-to-detector distance: fx = sdd / spacing_u = 4500 px
+# principal_point_px = [511.5, 511.5]   # piercing point; default is the detector centre
+# skew_px = 0.0
+# K = [[4500.0, 0.0, 511.5], [0.0, 4500.0, 511.5], [0.0, 0.0, 1.0]]   # overrides all of the above but width/height
+
+# A view is either source_mm + target_mm (+ up) or an explicit 4x4 world_to_camera matrix.
+[[view]]
+name = "ap"
+# Source posterior of the patient, central ray through the vertebra: source-to-object 1000 mm,
+# magnification 1.35.
+source_mm = [0.0, -1000.0, 0.0]
+target_mm = [0.0, 0.0, 0.0]
+up = [0.0, 0.0, 1.0]              # world direction shown at the top of the image
+
+[[view]]
+name = "lat"
+# Non-isocentric lateral view: the source is 750 mm from the vertebra (magnification 1.8, nearer the
+# source than in AP, so the vertebra appears larger), and the central ray passes 25 mm posterior and
+# 20 mm superior of the vertebra centre, which lands about 190 px from the piercing point.
+source_mm = [-750.0, -25.0, 20.0]
+target_mm = [0.0, -25.0, 20.0]
+up = [0.0, 0.0, 1.0]
+"#;
+
+/// `[detector]` of the geometry file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorConfig {
+    pub width: u32,
+    pub height: u32,
+    pub pixel_spacing_mm: [f64; 2],
+    pub sdd_mm: f64,
+    #[serde(default)]
+    pub principal_point_px: Option<[f64; 2]>,
+    #[serde(default)]
+    pub skew_px: Option<f64>,
+    #[serde(default, rename = "K")]
+    pub k: Option<[[f64; 3]; 3]>,
+}
+
+/// One `[[view]]` of the geometry file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewConfig {
+    pub name: String,
+    #[serde(default)]
+    pub source_mm: Option<[f64; 3]>,
+    #[serde(default)]
+    pub target_mm: Option<[f64; 3]>,
+    #[serde(default)]
+    pub up: Option<[f64; 3]>,
+    #[serde(default)]
+    pub world_to_camera: Option<[[f64; 4]; 4]>,
+}
+
+/// The whole geometry file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GeometryConfig {
+    pub detector: DetectorConfig,
+    #[serde(rename = "view")]
+    pub views: Vec<ViewConfig>,
+}
+
+/// A C-arm with one detector and named views.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CArm {
+    pub views: Vec<View>,
+}
+
+impl DetectorConfig {
+    /// The intrinsics this detector section describes.
+    pub fn intrinsics(&self) -> Result<Intrinsics> {
+        if let Some(k) = self.k {
+            return Intrinsics::from_matrix(k, self.width, self.height);
+        }
+        let mut k =
+            Intrinsics::from_detector(self.sdd_mm, self.pixel_spacing_mm, self.width, self.height)?;
+        if let Some([cx, cy]) = self.principal_point_px {
+            k.cx = cx;
+            k.cy = cy;
+        }
+        if let Some(s) = self.skew_px {
+            k.skew = s;
+        }
+        k.validate()?;
+        Ok(k)
+    }
+}
+
+impl ViewConfig {
+    fn world_to_camera(&self) -> Result<RigidTransform> {
+        let field = format!("view '{}'", self.name);
+        match (self.world_to_camera, self.source_mm, self.target_mm) {
+            (Some(m), None, None) => {
+                if self.up.is_some() {
+                    return Err(Error::invalid(
+                        field,
+                        "'up' goes with source_mm/target_mm, not world_to_camera",
+                    ));
+                }
+                RigidTransform::from_rows(m, &format!("{field} world_to_camera"))
+            }
+            (None, Some(s), Some(t)) => {
+                let up = self.up.unwrap_or([0.0, 0.0, 1.0]);
+                RigidTransform::look_at(DVec3::from(s), DVec3::from(t), DVec3::from(up))
+                    .map_err(|e| Error::invalid(field, e.to_string()))
+            }
+            _ => Err(Error::invalid(
+                field,
+                "give either world_to_camera (4x4) or both source_mm and target_mm",
+            )),
+        }
+    }
+}
+
+impl GeometryConfig {
+    /// Builds the C-arm, validating every view.
+    pub fn build(&self) -> Result<CArm> {
+        let k = self.detector.intrinsics()?;
+        if self.views.is_empty() {
+            return Err(Error::invalid("view", "the geometry has no [[view]]"));
+        }
+        let mut views: Vec<View> = Vec::with_capacity(self.views.len());
+        for vc in &self.views {
+            if vc.name.trim().is_empty() {
+                return Err(Error::invalid("view.name", "must not be empty"));
+            }
+            if views.iter().any(|v| v.name == vc.name) {
+                return Err(Error::invalid(
+                    "view.name",
+                    format!("'{}' appears twice", vc.name),
+                ));
+            }
+            views.push(View::new(vc.name.clone(), k, vc.world_to_camera()?));
+        }
+        Ok(CArm { views })
+    }
+}
+
+impl CArm {
+    /// The default non-isocentric C-arm of `DESIGN.md` (AP and LAT).
+    pub fn default_paper() -> CArm {
+        Self::from_toml_str(DEFAULT_GEOMETRY_TOML, "built-in geometry")
+            .unwrap_or_else(|e| panic!("the built-in geometry must parse: {e}"))
+    }
+
+    /// Parses a geometry TOML document; `origin` names it in errors.
+    pub fn from_toml_str(text: &str, origin: &str) -> Result<CArm> {
+        let cfg: GeometryConfig =
+            toml::from_str(text).map_err(|e| Error::format(origin, e.to_string()))?;
+        cfg.build()
+            .map_err(|e| Error::format(origin, e.to_string()))
+    }
+
+    /// Reads a geometry TOML file.
+    pub fn from_file(path: &Path) -> Result<CArm> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::from_toml_str(&text, &path.display().to_string())
+    }
+
+    /// The view called `name`.
+    pub fn view(&self, name: &str) -> Result<&View> {
+        self.views.iter().find(|v| v.name == name).ok_or_else(|| {
+            let names: Vec<&str> = self.views.iter().map(|v| v.name.as_str()).collect();
+            Error::invalid(
+                "view",
+                format!(
+                    "unknown view '{name}' (this geometry has: {})",
+                    names.join(", ")
+                ),
+            )
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_geometry_matches_design() {
+        let c = CArm::default_paper();
+        let ap = c.view("ap").unwrap();
+        let lat = c.view("lat").unwrap();
+        assert_eq!(ap.intrinsics.fx, 4500.0);
+        assert_eq!((ap.intrinsics.cx, ap.intrinsics.cy), (511.5, 511.5));
+        // AP: the vertebra centre (world origin) projects to the piercing point at depth 1000 mm.
+        assert!((ap.project(DVec3::ZERO) - glam::DVec2::new(511.5, 511.5)).length() < 1e-9);
+        assert!((ap.depth(DVec3::ZERO) - 1000.0).abs() < 1e-9);
+        // LAT: nearer the source (larger image) and 150-250 px off the piercing point.
+        assert!(lat.depth(DVec3::ZERO) < ap.depth(DVec3::ZERO));
+        let off = (lat.project(DVec3::ZERO) - glam::DVec2::new(511.5, 511.5)).length();
+        assert!((150.0..=250.0).contains(&off), "{off}");
+        assert!(
+            c.view("oblique")
+                .unwrap_err()
+                .to_string()
+                .contains("ap, lat")
+        );
+    }
+
+    #[test]
+    fn explicit_matrix_views_and_errors() {
+        let m = RigidTransform::look_at(DVec3::new(0.0, -900.0, 0.0), DVec3::ZERO, DVec3::Z)
+            .unwrap()
+            .to_rows();
+        let text = format!(
+            "[detector]\nwidth = 64\nheight = 32\npixel_spacing_mm = [0.5, 0.5]\nsdd_mm = 1000.0\n\
+             [[view]]\nname = \"m\"\nworld_to_camera = {m:?}\n"
+        );
+        let c = CArm::from_toml_str(&text, "t.toml").unwrap();
+        assert_eq!(c.views[0].intrinsics.fx, 2000.0);
+        assert_eq!(c.views[0].intrinsics.cx, 31.5);
+        let bad = text.replace("sdd_mm = 1000.0", "sdd_mm = 0.0");
+        assert!(
+            CArm::from_toml_str(&bad, "t.toml")
+                .unwrap_err()
+                .to_string()
+                .contains("sdd_mm")
+        );
+        let bad = text.replace("width = 64", "width = 0");
+        assert!(
+            CArm::from_toml_str(&bad, "t.toml")
+                .unwrap_err()
+                .to_string()
+                .contains("width")
+        );
+        let bad = text.replace("name = \"m\"", "name = \"m\"\nzoom = 2");
+        assert!(
+            CArm::from_toml_str(&bad, "t.toml")
+                .unwrap_err()
+                .to_string()
+                .contains("zoom")
+        );
+    }
+}

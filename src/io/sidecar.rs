@@ -1,0 +1,111 @@
+//! The JSON sidecar written beside every image (`name.json` for `name.tiff` / `name.png`).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{Perturbation, View};
+use crate::{Error, Result};
+
+/// Everything needed to interpret an image geometrically.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Sidecar {
+    pub tool: String,
+    pub version: String,
+    /// What the pixels are: `drr`, `mask`, `depth`, `heatmap`, …
+    pub kind: String,
+    pub width: u32,
+    pub height: u32,
+    /// The intrinsics the image was rendered with (perturbed, if a perturbation was applied).
+    #[serde(rename = "K")]
+    pub k: [[f64; 3]; 3],
+    /// The unperturbed intrinsics of the view.
+    #[serde(rename = "K_reference")]
+    pub k_reference: [[f64; 3]; 3],
+    pub world_to_camera: [[f64; 4]; 4],
+    /// Units of the pixel values.
+    pub units: String,
+    pub view: String,
+    /// Canonical perturbation spec (`none`, `df=300,dcx=20`, …) and its fields.
+    pub perturbation_spec: String,
+    pub perturbation: Perturbation,
+    /// Producer-specific details (renderer, backend, anatomy, μ table, statistics).
+    #[serde(default)]
+    pub details: serde_json::Map<String, serde_json::Value>,
+}
+
+impl Sidecar {
+    /// A sidecar for an image of `view` (reference geometry) rendered under `perturbation`.
+    pub fn new(
+        kind: &str,
+        units: &str,
+        reference: &View,
+        perturbation: &Perturbation,
+    ) -> Result<Self> {
+        let k = perturbation.apply(&reference.intrinsics)?;
+        Ok(Sidecar {
+            tool: "spinedrr".into(),
+            version: crate::VERSION.into(),
+            kind: kind.into(),
+            width: k.width,
+            height: k.height,
+            k: k.matrix_rows(),
+            k_reference: reference.intrinsics.matrix_rows(),
+            world_to_camera: reference.world_to_camera.to_rows(),
+            units: units.into(),
+            view: reference.name.clone(),
+            perturbation_spec: perturbation.to_string(),
+            perturbation: *perturbation,
+            details: serde_json::Map::new(),
+        })
+    }
+
+    /// The view the image was rendered with (perturbed intrinsics), checked for validity.
+    pub fn rendered_view(&self, path: &Path) -> Result<View> {
+        let k = crate::geometry::Intrinsics::from_matrix(self.k, self.width, self.height)
+            .map_err(|e| Error::format(path, e.to_string()))?;
+        let t = crate::geometry::RigidTransform::from_rows(self.world_to_camera, "world_to_camera")
+            .map_err(|e| Error::format(path, e.to_string()))?;
+        Ok(View::new(self.view.clone(), k, t))
+    }
+
+    /// Writes the sidecar atomically as pretty JSON.
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let text =
+            serde_json::to_string_pretty(self).map_err(|e| Error::format(path, e.to_string()))?;
+        super::write_atomic_bytes(path, text.as_bytes())
+    }
+
+    /// Reads a sidecar.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        serde_json::from_str(&text)
+            .map_err(|e| Error::format(path, format!("not a spinedrr sidecar: {e}")))
+    }
+}
+
+/// `name.json` beside `name.tiff`.
+pub fn sidecar_path(image: &Path) -> PathBuf {
+    image.with_extension("json")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::CArm;
+
+    #[test]
+    fn sidecar_round_trip() {
+        let c = CArm::default_paper();
+        let ap = c.view("ap").unwrap();
+        let p = Perturbation::parse("df=300,dcx=20").unwrap();
+        let s = Sidecar::new("drr", "mm", ap, &p).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.json");
+        s.write(&path).unwrap();
+        let back = Sidecar::read(&path).unwrap();
+        assert_eq!(back, s);
+        let v = back.rendered_view(&path).unwrap();
+        assert_eq!(v, ap.perturbed(&p).unwrap());
+    }
+}

@@ -1,0 +1,1 @@
+//! Rendering: thickness DRRs of triangle meshes (Embree or the pure-Rust BVH).
