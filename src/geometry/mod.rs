@@ -10,7 +10,7 @@ mod perturbation;
 mod pose;
 mod view;
 
-pub use carm::{CArm, DetectorConfig, GeometryConfig, ViewConfig};
+pub use carm::{CArm, DEFAULT_GEOMETRY_TOML, DetectorConfig, GeometryConfig, ViewConfig};
 pub use intrinsics::Intrinsics;
 pub use perturbation::Perturbation;
 pub use pose::{RigidTransform, rotation_angle_deg, rotation_exp, rotation_log};
