@@ -1,1 +1,40 @@
-//! Rendering: thickness DRRs of triangle meshes (Embree or the pure-Rust BVH).
+//! Rendering: thickness DRRs of triangle meshes through Embree or the pure-Rust BVH reference backend.
+//!
+//! `scene` owns what is rendered (meshes, μ, objects), `tracer` the backend interface, `embree` and `bvh`
+//! the two backends, `pairing` how a ray's hits become a path length, `thickness` the image loop.
+
+pub mod bvh;
+pub mod embree;
+mod pairing;
+mod scene;
+mod thickness;
+mod tracer;
+
+pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh};
+pub use thickness::{RenderStats, TILE, ThicknessDrr, ThicknessOptions, ThicknessRenderer};
+pub use tracer::{HitTracer, PACKET, RawHit, RayPacket};
+
+use crate::Result;
+
+/// The ray-tracing backend of a thickness render.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// Intel Embree (system library), all hits gathered in one traversal.
+    Embree,
+    /// The pure-Rust f64 BVH with a watertight triangle test (reference).
+    Bvh,
+}
+
+impl Backend {
+    /// Builds a renderer for `scene` with this backend.
+    pub fn renderer(self, scene: RenderScene) -> Result<ThicknessRenderer> {
+        let tracer: Box<dyn HitTracer> = match self {
+            Backend::Embree => Box::new(embree::EmbreeTracer::new(&scene)?),
+            Backend::Bvh => Box::new(bvh::BvhTracer::new(&scene)),
+        };
+        Ok(ThicknessRenderer::new(scene, tracer))
+    }
+}

@@ -1,0 +1,185 @@
+//! From the raw hits of one ray to its line integral `Σ_m μ_m · L_m`.
+//!
+//! Each raw hit is refined in f64 from its triangle's plane (`t = (d − n·o) / (n·dir)`), so both backends
+//! produce the same distances once they agree on which triangles a ray crosses. Per mesh, hits are sorted
+//! and clustered (a ray through a shared edge or vertex reports it once per triangle). A cluster whose
+//! triangles all face the ray is an entry, all facing away an exit, and a mixed one a tangential touch.
+//! Entries and exits must then alternate, starting with an entry; a ray where they do not is reported as
+//! invalid and the renderer repairs it.
+
+use glam::DVec3;
+
+use super::scene::RenderScene;
+use super::tracer::RawHit;
+
+/// One refined surface crossing.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Crossing {
+    pub t: f64,
+    pub facing: f64,
+    pub geom: u32,
+    pub prim: u32,
+}
+
+/// The result of integrating one ray.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct RayIntegral {
+    pub line_integral: f64,
+    /// Distance from the origin to the first surface (`inf` when nothing is hit).
+    pub first_t: f64,
+    pub object_bits: u64,
+    pub structure_bits: u32,
+    pub hits: u32,
+    /// Entries and exits paired up in every mesh.
+    pub valid: bool,
+}
+
+/// A ray belongs to a mesh's silhouette when its chord exceeds this (mm). Rays grazing a surface have
+/// chords of ~0 whose sign of difference from zero depends on f32 rounding in the backend; a micrometre
+/// is far below anything a detector resolves.
+pub(crate) const MIN_SILHOUETTE_CHORD_MM: f64 = 1e-3;
+
+/// Rays nearly parallel to a triangle's plane cross it at an ill-conditioned distance; they are dropped
+/// (the ray slides along the surface, contributing no length).
+const MIN_COS: f64 = 1e-12;
+
+/// Integrates one ray from its raw hits. `scratch` is reused between calls.
+pub(crate) fn integrate(
+    scene: &RenderScene,
+    origin: DVec3,
+    dir: DVec3,
+    raw: &[RawHit],
+    scratch: &mut Vec<Crossing>,
+) -> RayIntegral {
+    scratch.clear();
+    for h in raw {
+        let Some(plane) = scene
+            .planes
+            .get(h.geom as usize)
+            .and_then(|p| p.get(h.prim as usize))
+        else {
+            continue;
+        };
+        let facing = plane.n.dot(dir);
+        if facing.abs() < MIN_COS {
+            continue;
+        }
+        let t = (plane.d - plane.n.dot(origin)) / facing;
+        scratch.push(Crossing {
+            t,
+            facing,
+            geom: h.geom,
+            prim: h.prim,
+        });
+    }
+    scratch.sort_unstable_by(|a, b| a.geom.cmp(&b.geom).then(a.t.total_cmp(&b.t)));
+
+    let mut out = RayIntegral {
+        first_t: f64::INFINITY,
+        valid: true,
+        hits: scratch.len() as u32,
+        ..Default::default()
+    };
+    let mut start = 0;
+    while start < scratch.len() {
+        let geom = scratch[start].geom;
+        let end = start
+            + scratch[start..]
+                .iter()
+                .take_while(|c| c.geom == geom)
+                .count();
+        let (length, ok) = pair_mesh(&scratch[start..end]);
+        let g = geom as usize;
+        out.valid &= ok;
+        out.line_integral += scene.meshes[g].mu_per_mm * length;
+        out.first_t = out.first_t.min(scratch[start].t);
+        if length > MIN_SILHOUETTE_CHORD_MM {
+            out.object_bits |= 1u64 << scene.object_of_mesh[g];
+            let mesh = &scene.meshes[g].mesh;
+            for c in &scratch[start..end] {
+                out.structure_bits |= 1u32 << mesh.label(c.prim as usize) as u32;
+            }
+        }
+        start = end;
+    }
+    out
+}
+
+/// Two crossings of one mesh closer than this (mm, plus a relative part) are one crossing.
+fn same_point(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-7 + 1e-10 * a.abs().max(b.abs())
+}
+
+/// Total inside length of one mesh from its sorted crossings, and whether they paired up.
+fn pair_mesh(crossings: &[Crossing]) -> (f64, bool) {
+    let mut inside_since: Option<f64> = None;
+    let mut length = 0.0;
+    let mut ok = true;
+    let mut i = 0;
+    while i < crossings.len() {
+        // Cluster crossings at the same point (shared edges and vertices).
+        let mut j = i + 1;
+        while j < crossings.len() && same_point(crossings[j - 1].t, crossings[j].t) {
+            j += 1;
+        }
+        let cluster = &crossings[i..j];
+        let entering = cluster.iter().all(|c| c.facing < 0.0);
+        let exiting = cluster.iter().all(|c| c.facing > 0.0);
+        let t = cluster[0].t;
+        match (entering, exiting, inside_since) {
+            (true, _, None) => inside_since = Some(t),
+            (_, true, Some(t0)) => {
+                length += t - t0;
+                inside_since = None;
+            }
+            (false, false, _) => {} // tangential touch: no change of state
+            _ => ok = false,        // two entries or two exits in a row: a hit was missed
+        }
+        i = j;
+    }
+    if inside_since.is_some() {
+        ok = false;
+    }
+    (length, ok)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn c(t: f64, facing: f64) -> Crossing {
+        Crossing {
+            t,
+            facing,
+            geom: 0,
+            prim: 0,
+        }
+    }
+
+    #[test]
+    fn pairs_entries_and_exits() {
+        let (l, ok) = pair_mesh(&[c(1.0, -1.0), c(3.0, 1.0), c(5.0, -0.5), c(5.5, 0.2)]);
+        assert!(ok);
+        assert!((l - 2.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn duplicates_at_shared_edges_count_once() {
+        let (l, ok) = pair_mesh(&[c(1.0, -1.0), c(1.0 + 1e-12, -0.3), c(3.0, 1.0), c(3.0, 0.4)]);
+        assert!(ok);
+        assert!((l - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn tangential_touch_is_ignored() {
+        let (l, ok) = pair_mesh(&[c(2.0, -1.0), c(2.0, 1.0)]);
+        assert!(ok && l == 0.0);
+    }
+
+    #[test]
+    fn missing_exit_is_invalid() {
+        assert!(!pair_mesh(&[c(1.0, -1.0), c(2.0, -1.0), c(3.0, 1.0)]).1);
+        assert!(!pair_mesh(&[c(1.0, -1.0)]).1);
+        assert!(!pair_mesh(&[c(1.0, 1.0)]).1);
+    }
+}
