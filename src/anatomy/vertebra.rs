@@ -258,7 +258,8 @@ impl VertebraShape {
     }
 
     /// The structure of the nearest primitive; body points on the top/bottom faces (outward normal
-    /// `n_local` with `|n_z| > 0.7`) are the superior/inferior endplates.
+    /// `n_local` with `|n_z| > 0.7`, within two rim radii of the endplate plane) are the
+    /// superior/inferior endplates.
     pub fn structure_at(&self, p: DVec3, n_local: DVec3) -> Structure {
         let mut best = (f64::INFINITY, Structure::Unlabelled);
         for (s, prim) in &self.parts {
@@ -267,9 +268,10 @@ impl VertebraShape {
                 best = (d, *s);
             }
         }
+        let near_face = self.morphometry.body_height / 2.0 - 2.0 * BODY_RIM_MM;
         match best.1 {
-            Structure::Body if n_local.z > 0.7 => Structure::SuperiorEndplate,
-            Structure::Body if n_local.z < -0.7 => Structure::InferiorEndplate,
+            Structure::Body if n_local.z > 0.7 && p.z > near_face => Structure::SuperiorEndplate,
+            Structure::Body if n_local.z < -0.7 && p.z < -near_face => Structure::InferiorEndplate,
             s => s,
         }
     }
