@@ -20,7 +20,7 @@ use rayon::prelude::*;
 
 use super::isosurface::{ScalarGrid, extract_isosurface, remove_small_components};
 use super::landmarks::Landmarks;
-use super::sdf::{Frame, Placed, Shape};
+use super::sdf::{Frame, Placed, Shape, ellipse_distance};
 use super::vertebra::{Level, VertebraShape};
 use super::{Structure, TriMesh};
 use crate::geometry::RigidTransform;
@@ -100,12 +100,11 @@ pub struct DiscShape {
 const DISC_RIM_MM: f64 = 1.5;
 
 impl DiscShape {
-    /// Signed distance bound at a world point (1-Lipschitz).
+    /// Approximate signed distance at a world point (exact across the endplate planes).
     pub fn sdf(&self, p: DVec3) -> f64 {
         let q = self.frame.to_local(p);
         let r = DISC_RIM_MM;
-        let (ai, bi) = (self.a - r, self.b - r);
-        let d2 = (DVec2::new(q.x / ai, q.y / bi).length() - 1.0) * ai.min(bi);
+        let d2 = ellipse_distance(DVec2::new(q.x, q.y), self.a - r, self.b - r);
         let dz = (-(p - self.lower.0).dot(self.lower.1)).max((p - self.upper.0).dot(self.upper.1));
         let v = DVec2::new(d2, dz + r);
         v.max(DVec2::ZERO).length() + v.max_element().min(0.0) - r

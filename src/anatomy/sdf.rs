@@ -1,9 +1,8 @@
 //! Signed-distance primitives (negative inside, millimetres) and their smooth union.
 //!
-//! Every primitive here is 1-Lipschitz (`|f(p) − f(q)| ≤ |p − q|`), and so are their polynomial smooth
-//! minimum and any rigid placement. The exact distance is used where it is cheap (rounded box, Quílez's
-//! formula); the elliptic cross-section uses the scaled-norm bound `(‖(x/a, y/b)‖ − 1)·min(a, b)`, which is
-//! exact on the minor axis and an under-estimate elsewhere.
+//! The rounded box is exact (Quílez's formula); the elliptic cross-section uses [`ellipse_distance`],
+//! exact on the axes and to first order near the curve (its gradient norm can exceed 1 far from the curve
+//! of an elongated ellipse). The polynomial smooth minimum and rigid placements keep these properties.
 
 use glam::{DMat3, DVec2, DVec3};
 
@@ -74,8 +73,7 @@ impl Shape {
                 half_h,
                 radius,
             } => {
-                let (ai, bi) = (a - radius, b - radius);
-                let d2 = (DVec2::new(p.x / ai, p.y / bi).length() - 1.0) * ai.min(bi);
+                let d2 = ellipse_distance(DVec2::new(p.x, p.y), a - radius, b - radius);
                 let q = DVec2::new(d2, p.z.abs() - (half_h - radius));
                 q.max(DVec2::ZERO).length() + q.max_element().min(0.0) - radius
             }
@@ -115,6 +113,20 @@ impl Placed {
         );
         (self.frame.origin - r, self.frame.origin + r)
     }
+}
+
+/// Approximate signed distance to the ellipse `(x/a)² + (y/b)² = 1`: the implicit `k₀ − 1` divided by
+/// its gradient norm, `k₀ (k₀ − 1) / k₁` with `k₀ = ‖(x/a, y/b)‖`, `k₁ = ‖(x/a², y/b²)‖` (Taubin's
+/// first-order distance). Exact on both axes and to first order near the curve, so offsets (rounded
+/// rims) keep the nominal semi-axes.
+#[inline]
+pub fn ellipse_distance(p: DVec2, a: f64, b: f64) -> f64 {
+    let k0 = DVec2::new(p.x / a, p.y / b).length();
+    let k1 = DVec2::new(p.x / (a * a), p.y / (b * b)).length();
+    if k1 < 1e-12 {
+        return -a.min(b);
+    }
+    k0 * (k0 - 1.0) / k1
 }
 
 /// Polynomial smooth minimum (Quílez): equals `min(a, b)` when `|a − b| ≥ k`, otherwise blends with a
