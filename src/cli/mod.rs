@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod geometry;
+mod phantom;
 
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of
 /// vertebrae under ground-truth and perturbed C-arm intrinsics and measures what changes.
@@ -19,6 +20,9 @@ struct Cli {
 enum Command {
     /// Print the default C-arm geometry (detector, AP and LAT views) as an editable TOML file.
     Geometry(geometry::Args),
+    /// Build the parametric lumbar phantom (L1–L5): cortical and cancellous meshes, discs, soft tissue
+    /// and landmarks.json.
+    Phantom(phantom::Args),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -26,6 +30,7 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Geometry(a) => geometry::run(a),
+        Command::Phantom(a) => phantom::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
