@@ -6,6 +6,7 @@ mod mesh;
 pub mod meshio;
 pub mod phantom;
 pub mod sdf;
+mod tissue;
 pub mod vertebra;
 
 pub use isosurface::{Inside, ScalarGrid, extract_isosurface, extract_isosurface_with};
@@ -13,4 +14,5 @@ pub use landmarks::{Landmarks, read_landmarks, write_landmarks};
 pub use mesh::{MeshCheck, Structure, TriMesh};
 pub use meshio::{MeshFormat, read_mesh, write_mesh, write_mesh_as};
 pub use phantom::{Phantom, PhantomOptions, Tissue, VertebraModel, build_phantom};
+pub use tissue::tissue_hu;
 pub use vertebra::{Level, Morphometry, VertebraShape, parse_levels};

@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 
 mod geometry;
 mod phantom;
+mod render;
 
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of
 /// vertebrae under ground-truth and perturbed C-arm intrinsics and measures what changes.
@@ -23,6 +24,8 @@ enum Command {
     /// Build the parametric lumbar phantom (L1–L5): cortical and cancellous meshes, discs, soft tissue
     /// and landmarks.json.
     Phantom(phantom::Args),
+    /// Render a thickness DRR of the phantom or of mesh files, under the reference or a perturbed K.
+    Render(Box<render::Args>),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -31,6 +34,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Geometry(a) => geometry::run(a),
         Command::Phantom(a) => phantom::run(a),
+        Command::Render(a) => render::run(*a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use crate::{Error, Result};
 
 /// Largest detector side accepted (pixels). Anything larger is a typo, not a detector.
-pub const MAX_DETECTOR_PX: u32 = 16384;
+pub const MAX_DETECTOR_PX: u32 = 8192;
 
 /// Pinhole intrinsics in pixels plus the detector size.
 ///

@@ -96,7 +96,7 @@ pub fn read_tiff_f32(path: &Path) -> Result<ImageF32> {
 }
 
 /// Writes an 8-bit grayscale PNG preview, scaled so that `[0, max]` maps to `[0, 255]`.
-/// With `invert`, bright means little attenuation (a radiograph look).
+/// With `invert`, bright means little signal (for intensity images, where bone is dark).
 pub fn write_preview_png(path: &Path, img: &ImageF32, invert: bool) -> Result<()> {
     let max = img.max();
     let scale = if max > 0.0 { 255.0 / max } else { 0.0 };

@@ -6,10 +6,12 @@
 pub mod bvh;
 pub mod embree;
 mod pairing;
+mod phantom_scene;
 mod scene;
 mod thickness;
 mod tracer;
 
+pub use phantom_scene::{MU_WATER_PER_MM, mu_from_hu, phantom_scene, tissue_mu};
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh};
 pub use thickness::{RenderStats, TILE, ThicknessDrr, ThicknessOptions, ThicknessRenderer};
 pub use tracer::{HitTracer, PACKET, RawHit, RayPacket};

@@ -12,6 +12,7 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::embree::EmbreeScene;
 use super::pairing::{Crossing, RayIntegral, integrate};
 use super::scene::RenderScene;
 use super::tracer::{HitTracer, PACKET, RawHit, RayPacket};
@@ -270,6 +271,56 @@ impl ThicknessRenderer {
             objects: self.scene.objects.clone(),
             stats,
         })
+    }
+
+    /// The benchmark floor: Embree's own closest-hit query for exactly the pixels `render` would trace
+    /// (same tiles, same culling, same packets), returning the first-hit distance image and its time (ms).
+    /// `floor` must be built from this renderer's scene without hit recording.
+    pub fn first_hit_floor(
+        &self,
+        floor: &EmbreeScene,
+        view: &View,
+        opts: &ThicknessOptions,
+    ) -> (ImageF32, f64) {
+        let start = Instant::now();
+        let cam = Camera::new(view);
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let tiles_x = w.div_ceil(TILE as usize);
+        let coverage = if opts.cull {
+            self.tile_coverage(view, tiles_x)
+        } else {
+            None
+        };
+        let mut t_img = vec![0f32; w * h];
+        t_img
+            .par_chunks_mut(w * TILE as usize)
+            .enumerate()
+            .for_each(|(ty, band)| {
+                let rows = band.len() / w;
+                let mut t = [0f32; PACKET];
+                for tx in 0..tiles_x {
+                    if coverage.as_ref().is_some_and(|c| !c[ty * tiles_x + tx]) {
+                        continue;
+                    }
+                    let u0 = tx * TILE as usize;
+                    let u1 = (u0 + TILE as usize).min(w);
+                    for r in 0..rows {
+                        let v = (ty * TILE as usize + r) as f64;
+                        let mut packet = RayPacket::default();
+                        for u in u0..u1 {
+                            packet.push(cam.source, cam.dir(u as f64, v));
+                        }
+                        floor.first_hit(&packet, &mut t);
+                        band[r * w + u0..r * w + u1].copy_from_slice(&t[..u1 - u0]);
+                    }
+                }
+            });
+        let img = ImageF32 {
+            width: cam.width,
+            height: cam.height,
+            data: t_img,
+        };
+        (img, start.elapsed().as_secs_f64() * 1e3)
     }
 
     /// Traces one ray (world frame, unit `dir`) and returns its line integral and whether its crossings

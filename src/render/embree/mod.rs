@@ -4,6 +4,8 @@
 //! committed Embree scene is immutable and Embree documents concurrent queries on it as thread-safe, which
 //! is why the types are `Send + Sync` (stated once, below).
 
+use std::mem::MaybeUninit;
+use std::sync::OnceLock;
 use std::time::Instant;
 
 use embree_sys as sys;
@@ -74,11 +76,22 @@ fn error_name(code: sys::RTCError) -> &'static str {
     }
 }
 
+/// The process-wide device: creating one starts Embree's thread pool, which costs far more than a scene.
+fn shared_device() -> Result<&'static Device> {
+    static DEVICE: OnceLock<std::result::Result<Device, String>> = OnceLock::new();
+    DEVICE
+        .get_or_init(|| Device::new().map_err(|e| e.to_string()))
+        .as_ref()
+        .map_err(|m| Error::External {
+            library: "Embree",
+            message: m.clone(),
+        })
+}
+
 /// A committed Embree scene of triangle meshes (geometry id = mesh index in the [`RenderScene`]).
 pub struct EmbreeScene {
     raw: sys::RTCScene,
-    // Declared after `raw` so the scene is released before its device.
-    _device: Device,
+    device: &'static Device,
     build_ms: f64,
     records_hits: bool,
 }
@@ -92,38 +105,34 @@ impl EmbreeScene {
     /// Builds the BVH. With `record_hits` every geometry gets the all-hits filter (for thickness DRRs);
     /// without it the scene answers plain closest-hit queries (the benchmark floor).
     pub fn new(scene: &RenderScene, record_hits: bool) -> Result<Self> {
-        let device = Device::new()?;
+        let device = shared_device()?;
         let start = Instant::now();
         // SAFETY: device is live; the returned scene is released in Drop (or below on error).
         let raw = unsafe { sys::rtcNewScene(device.raw) };
         let mut this = EmbreeScene {
             raw,
-            _device: device,
+            device,
             build_ms: 0.0,
             records_hits: record_hits,
         };
-        this._device.check("creating a scene")?;
-        // SAFETY: raw is a live scene.
-        unsafe {
-            sys::rtcSetSceneBuildQuality(raw, sys::RTC_BUILD_QUALITY_HIGH);
-        }
+        this.device.check("creating a scene")?;
         for (id, m) in scene.meshes.iter().enumerate() {
             this.attach_mesh(id as u32, &m.mesh)?;
         }
         // SAFETY: all geometries are committed and attached.
         unsafe { sys::rtcCommitScene(raw) };
-        this._device.check("building the BVH")?;
+        this.device.check("building the BVH")?;
         this.build_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(this)
     }
 
     fn attach_mesh(&self, id: u32, mesh: &crate::anatomy::TriMesh) -> Result<()> {
-        let dev = self._device.raw;
+        let dev = self.device.raw;
         // SAFETY: dev is live; the geometry is released after attaching (the scene keeps a reference).
         unsafe {
             let geom = sys::rtcNewGeometry(dev, sys::RTC_GEOMETRY_TYPE_TRIANGLE);
             if geom.is_null() {
-                self._device.check("creating a triangle geometry")?;
+                self.device.check("creating a triangle geometry")?;
             }
             let nv = mesh.vertices.len();
             let nt = mesh.triangles.len();
@@ -166,7 +175,7 @@ impl EmbreeScene {
             sys::rtcAttachGeometryByID(self.raw, geom, id);
             sys::rtcReleaseGeometry(geom);
         }
-        self._device.check(&format!("adding mesh '{}'", mesh.name))
+        self.device.check(&format!("adding mesh '{}'", mesh.name))
     }
 
     /// Closest-hit distances of a packet (`+inf` on a miss). For the benchmark floor; the scene must have
@@ -231,7 +240,7 @@ impl EmbreeScene {
 
 impl Drop for EmbreeScene {
     fn drop(&mut self) {
-        // SAFETY: self.raw was returned by rtcNewScene and is released exactly once, before the device.
+        // SAFETY: self.raw was returned by rtcNewScene and is released exactly once; the device is static.
         unsafe { sys::rtcReleaseScene(self.raw) }
     }
 }
@@ -320,7 +329,9 @@ impl HitTracer for EmbreeTracer {
 
     fn trace_all(&self, packet: &RayPacket, hits: &mut [Vec<RawHit>; PACKET]) {
         let soa = Soa::from_packet(packet);
-        let mut buf = [sys::spd_hit::default(); PACKET * LANE_CAPACITY];
+        // Left uninitialised: the shim writes hit k of a lane before its count passes k, and only the
+        // first min(count, capacity) hits of each lane are read.
+        let mut buf = [MaybeUninit::<sys::spd_hit>::uninit(); PACKET * LANE_CAPACITY];
         let mut counts = [0u32; PACKET];
         // SAFETY: arrays have PACKET lanes; `buf` holds PACKET × LANE_CAPACITY hits; the scene is committed
         // and was built with the recording filter.
@@ -337,7 +348,7 @@ impl HitTracer for EmbreeTracer {
                 soa.dz.as_ptr(),
                 soa.tnear.as_ptr(),
                 soa.tfar.as_ptr(),
-                buf.as_mut_ptr(),
+                buf.as_mut_ptr().cast::<sys::spd_hit>(),
                 LANE_CAPACITY as u32,
                 counts.as_mut_ptr(),
             )
@@ -348,7 +359,12 @@ impl HitTracer for EmbreeTracer {
             let n = counts[lane] as usize;
             if n <= LANE_CAPACITY {
                 let base = lane * LANE_CAPACITY;
-                out.extend(buf[base..base + n].iter().map(to_raw));
+                // SAFETY: the shim initialised the first n (≤ capacity) entries of this lane.
+                out.extend(
+                    buf[base..base + n]
+                        .iter()
+                        .map(|h| to_raw(unsafe { h.assume_init_ref() })),
+                );
             } else {
                 self.scene.all_hits_single(packet, lane, n, out);
             }
