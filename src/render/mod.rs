@@ -1,1 +1,3 @@
-//! Rendering: thickness DRRs of triangle meshes (Embree or the pure-Rust BVH).
+//! Rendering: thickness DRRs of triangle meshes (Embree or the pure-Rust BVH) and CT volume DRRs.
+
+pub mod volume;
