@@ -1,7 +1,16 @@
 //! Anatomy: triangle meshes, mesh files, the parametric lumbar phantom and landmarks.
 
 pub mod ct;
+pub mod isosurface;
 pub mod labels;
+pub mod landmarks;
 mod mesh;
+pub mod phantom;
+pub mod sdf;
+pub mod vertebra;
 
+pub use isosurface::{Inside, ScalarGrid, extract_isosurface, extract_isosurface_with};
+pub use landmarks::{Landmarks, read_landmarks, write_landmarks};
 pub use mesh::{MeshCheck, Structure, TriMesh};
+pub use phantom::{Phantom, PhantomOptions, Tissue, VertebraModel, build_phantom};
+pub use vertebra::{Level, Morphometry, VertebraShape, parse_levels};

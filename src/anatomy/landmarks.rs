@@ -1,0 +1,157 @@
+//! Named 3D landmarks per vertebral level and their JSON file.
+//!
+//! File format (one file holds any number of levels; a single level object is accepted on reading):
+//!
+//! ```json
+//! [
+//!   {"level": "L3", "units": "mm", "frame": "world RAS+",
+//!    "landmarks": {"center": [0.0, 0.0, 0.0], "spinous_tip": [0.0, -64.0, -6.0]}},
+//!   {"level": "L4", "units": "mm", "frame": "world RAS+", "landmarks": {...}}
+//! ]
+//! ```
+//!
+//! `units` must be `"mm"`; `frame` is free text (the phantom writes `"world RAS+"`) and is kept on reading.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::{Error, Result};
+
+/// The landmarks of one level, world millimetres.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Landmarks {
+    pub level: String,
+    pub points: BTreeMap<String, DVec3>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct LevelJson {
+    level: String,
+    units: String,
+    #[serde(default = "default_frame")]
+    frame: String,
+    landmarks: BTreeMap<String, [f64; 3]>,
+}
+
+fn default_frame() -> String {
+    "world RAS+".to_string()
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum FileJson {
+    Many(Vec<LevelJson>),
+    One(LevelJson),
+}
+
+impl Landmarks {
+    /// A landmark by name.
+    pub fn get(&self, name: &str) -> Option<DVec3> {
+        self.points.get(name).copied()
+    }
+}
+
+/// Serialises landmark sets in the file format above.
+pub fn landmarks_to_json(sets: &[Landmarks]) -> Result<String> {
+    let list: Vec<LevelJson> = sets
+        .iter()
+        .map(|l| LevelJson {
+            level: l.level.clone(),
+            units: "mm".into(),
+            frame: default_frame(),
+            landmarks: l
+                .points
+                .iter()
+                .map(|(k, v)| (k.clone(), v.to_array()))
+                .collect(),
+        })
+        .collect();
+    serde_json::to_string_pretty(&list).map_err(|e| Error::invalid("landmarks", e.to_string()))
+}
+
+/// Parses the file format above; `path` names the source in errors.
+pub fn landmarks_from_json(text: &str, path: &Path) -> Result<Vec<Landmarks>> {
+    let parsed: FileJson = serde_json::from_str(text)
+        .map_err(|e| Error::format(path, format!("landmarks JSON: {e}")))?;
+    let list = match parsed {
+        FileJson::Many(v) => v,
+        FileJson::One(l) => vec![l],
+    };
+    list.into_iter()
+        .map(|l| {
+            if l.units != "mm" {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "level {}: units {:?} (only \"mm\" is supported)",
+                        l.level, l.units
+                    ),
+                ));
+            }
+            if let Some((k, _)) = l
+                .landmarks
+                .iter()
+                .find(|(_, v)| v.iter().any(|c| !c.is_finite()))
+            {
+                return Err(Error::format(
+                    path,
+                    format!("level {}: landmark {k} is not finite", l.level),
+                ));
+            }
+            Ok(Landmarks {
+                level: l.level,
+                points: l
+                    .landmarks
+                    .into_iter()
+                    .map(|(k, v)| (k, DVec3::from_array(v)))
+                    .collect(),
+            })
+        })
+        .collect()
+}
+
+/// Writes `sets` to `path` (atomically).
+pub fn write_landmarks(path: &Path, sets: &[Landmarks]) -> Result<()> {
+    let text = landmarks_to_json(sets)?;
+    crate::io::write_atomic_bytes(path, text.as_bytes())?;
+    Ok(())
+}
+
+/// Reads a landmarks file.
+pub fn read_landmarks(path: &Path) -> Result<Vec<Landmarks>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    landmarks_from_json(&text, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_round_trip_and_single_object() {
+        let mut l = Landmarks {
+            level: "L3".into(),
+            ..Default::default()
+        };
+        l.points
+            .insert("center".into(), DVec3::new(1.0, -2.5, 3.25));
+        let text = landmarks_to_json(std::slice::from_ref(&l)).unwrap();
+        let back = landmarks_from_json(&text, Path::new("x.json")).unwrap();
+        assert_eq!(back, vec![l.clone()]);
+        let one = r#"{"level":"L3","units":"mm","landmarks":{"center":[1.0,-2.5,3.25]}}"#;
+        assert_eq!(
+            landmarks_from_json(one, Path::new("y.json")).unwrap(),
+            vec![l]
+        );
+    }
+
+    #[test]
+    fn wrong_units_name_the_file() {
+        let bad = r#"{"level":"L3","units":"cm","landmarks":{}}"#;
+        let e = landmarks_from_json(bad, Path::new("lm.json")).unwrap_err();
+        assert!(e.to_string().contains("lm.json") && e.to_string().contains("cm"));
+    }
+}

@@ -1,0 +1,378 @@
+//! The parametric lumbar phantom: vertebrae stacked with discs and lordosis, an optional soft-tissue
+//! outline, all meshed by the watertight isosurface extractor.
+//!
+//! **Placement rule.** Each vertebra is built in its local frame ([`super::vertebra`]: body centre at
+//! the origin, RAS+ axes). The *middle requested level* — index `(n − 1) / 2` of the sorted requested
+//! levels, so L3 for `L1-L5` and the level itself for a single level — has the identity pose: its body
+//! centre is the world origin and its axes are the world axes. Every level `L` is tilted about the
+//! x axis by `θ_L = lordosis·(i_mid − i_L)` (degrees, `i` = 0 for L1), positive tilting its superior axis
+//! toward posterior, so the column is convex anteriorly (lordosis). Adjacent levels are stacked along the
+//! mean of their axes with a disc of `disc_mm` between the inferior endplate centre of the upper and the
+//! superior endplate centre of the lower vertebra; positions of skipped levels (`L1,L3`) are kept
+//! anatomical.
+//!
+//! **Tissues.** Cortical bone is the shell between the outer surface `f = 0` and the inner surface
+//! `f = −cortical_mm` of a vertebra's SDF `f`; cancellous bone is inside the inner surface. Discs are
+//! wedges between the endplate planes; the soft-tissue outline is an elliptic cylinder around the spine.
+
+use glam::{DMat3, DMat4, DVec2, DVec3};
+use rayon::prelude::*;
+
+use super::isosurface::{ScalarGrid, extract_isosurface, remove_small_components};
+use super::landmarks::Landmarks;
+use super::sdf::{Frame, Placed, Shape};
+use super::vertebra::{Level, VertebraShape};
+use super::{Structure, TriMesh};
+use crate::geometry::RigidTransform;
+use crate::{Error, Result};
+
+/// Options of [`build_phantom`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PhantomOptions {
+    pub levels: Vec<Level>,
+    /// Grid spacing of the vertebra and disc meshes (mm).
+    pub voxel_mm: f64,
+    /// Cortical shell thickness (mm).
+    pub cortical_mm: f64,
+    pub soft_tissue: bool,
+    pub discs: bool,
+    /// Disc height at the endplate centres (mm).
+    pub disc_mm: f64,
+    /// Lordotic tilt between adjacent levels (degrees).
+    pub lordosis_deg: f64,
+}
+
+impl Default for PhantomOptions {
+    fn default() -> Self {
+        PhantomOptions {
+            levels: Level::ALL.to_vec(),
+            voxel_mm: 0.6,
+            cortical_mm: 1.2,
+            soft_tissue: false,
+            discs: true,
+            disc_mm: 10.0,
+            lordosis_deg: 4.0,
+        }
+    }
+}
+
+/// The tissue at a point of the phantom.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Tissue {
+    Air,
+    SoftTissue,
+    Disc,
+    Cortical,
+    Cancellous,
+}
+
+/// One meshed vertebra.
+#[derive(Debug, Clone)]
+pub struct VertebraModel {
+    pub level: Level,
+    /// Outer surface, labelled per triangle with its [`Structure`].
+    pub cortical: TriMesh,
+    /// Inner surface (the outer SDF eroded by the cortical thickness).
+    pub cancellous: TriMesh,
+    pub landmarks: Landmarks,
+    pub shape: VertebraShape,
+    /// Pose of the vertebra's local frame in the world.
+    pub local_to_world: RigidTransform,
+}
+
+impl VertebraModel {
+    /// Signed distance of the outer surface at a world point.
+    pub fn sdf(&self, p: DVec3) -> f64 {
+        self.shape.sdf(self.local_to_world.inverse().apply(p))
+    }
+}
+
+/// An intervertebral disc: the elliptic prism between two endplate planes, rim rounded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DiscShape {
+    frame: Frame,
+    a: f64,
+    b: f64,
+    lower: (DVec3, DVec3),
+    upper: (DVec3, DVec3),
+}
+
+const DISC_RIM_MM: f64 = 1.5;
+
+impl DiscShape {
+    /// Signed distance bound at a world point (1-Lipschitz).
+    pub fn sdf(&self, p: DVec3) -> f64 {
+        let q = self.frame.to_local(p);
+        let r = DISC_RIM_MM;
+        let (ai, bi) = (self.a - r, self.b - r);
+        let d2 = (DVec2::new(q.x / ai, q.y / bi).length() - 1.0) * ai.min(bi);
+        let dz = (-(p - self.lower.0).dot(self.lower.1)).max((p - self.upper.0).dot(self.upper.1));
+        let v = DVec2::new(d2, dz + r);
+        v.max(DVec2::ZERO).length() + v.max_element().min(0.0) - r
+    }
+}
+
+/// The built phantom.
+#[derive(Debug, Clone)]
+pub struct Phantom {
+    pub vertebrae: Vec<VertebraModel>,
+    pub discs: Vec<TriMesh>,
+    pub soft_tissue: Option<TriMesh>,
+    pub disc_shapes: Vec<DiscShape>,
+    /// The soft-tissue cylinder (world frame), when requested.
+    pub soft_tissue_shape: Option<Placed>,
+    pub cortical_mm: f64,
+}
+
+impl Phantom {
+    /// The tissue at a world point (vertebrae over discs over soft tissue over air).
+    pub fn classify(&self, p: DVec3) -> Tissue {
+        for v in &self.vertebrae {
+            let d = v.sdf(p);
+            if d < -self.cortical_mm {
+                return Tissue::Cancellous;
+            }
+            if d < 0.0 {
+                return Tissue::Cortical;
+            }
+        }
+        if self.disc_shapes.iter().any(|d| d.sdf(p) < 0.0) {
+            return Tissue::Disc;
+        }
+        match &self.soft_tissue_shape {
+            Some(s) if s.sdf(p) < 0.0 => Tissue::SoftTissue,
+            _ => Tissue::Air,
+        }
+    }
+
+    /// All landmark sets, cranial to caudal.
+    pub fn landmarks(&self) -> Vec<Landmarks> {
+        self.vertebrae.iter().map(|v| v.landmarks.clone()).collect()
+    }
+}
+
+fn rigid_to_mat4(t: &RigidTransform) -> DMat4 {
+    DMat4::from_translation(t.translation) * DMat4::from_mat3(t.rotation)
+}
+
+/// Poses of every level from the first to the last requested (see the placement rule).
+fn level_poses(levels: &[Level], disc_mm: f64, lordosis_deg: f64) -> Vec<(Level, RigidTransform)> {
+    let (first, last) = (levels[0].index(), levels[levels.len() - 1].index());
+    let mid = levels[(levels.len() - 1) / 2].index();
+    let tilt =
+        |i: usize| DMat3::from_rotation_x((lordosis_deg * (mid as f64 - i as f64)).to_radians());
+    let half_h = |i: usize| VertebraShape::new(Level::ALL[i]).morphometry.body_height / 2.0;
+    let mut centres = [DVec3::ZERO; 5];
+    for i in (first..mid).rev() {
+        let (rl, ru) = (tilt(i + 1), tilt(i));
+        let axis = (rl.z_axis + ru.z_axis).normalize();
+        centres[i] =
+            centres[i + 1] + rl.z_axis * half_h(i + 1) + axis * disc_mm + ru.z_axis * half_h(i);
+    }
+    for i in mid + 1..=last {
+        let (ru, rl) = (tilt(i - 1), tilt(i));
+        let axis = (rl.z_axis + ru.z_axis).normalize();
+        centres[i] =
+            centres[i - 1] - ru.z_axis * half_h(i - 1) - axis * disc_mm - rl.z_axis * half_h(i);
+    }
+    (first..=last)
+        .map(|i| (Level::ALL[i], RigidTransform::new(tilt(i), centres[i])))
+        .collect()
+}
+
+/// Meshes `f` (local frame) on a grid covering `bounds` (+ margin) with spacing `voxel`, then maps the
+/// mesh to world by `to_world`. Returns the grid so several iso-levels can share it.
+fn sample(
+    bounds: (DVec3, DVec3),
+    voxel: f64,
+    to_world: &RigidTransform,
+    f: impl Fn(DVec3) -> f64 + Sync,
+) -> Result<ScalarGrid> {
+    let lo = bounds.0 - DVec3::splat(2.0 * voxel);
+    let n = ((bounds.1 + DVec3::splat(2.0 * voxel) - lo) / voxel).ceil();
+    let dims = [n.x as usize + 1, n.y as usize + 1, n.z as usize + 1];
+    let index_to_local = DMat4::from_translation(lo) * DMat4::from_scale(DVec3::splat(voxel));
+    let mut grid = ScalarGrid::from_fn(dims, index_to_local, f)?;
+    grid.index_to_world = rigid_to_mat4(to_world) * index_to_local;
+    Ok(grid)
+}
+
+fn mesh_vertebra(
+    shape: VertebraShape,
+    pose: RigidTransform,
+    opts: &PhantomOptions,
+) -> Result<VertebraModel> {
+    let grid = sample(shape.bounds(), opts.voxel_mm, &pose, |p| shape.sdf(p))?;
+    let name = shape.level.name();
+    let mut cortical = extract_isosurface(&grid, 0.0)?;
+    cortical.name = format!("{name}_cortical");
+    let inv = pose.inverse();
+    cortical.labels = (0..cortical.triangles.len())
+        .into_par_iter()
+        .map(|i| {
+            let [a, b, c] = cortical.corners(i);
+            let n = inv.apply_vector((b - a).cross(c - a)).normalize_or_zero();
+            shape.structure_at(inv.apply((a + b + c) / 3.0), n) as u8
+        })
+        .collect();
+    let mut cancellous = extract_isosurface(&grid, -opts.cortical_mm as f32)?;
+    cancellous = remove_small_components(&cancellous, 1.0);
+    cancellous.name = format!("{name}_cancellous");
+    let landmarks = shape.landmarks(|p| pose.apply(p));
+    Ok(VertebraModel {
+        level: shape.level,
+        cortical,
+        cancellous,
+        landmarks,
+        shape,
+        local_to_world: pose,
+    })
+}
+
+fn disc_between(
+    upper: (&VertebraShape, &RigidTransform),
+    lower: (&VertebraShape, &RigidTransform),
+) -> DiscShape {
+    let (su, pu) = upper;
+    let (sl, pl) = lower;
+    let top = (
+        pu.apply(DVec3::new(0.0, 0.0, -su.morphometry.body_height / 2.0)),
+        pu.rotation.z_axis,
+    );
+    let bottom = (
+        pl.apply(DVec3::new(0.0, 0.0, sl.morphometry.body_height / 2.0)),
+        pl.rotation.z_axis,
+    );
+    let mean = (pu.rotation.z_axis + pl.rotation.z_axis).normalize();
+    let y = mean.cross(DVec3::X).normalize();
+    let frame = Frame {
+        origin: (top.0 + bottom.0) / 2.0,
+        axes: DMat3::from_cols(DVec3::X, y, mean),
+    };
+    let m = (su.morphometry, sl.morphometry);
+    DiscShape {
+        frame,
+        a: m.0.endplate_width.min(m.1.endplate_width) / 2.0 - 1.0,
+        b: m.0.endplate_depth.min(m.1.endplate_depth) / 2.0 - 1.0,
+        lower: bottom,
+        upper: top,
+    }
+}
+
+fn check_options(o: &PhantomOptions) -> Result<()> {
+    if o.levels.is_empty() {
+        return Err(Error::invalid("levels", "no level requested"));
+    }
+    let positive = |name: &str, v: f64, max: f64| {
+        if v.is_finite() && v > 0.0 && v <= max {
+            Ok(())
+        } else {
+            Err(Error::invalid(name, format!("{v} is outside (0, {max}]")))
+        }
+    };
+    positive("voxel_mm", o.voxel_mm, 5.0)?;
+    positive("cortical_mm", o.cortical_mm, 4.0)?;
+    positive("disc_mm", o.disc_mm, 30.0)?;
+    if !(o.lordosis_deg.is_finite() && o.lordosis_deg.abs() <= 15.0) {
+        return Err(Error::invalid(
+            "lordosis_deg",
+            format!("{} is outside [-15, 15]", o.lordosis_deg),
+        ));
+    }
+    Ok(())
+}
+
+/// Builds and meshes the phantom described by `opts`.
+pub fn build_phantom(opts: &PhantomOptions) -> Result<Phantom> {
+    check_options(opts)?;
+    let mut levels = opts.levels.clone();
+    levels.sort();
+    levels.dedup();
+    let poses = level_poses(&levels, opts.disc_mm, opts.lordosis_deg);
+    let vertebrae = poses
+        .iter()
+        .filter(|(l, _)| levels.contains(l))
+        .map(|(l, p)| mesh_vertebra(VertebraShape::new(*l), *p, opts))
+        .collect::<Result<Vec<_>>>()?;
+    let mut disc_shapes = Vec::new();
+    let mut discs = Vec::new();
+    if opts.discs {
+        for w in vertebrae.windows(2) {
+            if w[1].level.index() != w[0].level.index() + 1 {
+                continue;
+            }
+            let d = disc_between(
+                (&w[0].shape, &w[0].local_to_world),
+                (&w[1].shape, &w[1].local_to_world),
+            );
+            discs.push(mesh_disc(
+                &d,
+                opts.voxel_mm,
+                &format!("{}-{}_disc", w[0].level, w[1].level),
+            )?);
+            disc_shapes.push(d);
+        }
+    }
+    let soft_tissue_shape = opts.soft_tissue.then(|| soft_tissue_cylinder(&vertebrae));
+    let soft_tissue = match &soft_tissue_shape {
+        Some(s) => Some(mesh_soft_tissue(s)?),
+        None => None,
+    };
+    Ok(Phantom {
+        vertebrae,
+        discs,
+        soft_tissue,
+        disc_shapes,
+        soft_tissue_shape,
+        cortical_mm: opts.cortical_mm,
+    })
+}
+
+fn mesh_disc(d: &DiscShape, voxel: f64, name: &str) -> Result<TriMesh> {
+    let half = DVec3::new(
+        d.a,
+        d.b,
+        (d.upper.0 - d.lower.0).length() / 2.0 + d.a.max(d.b) * 0.1 + 2.0,
+    );
+    let to_world = RigidTransform::new(d.frame.axes, d.frame.origin);
+    let grid = sample((-half, half), voxel, &to_world, |q| {
+        d.sdf(d.frame.to_parent(q))
+    })?;
+    let mut m = extract_isosurface(&grid, 0.0)?;
+    m.name = name.to_string();
+    Ok(m)
+}
+
+/// A 300 × 220 mm elliptic cylinder (rim rounded by 10 mm) around the vertebrae, 30 mm beyond them in z,
+/// its centre 20 mm anterior of the body centres so the back is ~25 mm behind the spinous tips.
+fn soft_tissue_cylinder(vertebrae: &[VertebraModel]) -> Placed {
+    let (mut zlo, mut zhi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in vertebrae {
+        if let Some((lo, hi)) = v.cortical.bounds() {
+            zlo = zlo.min(lo.z);
+            zhi = zhi.max(hi.z);
+        }
+    }
+    if !zlo.is_finite() {
+        (zlo, zhi) = (-20.0, 20.0);
+    }
+    Placed {
+        frame: Frame::at(DVec3::new(0.0, 20.0, (zlo + zhi) / 2.0)),
+        shape: Shape::EllipticCylinder {
+            a: 150.0,
+            b: 110.0,
+            half_h: (zhi - zlo) / 2.0 + 30.0,
+            radius: 10.0,
+        },
+    }
+}
+
+fn mesh_soft_tissue(s: &Placed) -> Result<TriMesh> {
+    let h = s.shape.half_extent();
+    let to_world = RigidTransform::new(s.frame.axes, s.frame.origin);
+    let grid = sample((-h, h), 3.0, &to_world, |q| s.shape.sdf(q))?;
+    let mut m = extract_isosurface(&grid, 0.0)?;
+    m.name = "soft_tissue".into();
+    m.labels = vec![Structure::SoftTissue as u8; m.triangles.len()];
+    Ok(m)
+}
