@@ -7,6 +7,7 @@ pub mod landmarks;
 mod mesh;
 pub mod phantom;
 pub mod sdf;
+pub mod synthetic_ct;
 pub mod vertebra;
 
 pub use isosurface::{Inside, ScalarGrid, extract_isosurface, extract_isosurface_with};

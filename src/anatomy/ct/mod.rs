@@ -6,6 +6,7 @@
 
 mod mask;
 mod nifti;
+mod surface;
 
 use glam::{DMat4, DVec3};
 
@@ -13,6 +14,7 @@ use crate::{Error, Result};
 
 pub use mask::VoxelMask;
 pub use nifti::{affine_from_header, read_ct, read_labels, write_ct, write_labels};
+pub use surface::{SurfaceOptions, label_surface, largest_component, taubin_smooth};
 
 /// A 3-D voxel grid with a world affine.
 #[derive(Debug, Clone, PartialEq)]
