@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod geometry;
+mod render_ct;
 
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of
 /// vertebrae under ground-truth and perturbed C-arm intrinsics and measures what changes.
@@ -19,6 +20,8 @@ struct Cli {
 enum Command {
     /// Print the default C-arm geometry (detector, AP and LAT views) as an editable TOML file.
     Geometry(geometry::Args),
+    /// Render a CT volume DRR (Siddon or trilinear), optionally of one segmented vertebra.
+    RenderCt(render_ct::Args),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -26,6 +29,7 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Geometry(a) => geometry::run(a),
+        Command::RenderCt(a) => render_ct::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
