@@ -21,7 +21,7 @@ enum Command {
     /// Print the default C-arm geometry (detector, AP and LAT views) as an editable TOML file.
     Geometry(geometry::Args),
     /// Render a CT volume DRR (Siddon or trilinear), optionally of one segmented vertebra.
-    RenderCt(render_ct::Args),
+    RenderCt(Box<render_ct::Args>),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -29,7 +29,7 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Geometry(a) => geometry::run(a),
-        Command::RenderCt(a) => render_ct::run(a),
+        Command::RenderCt(a) => render_ct::run(*a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
