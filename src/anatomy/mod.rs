@@ -1,11 +1,14 @@
 //! Anatomy: triangle meshes, mesh files, the parametric lumbar phantom and landmarks.
 
+pub mod ct;
 pub mod isosurface;
+pub mod labels;
 pub mod landmarks;
 mod mesh;
 pub mod meshio;
 pub mod phantom;
 pub mod sdf;
+pub mod synthetic_ct;
 mod tissue;
 pub mod vertebra;
 

@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 mod geometry;
 mod phantom;
 mod render;
+mod render_ct;
 
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of
 /// vertebrae under ground-truth and perturbed C-arm intrinsics and measures what changes.
@@ -24,7 +25,8 @@ enum Command {
     /// Build the parametric lumbar phantom (L1–L5): cortical and cancellous meshes, discs, soft tissue
     /// and landmarks.json.
     Phantom(phantom::Args),
-    /// Render a thickness DRR of the phantom or of mesh files, under the reference or a perturbed K.
+    /// Render a DRR (thickness DRR of the phantom or mesh files, or CT volume DRR) under the reference or a
+    /// perturbed K.
     Render(Box<render::Args>),
 }
 

@@ -19,7 +19,7 @@ use spinedrr::render::{
 /// With --masks also OUT_mask.png (all objects), OUT_mask_<object>.png and OUT_mask_<structure>.png, each
 /// with its sidecar; with --depth OUT_depth.tiff (camera z of the first surface, mm; 0 = no hit).
 #[derive(clap::Args)]
-#[command(group(clap::ArgGroup::new("anatomy").required(true).args(["phantom", "mesh"])))]
+#[command(group(clap::ArgGroup::new("anatomy").required(true).args(["phantom", "mesh", "ct"])))]
 pub struct Args {
     /// Render the built-in phantom: levels such as L3, L1-L5 or L1,L3.
     #[arg(long, value_name = "LEVELS")]
@@ -59,6 +59,8 @@ pub struct Args {
     /// Render N times and print timing statistics as one JSON line on stderr.
     #[arg(long, default_value_t = 1, value_name = "N")]
     repeat: u32,
+    #[command(flatten)]
+    ct: super::render_ct::CtArgs,
     /// Output image (.tiff or .tif); the sidecar and preview are written beside it.
     #[arg(long, value_name = "OUT.tiff")]
     out: PathBuf,
@@ -84,6 +86,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     if a.repeat == 0 {
         bail!("invalid --repeat 0: render at least once");
+    }
+    if a.ct.ct.is_some() {
+        return super::render_ct::run_ct(&a.ct, &view, &perturbation, &a.out);
     }
 
     let (scene, anatomy) = build_scene(&a)?;

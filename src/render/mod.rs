@@ -1,7 +1,8 @@
-//! Rendering: thickness DRRs of triangle meshes through Embree or the pure-Rust BVH reference backend.
+//! Rendering: thickness DRRs of triangle meshes (Embree or the pure-Rust BVH) and CT volume DRRs.
 //!
 //! `scene` owns what is rendered (meshes, μ, objects), `tracer` the backend interface, `embree` and `bvh`
-//! the two backends, `pairing` how a ray's hits become a path length, `thickness` the image loop.
+//! the two backends, `pairing` how a ray's hits become a path length, `thickness` the image loop,
+//! `volume` the CT renderer (Siddon and trilinear).
 
 pub mod bvh;
 pub mod embree;
@@ -10,6 +11,7 @@ mod phantom_scene;
 mod scene;
 mod thickness;
 mod tracer;
+pub mod volume;
 
 pub use phantom_scene::{MU_WATER_PER_MM, mu_from_hu, phantom_scene, tissue_mu};
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh};

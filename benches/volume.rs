@@ -1,0 +1,66 @@
+//! CT volume DRR speed: 1024² images through a generated 512 × 512 × 133 CT (Siddon, trilinear, and a
+//! single-vertebra masked render), and surface extraction of one label from a 512 × 512 × 133 label map.
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use glam::{DMat4, DVec3};
+use spinedrr::anatomy::ct::{CtVolume, LabelMap, SurfaceOptions, VoxelMask, label_surface};
+use spinedrr::geometry::CArm;
+use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
+
+const DIMS: [usize; 3] = [512, 512, 133];
+
+/// A torso-like CT centred on the world origin: water ellipse, a bone column and one "vertebra" label.
+fn phantom_ct() -> (CtVolume, LabelMap) {
+    let sp = DVec3::new(0.7, 0.7, 2.5);
+    let half = DVec3::new(DIMS[0] as f64, DIMS[1] as f64, DIMS[2] as f64) * 0.5 - 0.5;
+    let a = DMat4::from_scale_rotation_translation(sp, Default::default(), -half * sp);
+    let mut ct = CtVolume::filled(DIMS, -1000.0, a).unwrap();
+    let mut seg = LabelMap::filled(DIMS, 0, a).unwrap();
+    for k in 0..DIMS[2] {
+        for j in 0..DIMS[1] {
+            for i in 0..DIMS[0] {
+                let p = ct.voxel_centre(i, j, k);
+                let n = ct.linear(i, j, k);
+                if (p.x / 160.0).powi(2) + (p.y / 110.0).powi(2) <= 1.0 {
+                    ct.values[n] = 40.0;
+                }
+                if (p.x / 25.0).powi(2) + ((p.y + 10.0) / 18.0).powi(2) <= 1.0 {
+                    ct.values[n] = 300.0 + 900.0 * (((p.z / 30.0).sin()).abs() as f32);
+                    seg.values[n] = if p.z.abs() < 14.0 { 31 } else { 30 };
+                }
+            }
+        }
+    }
+    (ct, seg)
+}
+
+fn bench(c: &mut Criterion) {
+    let (ct, seg) = phantom_ct();
+    let view = CArm::default_paper().view("ap").unwrap().clone();
+    let mask = VoxelMask::from_labels(&seg, &[31]).unwrap();
+    let mut g = c.benchmark_group("volume_drr_1024");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(1024 * 1024));
+    for (name, method, m) in [
+        ("siddon", VolumeMethod::Siddon, None),
+        ("trilinear", VolumeMethod::Trilinear, None),
+        ("siddon_masked_L1", VolumeMethod::Siddon, Some(&mask)),
+    ] {
+        let opts = VolumeRenderOptions {
+            method,
+            ..Default::default()
+        };
+        let r = VolumeRenderer::new(&ct, &opts, m).unwrap();
+        g.bench_function(name, |b| b.iter(|| r.render(&view)));
+    }
+    g.finish();
+    let mut g = c.benchmark_group("label_surface_512x512x133");
+    g.sample_size(10);
+    g.bench_function("L1", |b| {
+        b.iter(|| label_surface(&seg, 31, &SurfaceOptions::default()).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,170 @@
+//! Voxel volumes on a world grid: CT intensities (HU) and segmentation label maps, NIfTI I/O, masks.
+//!
+//! A [`Volume`] stores its voxels x-fastest (NIfTI's Fortran order): voxel `(i, j, k)` is
+//! `values[i + nx · (j + ny · k)]`. Its `index_to_world` affine maps the continuous index of a voxel
+//! centre to world millimetres (RAS+), so voxel `(i, j, k)` covers the index box `[i ± ½] × [j ± ½] × [k ± ½]`.
+
+mod mask;
+mod nifti;
+mod surface;
+
+use glam::{DMat4, DVec3};
+
+use crate::{Error, Result};
+
+pub use mask::VoxelMask;
+pub use nifti::{affine_from_header, read_ct, read_labels, write_ct, write_labels};
+pub use surface::{SurfaceOptions, label_surface, largest_component, taubin_smooth};
+
+/// A 3-D voxel grid with a world affine.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Volume<T> {
+    /// `[nx, ny, nz]`.
+    pub dims: [usize; 3],
+    /// `nx · ny · nz` voxels, x fastest.
+    pub values: Vec<T>,
+    /// Voxel index (voxel centres at integers) → world millimetres, RAS+.
+    pub index_to_world: DMat4,
+}
+
+/// A CT volume in Hounsfield units.
+pub type CtVolume = Volume<f32>;
+/// A segmentation: one integer label per voxel, 0 = background.
+pub type LabelMap = Volume<u16>;
+
+impl<T: Copy> Volume<T> {
+    /// A volume, checked: `values.len() == nx·ny·nz`, no zero dimension, a finite invertible affine
+    /// with last row `[0, 0, 0, 1]`.
+    pub fn new(dims: [usize; 3], values: Vec<T>, index_to_world: DMat4) -> Result<Self> {
+        if dims.contains(&0) {
+            return Err(Error::invalid(
+                "dims",
+                format!("{dims:?} has a zero extent"),
+            ));
+        }
+        let n = dims[0]
+            .checked_mul(dims[1])
+            .and_then(|v| v.checked_mul(dims[2]));
+        if n != Some(values.len()) {
+            return Err(Error::invalid(
+                "values",
+                format!("{} voxels for dims {dims:?}", values.len()),
+            ));
+        }
+        check_affine(&index_to_world)?;
+        Ok(Volume {
+            dims,
+            values,
+            index_to_world,
+        })
+    }
+
+    /// A volume of `dims` filled with `value`.
+    pub fn filled(dims: [usize; 3], value: T, index_to_world: DMat4) -> Result<Self> {
+        let n = dims.iter().product();
+        Volume::new(dims, vec![value; n], index_to_world)
+    }
+
+    /// Number of voxels.
+    pub fn len(&self) -> usize {
+        self.values.len()
+    }
+
+    /// Always false for a checked volume (no zero dimension); here for clippy's `len` convention.
+    pub fn is_empty(&self) -> bool {
+        self.values.is_empty()
+    }
+
+    /// Linear index of voxel `(i, j, k)`.
+    #[inline]
+    pub fn linear(&self, i: usize, j: usize, k: usize) -> usize {
+        i + self.dims[0] * (j + self.dims[1] * k)
+    }
+
+    /// Voxel `(i, j, k)`; panics out of range, like slice indexing.
+    #[inline]
+    pub fn get(&self, i: usize, j: usize, k: usize) -> T {
+        self.values[self.linear(i, j, k)]
+    }
+
+    /// The inverse affine, world millimetres → continuous voxel index.
+    pub fn world_to_index(&self) -> DMat4 {
+        self.index_to_world.inverse()
+    }
+
+    /// World position of the centre of voxel `(i, j, k)`.
+    pub fn voxel_centre(&self, i: usize, j: usize, k: usize) -> DVec3 {
+        self.index_to_world
+            .transform_point3(DVec3::new(i as f64, j as f64, k as f64))
+    }
+
+    /// Voxel spacing along each index axis (mm): the lengths of the affine's columns.
+    pub fn spacing_mm(&self) -> DVec3 {
+        DVec3::new(
+            self.index_to_world.x_axis.truncate().length(),
+            self.index_to_world.y_axis.truncate().length(),
+            self.index_to_world.z_axis.truncate().length(),
+        )
+    }
+
+    /// Volume of one voxel (mm³): `|det A|` of the linear part.
+    pub fn voxel_volume_mm3(&self) -> f64 {
+        self.index_to_world.determinant().abs()
+    }
+
+    /// True when `other` has the same dims and (to 1e-6 mm) the same affine.
+    pub fn same_grid<U>(&self, other: &Volume<U>) -> bool {
+        let a = self.index_to_world.to_cols_array();
+        let b = other.index_to_world.to_cols_array();
+        self.dims == other.dims && a.iter().zip(b.iter()).all(|(x, y)| (x - y).abs() <= 1e-6)
+    }
+
+    /// The same grid with other values.
+    pub fn map<U, F: Fn(T) -> U + Sync>(&self, f: F) -> Volume<U> {
+        Volume {
+            dims: self.dims,
+            values: self.values.iter().map(|&v| f(v)).collect(),
+            index_to_world: self.index_to_world,
+        }
+    }
+}
+
+impl LabelMap {
+    /// The distinct non-zero labels present, ascending.
+    pub fn labels_present(&self) -> Vec<u16> {
+        let mut seen = vec![false; u16::MAX as usize + 1];
+        for &v in &self.values {
+            seen[v as usize] = true;
+        }
+        (1..=u16::MAX).filter(|&l| seen[l as usize]).collect()
+    }
+
+    /// Number of voxels carrying `label`.
+    pub fn count(&self, label: u16) -> usize {
+        self.values.iter().filter(|&&v| v == label).count()
+    }
+}
+
+/// Rejects a non-finite, singular or non-affine 4×4 index→world matrix.
+pub fn check_affine(m: &DMat4) -> Result<()> {
+    let a = m.to_cols_array();
+    if a.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid("affine", "has non-finite entries"));
+    }
+    if m.row(3) != glam::DVec4::new(0.0, 0.0, 0.0, 1.0) {
+        return Err(Error::invalid(
+            "affine",
+            format!("last row must be [0, 0, 0, 1], got {:?}", m.row(3)),
+        ));
+    }
+    let det = m.determinant();
+    let scale =
+        m.x_axis.truncate().length() * m.y_axis.truncate().length() * m.z_axis.truncate().length();
+    if scale == 0.0 || det.abs() <= 1e-9 * scale {
+        return Err(Error::invalid(
+            "affine",
+            format!("is singular (determinant {det:e}): voxel axes are degenerate"),
+        ));
+    }
+    Ok(())
+}
