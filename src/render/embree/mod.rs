@@ -116,6 +116,10 @@ impl EmbreeScene {
             records_hits: record_hits,
         };
         this.device.check("creating a scene")?;
+        // Robust mode uses Embree's watertight triangle test: a ray through a shared edge is reported by at
+        // least one of its triangles, so entries and exits pair up without retracing.
+        // SAFETY: raw is a live, empty scene.
+        unsafe { sys::rtcSetSceneFlags(raw, sys::RTC_SCENE_FLAG_ROBUST) };
         for (id, m) in scene.meshes.iter().enumerate() {
             this.attach_mesh(id as u32, &m.mesh)?;
         }
