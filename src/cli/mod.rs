@@ -4,7 +4,9 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod compare;
 mod geometry;
+mod register;
 
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of
 /// vertebrae under ground-truth and perturbed C-arm intrinsics and measures what changes.
@@ -19,6 +21,11 @@ struct Cli {
 enum Command {
     /// Print the default C-arm geometry (detector, AP and LAT views) as an editable TOML file.
     Geometry(geometry::Args),
+    /// Compare a reference and a perturbed DRR: landmark shifts, contours, Dice/IoU, image similarity,
+    /// difference heatmap (metrics.json, absdiff.tiff, heatmap.png).
+    Compare(compare::Args),
+    /// Register a rigid vertebra pose from landmark observations (direct LM, Kabsch, OpenCV).
+    Register(register::Args),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -26,6 +33,8 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Geometry(a) => geometry::run(a),
+        Command::Compare(a) => compare::run(a),
+        Command::Register(a) => register::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
