@@ -6,7 +6,7 @@ use opencv::core::{CV_32F, Mat};
 use opencv::imgproc;
 use opencv::prelude::*;
 
-use super::contours::{border_pixels, check_mask};
+use super::contours::{border_pixels, bounding_window, check_mask, crop};
 use super::cv_err;
 use crate::{Error, Result};
 
@@ -165,13 +165,18 @@ pub fn edge_distance(
 ) -> Result<(f64, f64)> {
     check_mask(reference, width, height)?;
     check_mask(perturbed, width, height)?;
-    let ea = border_pixels(reference, width, height)?;
-    let eb = border_pixels(perturbed, width, height)?;
+    // Every edge pixel of both masks lies in their joint bounding window, so the distance transform
+    // is computed there only (exact, and much smaller than the detector).
+    let empty = || Error::invalid("mask", "a silhouette is empty");
+    let win = bounding_window(&[reference, perturbed], width, height).ok_or_else(empty)?;
+    let (cw, ch) = (win.w as u32, win.h as u32);
+    let ea = border_pixels(&crop(reference, width, win), cw, ch)?;
+    let eb = border_pixels(&crop(perturbed, width, win), cw, ch)?;
     if !ea.iter().any(|&e| e) || !eb.iter().any(|&e| e) {
-        return Err(Error::invalid("mask", "a silhouette is empty"));
+        return Err(empty());
     }
-    let da = distance_to_edges(&ea, width, height)?;
-    let db = distance_to_edges(&eb, width, height)?;
+    let da = distance_to_edges(&ea, cw, ch)?;
+    let db = distance_to_edges(&eb, cw, ch)?;
     let sample = |dt: &[f32], edges: &[bool]| -> (f64, f64, usize) {
         edges
             .iter()

@@ -87,43 +87,37 @@ pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
     let (c1, c2) = ((0.01 * range).powi(2), (0.03 * range).powi(2));
     let g = gaussian_window();
     let (wo, ho) = (w - 10, h - 10);
-    // Horizontal pass: for each row and valid column, the five windowed moments.
-    let horiz: Vec<[f64; 5]> = (0..h)
-        .into_par_iter()
-        .flat_map_iter(|v| {
-            let (ra, rb) = (
-                &reference.data[v * w..(v + 1) * w],
-                &other.data[v * w..(v + 1) * w],
-            );
-            (0..wo).map(move |u| {
-                let mut m = [0.0; 5];
-                for (k, gk) in g.iter().enumerate() {
-                    let (x, y) = (f64::from(ra[u + k]), f64::from(rb[u + k]));
-                    m[0] += gk * x;
-                    m[1] += gk * y;
-                    m[2] += gk * x * x;
-                    m[3] += gk * y * y;
-                    m[4] += gk * x * y;
-                }
-                m
-            })
-        })
-        .collect();
-    // Vertical pass and the SSIM map, summed per output row.
+    // Per output row: a vertical pass over the 11 input rows into five moment rows (a, b, a², b², ab),
+    // then a horizontal pass; tap-outer loops over contiguous rows vectorise and stay in cache.
     let total: f64 = (0..ho)
         .into_par_iter()
         .map(|v| {
+            let mut cols: [Vec<f64>; 5] = std::array::from_fn(|_| vec![0.0; w]);
+            for (j, gj) in g.iter().enumerate() {
+                let r = (v + j) * w;
+                let (ra, rb) = (&reference.data[r..r + w], &other.data[r..r + w]);
+                let [c0, c1, c2, c3, c4] = &mut cols;
+                for u in 0..w {
+                    let (x, y) = (f64::from(ra[u]), f64::from(rb[u]));
+                    c0[u] += gj * x;
+                    c1[u] += gj * y;
+                    c2[u] += gj * x * x;
+                    c3[u] += gj * y * y;
+                    c4[u] += gj * x * y;
+                }
+            }
+            let mut m: [Vec<f64>; 5] = std::array::from_fn(|_| vec![0.0; wo]);
+            for (mi, ci) in m.iter_mut().zip(&cols) {
+                for (k, gk) in g.iter().enumerate() {
+                    for (o, c) in mi.iter_mut().zip(&ci[k..k + wo]) {
+                        *o += gk * c;
+                    }
+                }
+            }
             (0..wo)
                 .map(|u| {
-                    let mut m = [0.0; 5];
-                    for (k, gk) in g.iter().enumerate() {
-                        let hm = &horiz[(v + k) * wo + u];
-                        for (mi, hi) in m.iter_mut().zip(hm) {
-                            *mi += gk * hi;
-                        }
-                    }
-                    let [ma, mb, saa, sbb, sab] = m;
-                    let (va, vb, cab) = (saa - ma * ma, sbb - mb * mb, sab - ma * mb);
+                    let (ma, mb) = (m[0][u], m[1][u]);
+                    let (va, vb, cab) = (m[2][u] - ma * ma, m[3][u] - mb * mb, m[4][u] - ma * mb);
                     ((2.0 * ma * mb + c1) * (2.0 * cab + c2))
                         / ((ma * ma + mb * mb + c1) * (va + vb + c2))
                 })
@@ -187,28 +181,26 @@ pub fn mutual_information(a: &ImageF32, b: &ImageF32, bins: usize) -> Result<f64
     Ok(mi)
 }
 
-/// Sobel gradients (x, y) of the interior pixels (the one-pixel border is skipped).
+/// Sobel gradients (x, y) of the interior pixels (the one-pixel border is skipped), row-parallel.
 fn sobel(img: &ImageF32) -> (Vec<f64>, Vec<f64>) {
     let (w, h) = (img.width as usize, img.height as usize);
-    let p = |u: usize, v: usize| f64::from(img.data[v * w + u]);
-    let mut gx = Vec::with_capacity(w.saturating_sub(2) * h.saturating_sub(2));
-    let mut gy = Vec::with_capacity(gx.capacity());
-    for v in 1..h.saturating_sub(1) {
-        for u in 1..w.saturating_sub(1) {
-            gx.push(
-                p(u + 1, v - 1) + 2.0 * p(u + 1, v) + p(u + 1, v + 1)
-                    - p(u - 1, v - 1)
-                    - 2.0 * p(u - 1, v)
-                    - p(u - 1, v + 1),
-            );
-            gy.push(
-                p(u - 1, v + 1) + 2.0 * p(u, v + 1) + p(u + 1, v + 1)
-                    - p(u - 1, v - 1)
-                    - 2.0 * p(u, v - 1)
-                    - p(u + 1, v - 1),
-            );
-        }
-    }
+    let (wi, hi) = (w - 2, h - 2);
+    let mut gx = vec![0.0; wi * hi];
+    let mut gy = vec![0.0; wi * hi];
+    gx.par_chunks_mut(wi)
+        .zip(gy.par_chunks_mut(wi))
+        .enumerate()
+        .for_each(|(v, (ox, oy))| {
+            let row = |k: usize| &img.data[(v + k) * w..(v + k + 1) * w];
+            let (r0, r1, r2) = (row(0), row(1), row(2));
+            let f = |r: &[f32], u: usize| f64::from(r[u]);
+            for u in 0..wi {
+                ox[u] = f(r0, u + 2) - f(r0, u) + 2.0 * (f(r1, u + 2) - f(r1, u)) + f(r2, u + 2)
+                    - f(r2, u);
+                oy[u] = f(r2, u) - f(r0, u) + 2.0 * (f(r2, u + 1) - f(r0, u + 1)) + f(r2, u + 2)
+                    - f(r0, u + 2);
+            }
+        });
     (gx, gy)
 }
 
