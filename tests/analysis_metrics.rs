@@ -364,3 +364,44 @@ fn heatmap_png_and_landmark_json() {
         .to_string();
     assert!(e.contains("bad.json"), "{e}");
 }
+
+/// Penney's gradient correlation from explicit Sobel images and two-pass Pearson correlations.
+fn gradient_correlation_brute(a: &ImageF32, b: &ImageF32) -> f64 {
+    let (w, h) = (a.width as usize, a.height as usize);
+    let sobel = |img: &ImageF32, dx: bool| -> Vec<f64> {
+        let p = |u: usize, v: usize| f64::from(img.data[v * w + u]);
+        let mut out = Vec::new();
+        for v in 1..h - 1 {
+            for u in 1..w - 1 {
+                let (k, kt) = ([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], dx);
+                let mut s = 0.0;
+                for j in 0..3 {
+                    for i in 0..3 {
+                        let c = if kt { k[j][i] } else { k[i][j] };
+                        s += c * p(u + i - 1, v + j - 1);
+                    }
+                }
+                out.push(s);
+            }
+        }
+        out
+    };
+    let pearson = |x: &[f64], y: &[f64]| {
+        let n = x.len() as f64;
+        let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+        let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+        let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
+        let syy: f64 = y.iter().map(|b| (b - my).powi(2)).sum();
+        sxy / (sxx * syy).sqrt()
+    };
+    0.5 * (pearson(&sobel(a, true), &sobel(b, true)) + pearson(&sobel(a, false), &sobel(b, false)))
+}
+
+#[test]
+fn gradient_correlation_matches_explicit_sobel_images() {
+    let a = random_image(57, 43, 21);
+    let b = random_image(57, 43, 22);
+    let fast = gradient_correlation(&a, &b).unwrap();
+    let brute = gradient_correlation_brute(&a, &b);
+    assert!((fast - brute).abs() < 1e-10, "{fast} vs {brute}");
+}
