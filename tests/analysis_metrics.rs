@@ -366,6 +366,7 @@ fn heatmap_png_and_landmark_json() {
 }
 
 /// Penney's gradient correlation from explicit Sobel images and two-pass Pearson correlations.
+#[allow(clippy::needless_range_loop)] // explicit kernel indices are the point of this oracle
 fn gradient_correlation_brute(a: &ImageF32, b: &ImageF32) -> f64 {
     let (w, h) = (a.width as usize, a.height as usize);
     let sobel = |img: &ImageF32, dx: bool| -> Vec<f64> {
