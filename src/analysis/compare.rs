@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use super::{
     ContourDistances, Landmark, LandmarkShift, contour_points, dice_iou, edge_distance,
-    gradient_correlation, landmark_shifts, mutual_information, ncc, ssim,
+    gradient_correlation, landmark_shifts, mutual_information, ncc, ssim, subpixel_boundary,
 };
 use crate::geometry::View;
 use crate::io::ImageF32;
@@ -53,6 +53,9 @@ pub struct SilhouetteMetrics {
     pub hd95_px: f64,
     pub edge_distance_mean_px: f64,
     pub edge_distance_max_px: f64,
+    /// Symmetric mean Chamfer and Hausdorff of the sub-pixel boundaries (half-pixel edge crossings).
+    pub chamfer_mean_subpixel_px: f64,
+    pub hausdorff_subpixel_px: f64,
 }
 
 /// Everything `spinedrr compare` measures.
@@ -101,6 +104,9 @@ pub fn silhouette_metrics(pair: &MaskPair) -> Result<SilhouetteMetrics> {
     let d = ContourDistances::between(&ca, &cb).map_err(field)?;
     let (edge_mean, edge_max) =
         edge_distance(&pair.reference, &pair.perturbed, w, h).map_err(field)?;
+    let sa = subpixel_boundary(&pair.reference, w, h).map_err(field)?;
+    let sb = subpixel_boundary(&pair.perturbed, w, h).map_err(field)?;
+    let ds = ContourDistances::between(&sa, &sb).map_err(field)?;
     Ok(SilhouetteMetrics {
         name: pair.name.clone(),
         dice,
@@ -113,6 +119,8 @@ pub fn silhouette_metrics(pair: &MaskPair) -> Result<SilhouetteMetrics> {
         hd95_px: d.hd95(),
         edge_distance_mean_px: edge_mean,
         edge_distance_max_px: edge_max,
+        chamfer_mean_subpixel_px: ds.chamfer_mean(),
+        hausdorff_subpixel_px: ds.hausdorff(),
     })
 }
 

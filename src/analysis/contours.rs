@@ -120,18 +120,22 @@ pub fn border_pixels(mask: &[bool], width: u32, height: u32) -> Result<Vec<bool>
 }
 
 /// Sub-pixel boundary points: the midpoints between every pair of 4-adjacent pixels whose mask values
-/// differ (the 0.5 iso-line of the mask under linear interpolation, as in marching squares). Unordered.
+/// differ (the 0.5 iso-line of the mask under linear interpolation, as in marching squares). Unordered;
+/// only the mask's bounding window is scanned.
 pub fn subpixel_boundary(mask: &[bool], width: u32, height: u32) -> Result<Vec<DVec2>> {
     check_mask(mask, width, height)?;
-    let (w, h) = (width as usize, height as usize);
+    let Some(win) = bounding_window(&[mask], width, height) else {
+        return Ok(Vec::new());
+    };
+    let w = width as usize;
     let mut out = Vec::new();
-    for v in 0..h {
-        for u in 0..w {
+    for v in win.v0..win.v0 + win.h {
+        for u in win.u0..win.u0 + win.w {
             let m = mask[v * w + u];
-            if u + 1 < w && mask[v * w + u + 1] != m {
+            if u + 1 < win.u0 + win.w && mask[v * w + u + 1] != m {
                 out.push(DVec2::new(u as f64 + 0.5, v as f64));
             }
-            if v + 1 < h && mask[(v + 1) * w + u] != m {
+            if v + 1 < win.v0 + win.h && mask[(v + 1) * w + u] != m {
                 out.push(DVec2::new(u as f64, v as f64 + 0.5));
             }
         }

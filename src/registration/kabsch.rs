@@ -162,3 +162,41 @@ pub fn register_kabsch(problem: &RegistrationProblem) -> Result<RegistrationResu
         converged: true,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{CArm, rotation_angle_deg, rotation_exp};
+
+    #[test]
+    fn horn_fit_recovers_rotations_up_to_pi() {
+        let model = [
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(30.0, 1.0, -2.0),
+            DVec3::new(-4.0, 25.0, 3.0),
+            DVec3::new(5.0, -6.0, 18.0),
+        ];
+        for w in [
+            DVec3::new(0.1, -0.2, 0.3),
+            DVec3::new(0.0, 0.0, std::f64::consts::PI),
+            DVec3::ZERO,
+        ] {
+            let t = RigidTransform::new(rotation_exp(w), DVec3::new(10.0, -20.0, 5.0));
+            let world: Vec<DVec3> = model.iter().map(|&p| t.apply(p)).collect();
+            let got = fit_rigid(&model, &world).unwrap();
+            assert!(rotation_angle_deg(got.rotation * t.rotation.transpose()) < 1e-9);
+            assert!((got.translation - t.translation).length() < 1e-9);
+        }
+        assert!(fit_rigid(&model[..2], &model[..2]).is_err());
+    }
+
+    #[test]
+    fn triangulation_inverts_projection() {
+        let c = CArm::default_paper();
+        let (ap, lat) = (c.view("ap").unwrap(), c.view("lat").unwrap());
+        let x = DVec3::new(12.0, -30.0, 7.5);
+        let got = triangulate(&[(ap, ap.project(x)), (lat, lat.project(x))]).unwrap();
+        assert!((got - x).length() < 1e-9, "{got:?}");
+        assert!(triangulate(&[(ap, ap.project(x))]).is_err());
+    }
+}
