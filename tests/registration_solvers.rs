@@ -171,7 +171,7 @@ fn focal_error_biases_the_pose_monotonically() {
         (&["ap", "lat"][..], Method::Direct),
         (&["ap", "lat"][..], Method::Kabsch),
     ] {
-        let mut last_trans = 0.0;
+        let (mut last_trans, mut last_rot, mut last_residual) = (0.0, 0.0, 0.0);
         for df in [0.0, 100.0, 200.0, 300.0, 400.0, 500.0] {
             let assumed = problem(names)
                 .with_intrinsics(|v| Perturbation::focal(df).apply(&v.intrinsics))
@@ -179,23 +179,19 @@ fn focal_error_biases_the_pose_monotonically() {
             let r = register(&assumed, method, &opts_from(t)).unwrap();
             let e = pose_errors(&r.pose, &t);
             if df == 0.0 {
-                assert!(e.trans_err_mm < 1e-6);
+                assert!(e.trans_err_mm < 1e-6 && e.rot_err_deg < 1e-6);
                 continue;
             }
-            assert!(
-                e.trans_err_mm > last_trans,
-                "{names:?} {method:?} Δf={df}: {e:?}"
+            let what = format!(
+                "{names:?} {method:?} Δf={df}: {e:?}, residual {}",
+                r.residual_px
             );
-            last_trans = e.trans_err_mm;
-            if df == 300.0 {
-                // Far above the noise-free floor of 1e-6 (previous test).
-                assert!(e.trans_err_mm > 1e-2, "{names:?} {method:?}: {e:?}");
-                assert!(
-                    r.residual_px > 1e-3,
-                    "{names:?} {method:?}: {}",
-                    r.residual_px
-                );
-            }
+            assert!(e.trans_err_mm > last_trans, "{what}");
+            assert!(e.rot_err_deg > last_rot, "{what}");
+            assert!(r.residual_px > last_residual, "{what}");
+            (last_trans, last_rot, last_residual) = (e.trans_err_mm, e.rot_err_deg, r.residual_px);
+            // Far above the noise-free floor of 1e-6 (previous test).
+            assert!(e.trans_err_mm > 1e-2 && r.residual_px > 1e-3, "{what}");
         }
     }
 }
