@@ -10,11 +10,15 @@
 //!   `project` function.
 //! * [`anatomy`]: triangle meshes, mesh files, the parametric lumbar phantom and its landmarks.
 //! * [`render`]: thickness DRRs through Embree or the pure-Rust BVH, images and their JSON sidecars.
+//! * [`analysis`]: projection-domain metrics (landmark shifts, contours, overlap, image similarity).
+//! * [`registration`]: landmark 2D–3D registration (LM over SE(3), two-view Kabsch, OpenCV PnP).
 
+pub mod analysis;
 pub mod anatomy;
 pub mod error;
 pub mod geometry;
 pub mod io;
+pub mod registration;
 pub mod render;
 
 pub use error::{Error, Result};

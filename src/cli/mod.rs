@@ -4,8 +4,10 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod compare;
 mod geometry;
 mod phantom;
+mod register;
 mod render;
 mod render_ct;
 
@@ -28,6 +30,11 @@ enum Command {
     /// Render a DRR (thickness DRR of the phantom or mesh files, or CT volume DRR) under the reference or a
     /// perturbed K.
     Render(Box<render::Args>),
+    /// Compare a reference and a perturbed DRR: landmark shifts, contours, Dice/IoU, image similarity,
+    /// difference heatmap (metrics.json, absdiff.tiff, heatmap.png).
+    Compare(compare::Args),
+    /// Register a rigid vertebra pose from landmark observations (direct LM, Kabsch, OpenCV).
+    Register(register::Args),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -37,6 +44,8 @@ pub fn main() -> ExitCode {
         Command::Geometry(a) => geometry::run(a),
         Command::Phantom(a) => phantom::run(a),
         Command::Render(a) => render::run(*a),
+        Command::Compare(a) => compare::run(a),
+        Command::Register(a) => register::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,145 @@
+//! Landmark displacement between a reference and a perturbed projection, with the analytic
+//! prediction of the homography law `x' = H x`, `H = K' K⁻¹`, beside it; and blob centroids for
+//! measuring landmark positions in rendered images.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use glam::{DVec2, DVec3};
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{View, apply_homography};
+use crate::io::ImageF32;
+use crate::{Error, Result};
+
+/// A named 3D landmark (world mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Landmark {
+    pub name: String,
+    pub position: DVec3,
+}
+
+/// One landmark's projection under both calibrations.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LandmarkShift {
+    pub name: String,
+    pub reference_px: [f64; 2],
+    pub perturbed_px: [f64; 2],
+    /// `e_2D = ‖x_gt − x_err‖` (the paper's landmark projection error).
+    pub shift_px: f64,
+    /// `H x_gt` with `H = K' K⁻¹`.
+    pub predicted_px: [f64; 2],
+    /// `‖H x_gt − x_gt‖`.
+    pub predicted_shift_px: f64,
+}
+
+/// Projects every landmark through both views and sets the homography prediction beside the
+/// measurement (they agree when the two views share the source and orientation).
+pub fn landmark_shifts(
+    reference: &View,
+    perturbed: &View,
+    landmarks: &[Landmark],
+) -> Vec<LandmarkShift> {
+    let h = reference.homography_to(perturbed);
+    landmarks
+        .iter()
+        .map(|l| {
+            let x = reference.project(l.position);
+            let y = perturbed.project(l.position);
+            let p = apply_homography(&h, x);
+            LandmarkShift {
+                name: l.name.clone(),
+                reference_px: x.to_array(),
+                perturbed_px: y.to_array(),
+                shift_px: (y - x).length(),
+                predicted_px: p.to_array(),
+                predicted_shift_px: (p - x).length(),
+            }
+        })
+        .collect()
+}
+
+/// Intensity-weighted centroid `Σ I(u,v) (u,v) / Σ I(u,v)` of the pixels within `radius_px` of
+/// `centre_guess` (pixel centres at integers; negative and non-finite values count as 0). `None` when
+/// the disc holds no positive intensity.
+pub fn blob_centroid(img: &ImageF32, centre_guess: DVec2, radius_px: f64) -> Option<DVec2> {
+    if !(centre_guess.is_finite() && radius_px.is_finite() && radius_px > 0.0) {
+        return None;
+    }
+    let (w, h) = (f64::from(img.width), f64::from(img.height));
+    let u0 = (centre_guess.x - radius_px).floor().max(0.0);
+    let u1 = (centre_guess.x + radius_px).ceil().min(w - 1.0);
+    let v0 = (centre_guess.y - radius_px).floor().max(0.0);
+    let v1 = (centre_guess.y + radius_px).ceil().min(h - 1.0);
+    if u0 > u1 || v0 > v1 {
+        return None;
+    }
+    let (mut sum, mut acc) = (0.0, DVec2::ZERO);
+    for v in v0 as u32..=v1 as u32 {
+        for u in u0 as u32..=u1 as u32 {
+            let p = DVec2::new(f64::from(u), f64::from(v));
+            let i = f64::from(img.get(u, v));
+            if (p - centre_guess).length() <= radius_px && i.is_finite() && i > 0.0 {
+                sum += i;
+                acc += i * p;
+            }
+        }
+    }
+    (sum > 0.0).then(|| acc / sum)
+}
+
+#[derive(Deserialize)]
+struct LandmarkSet {
+    #[serde(default)]
+    level: Option<String>,
+    landmarks: BTreeMap<String, [f64; 3]>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum LandmarkFile {
+    One(LandmarkSet),
+    Many(Vec<LandmarkSet>),
+}
+
+/// Parses landmark JSON: `{"landmarks": {"name": [x, y, z], …}}` (other keys such as `level` are
+/// ignored), or an array of such objects, whose names are then prefixed `LEVEL/` when a level is given.
+pub fn parse_landmarks(text: &str, origin: &str) -> Result<Vec<Landmark>> {
+    let file: LandmarkFile = serde_json::from_str(text).map_err(|e| {
+        Error::format(
+            origin,
+            format!("expected {{\"landmarks\": {{\"name\": [x, y, z]}}}}: {e}"),
+        )
+    })?;
+    let (sets, prefix) = match file {
+        LandmarkFile::One(s) => (vec![s], false),
+        LandmarkFile::Many(v) => (v, true),
+    };
+    let mut out = Vec::new();
+    for set in sets {
+        for (name, p) in set.landmarks {
+            let name = match (&set.level, prefix) {
+                (Some(level), true) => format!("{level}/{name}"),
+                _ => name,
+            };
+            let position = DVec3::from(p);
+            if !position.is_finite() {
+                return Err(Error::format(
+                    origin,
+                    format!("landmark '{name}' is not finite"),
+                ));
+            }
+            out.push(Landmark { name, position });
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::format(origin, "no landmarks"));
+    }
+    Ok(out)
+}
+
+/// Reads a landmark JSON file (see [`parse_landmarks`]).
+pub fn read_landmarks(path: &Path) -> Result<Vec<Landmark>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse_landmarks(&text, &path.display().to_string())
+}

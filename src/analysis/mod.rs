@@ -1,0 +1,35 @@
+//! Projection-domain metrics between a reference and a perturbed projection: landmark shifts (with the
+//! homography prediction), silhouette contours (OpenCV `findContours`), Chamfer / Hausdorff / HD95 /
+//! edge-based contour distances, Dice and IoU, NCC / SSIM / mutual information / gradient correlation,
+//! and absolute-difference heatmaps.
+//!
+//! Every function is pure (no global state, no printing), so a study can call them in parallel.
+
+mod compare;
+mod contours;
+mod distances;
+mod heatmap;
+mod landmarks;
+mod overlap;
+mod similarity;
+
+pub use compare::{
+    Comparison, ImageMetrics, MI_BINS, MaskPair, SilhouetteMetrics, compare, image_metrics,
+    read_mask_png, silhouette_metrics, union_masks,
+};
+pub use contours::{border_pixels, contour_points, contours, subpixel_boundary};
+pub use distances::{ContourDistances, directed_distances, edge_distance, percentile};
+pub use heatmap::{abs_difference, format_label, heatmap_rgb, write_heatmap_png};
+pub use landmarks::{
+    Landmark, LandmarkShift, blob_centroid, landmark_shifts, parse_landmarks, read_landmarks,
+};
+pub use overlap::dice_iou;
+pub use similarity::{gradient_correlation, mutual_information, ncc, ssim};
+
+/// Maps an OpenCV error to [`crate::Error::External`].
+pub(crate) fn cv_err(e: opencv::Error) -> crate::Error {
+    crate::Error::External {
+        library: "OpenCV",
+        message: e.to_string(),
+    }
+}

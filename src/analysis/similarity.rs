@@ -1,0 +1,257 @@
+//! Image similarity of two DRRs of the same size: NCC, SSIM, mutual information, gradient correlation.
+
+use rayon::prelude::*;
+
+use crate::io::ImageF32;
+use crate::{Error, Result};
+
+fn check_pair(a: &ImageF32, b: &ImageF32) -> Result<()> {
+    if (a.width, a.height) != (b.width, b.height) || a.data.len() != b.data.len() {
+        return Err(Error::invalid(
+            "images",
+            format!(
+                "sizes differ: {}×{} vs {}×{}",
+                a.width, a.height, b.width, b.height
+            ),
+        ));
+    }
+    if a.data.iter().chain(&b.data).any(|v| !v.is_finite()) {
+        return Err(Error::invalid("images", "contain a non-finite pixel value"));
+    }
+    Ok(())
+}
+
+/// Pearson correlation of two equally long sequences (accumulated in f64).
+fn pearson(
+    a: impl Iterator<Item = f64> + Clone,
+    b: impl Iterator<Item = f64> + Clone,
+) -> Result<f64> {
+    let n = a.clone().count() as f64;
+    let ma = a.clone().sum::<f64>() / n;
+    let mb = b.clone().sum::<f64>() / n;
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.zip(b) {
+        let (dx, dy) = (x - ma, y - mb);
+        sab += dx * dy;
+        saa += dx * dx;
+        sbb += dy * dy;
+    }
+    if saa <= 0.0 || sbb <= 0.0 {
+        return Err(Error::Numerical(
+            "correlation is undefined for a constant image".into(),
+        ));
+    }
+    Ok(sab / (saa * sbb).sqrt())
+}
+
+/// Normalised cross-correlation `Σ (a − ā)(b − b̄) / sqrt(Σ (a − ā)² Σ (b − b̄)²)` over all pixels.
+pub fn ncc(a: &ImageF32, b: &ImageF32) -> Result<f64> {
+    check_pair(a, b)?;
+    pearson(
+        a.data.iter().map(|&v| f64::from(v)),
+        b.data.iter().map(|&v| f64::from(v)),
+    )
+}
+
+/// The normalised 1D Gaussian of the SSIM window (11 taps, σ = 1.5).
+fn gaussian_window() -> [f64; 11] {
+    let mut w: [f64; 11] = std::array::from_fn(|i| {
+        let x = i as f64 - 5.0;
+        (-x * x / (2.0 * 1.5 * 1.5)).exp()
+    });
+    let s: f64 = w.iter().sum();
+    w.iter_mut().for_each(|v| *v /= s);
+    w
+}
+
+/// Mean SSIM (Wang, Bovik, Sheikh & Simoncelli 2004):
+/// `((2 μa μb + C1)(2 σab + C2)) / ((μa² + μb² + C1)(σa² + σb² + C2))` with an 11×11 Gaussian window
+/// (σ = 1.5), `C1 = (0.01 L)²`, `C2 = (0.03 L)²`, `L` the reference's data range (max − min; 1 if the
+/// reference is constant). Averaged over the pixels where the whole window fits inside the image.
+pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
+    check_pair(reference, other)?;
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    if w < 11 || h < 11 {
+        return Err(Error::invalid(
+            "images",
+            "SSIM needs images of at least 11×11 pixels",
+        ));
+    }
+    let (lo, hi) = reference
+        .data
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    let range = if hi > lo { f64::from(hi - lo) } else { 1.0 };
+    let (c1, c2) = ((0.01 * range).powi(2), (0.03 * range).powi(2));
+    let g = gaussian_window();
+    let (wo, ho) = (w - 10, h - 10);
+    // Per output row: a vertical pass over the 11 input rows into five moment rows (a, b, a², b², ab),
+    // then a horizontal pass; tap-outer loops over contiguous rows vectorise and stay in cache.
+    let total: f64 = (0..ho)
+        .into_par_iter()
+        .map(|v| {
+            let mut cols: [Vec<f64>; 5] = std::array::from_fn(|_| vec![0.0; w]);
+            for (j, gj) in g.iter().enumerate() {
+                let r = (v + j) * w;
+                let (ra, rb) = (&reference.data[r..r + w], &other.data[r..r + w]);
+                let [c0, c1, c2, c3, c4] = &mut cols;
+                for u in 0..w {
+                    let (x, y) = (f64::from(ra[u]), f64::from(rb[u]));
+                    c0[u] += gj * x;
+                    c1[u] += gj * y;
+                    c2[u] += gj * x * x;
+                    c3[u] += gj * y * y;
+                    c4[u] += gj * x * y;
+                }
+            }
+            let mut m: [Vec<f64>; 5] = std::array::from_fn(|_| vec![0.0; wo]);
+            for (mi, ci) in m.iter_mut().zip(&cols) {
+                for (k, gk) in g.iter().enumerate() {
+                    for (o, c) in mi.iter_mut().zip(&ci[k..k + wo]) {
+                        *o += gk * c;
+                    }
+                }
+            }
+            (0..wo)
+                .map(|u| {
+                    let (ma, mb) = (m[0][u], m[1][u]);
+                    let (va, vb, cab) = (m[2][u] - ma * ma, m[3][u] - mb * mb, m[4][u] - ma * mb);
+                    ((2.0 * ma * mb + c1) * (2.0 * cab + c2))
+                        / ((ma * ma + mb * mb + c1) * (va + vb + c2))
+                })
+                .sum::<f64>()
+        })
+        .sum();
+    Ok(total / (wo * ho) as f64)
+}
+
+/// Bin index of `v` among `bins` equal bins spanning `[lo, hi]` (the maximum goes in the last bin).
+fn bin_of(v: f32, lo: f32, hi: f32, bins: usize) -> usize {
+    if hi <= lo {
+        return 0;
+    }
+    let t = f64::from(v - lo) / f64::from(hi - lo);
+    ((t * bins as f64) as usize).min(bins - 1)
+}
+
+/// Mutual information `Σ p(a,b) ln(p(a,b) / (p(a) p(b)))` in nats, from a joint histogram of `bins ×
+/// bins` equal-width bins, each image binned over its own [min, max]. 64 bins is the usual choice for
+/// DRRs of ~1 Mpx.
+pub fn mutual_information(a: &ImageF32, b: &ImageF32, bins: usize) -> Result<f64> {
+    check_pair(a, b)?;
+    if !(2..=4096).contains(&bins) {
+        return Err(Error::invalid(
+            "bins",
+            format!("must be 2..=4096, got {bins}"),
+        ));
+    }
+    let range = |img: &ImageF32| {
+        img.data
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+                (l.min(v), h.max(v))
+            })
+    };
+    let ((la, ha), (lb, hb)) = (range(a), range(b));
+    let mut joint = vec![0u64; bins * bins];
+    for (&x, &y) in a.data.iter().zip(&b.data) {
+        joint[bin_of(x, la, ha, bins) * bins + bin_of(y, lb, hb, bins)] += 1;
+    }
+    let n = a.data.len() as f64;
+    let mut pa = vec![0.0; bins];
+    let mut pb = vec![0.0; bins];
+    for i in 0..bins {
+        for j in 0..bins {
+            let p = joint[i * bins + j] as f64 / n;
+            pa[i] += p;
+            pb[j] += p;
+        }
+    }
+    let mut mi = 0.0;
+    for i in 0..bins {
+        for j in 0..bins {
+            let p = joint[i * bins + j] as f64 / n;
+            if p > 0.0 {
+                mi += p * (p / (pa[i] * pb[j])).ln();
+            }
+        }
+    }
+    Ok(mi)
+}
+
+/// Sobel x and y responses at interior pixel `u + 1` of the three rows `r0, r1, r2`.
+#[inline]
+fn sobel_at(r0: &[f32], r1: &[f32], r2: &[f32], u: usize) -> (f64, f64) {
+    let f = |r: &[f32], k: usize| f64::from(r[k]);
+    let gx = f(r0, u + 2) - f(r0, u) + 2.0 * (f(r1, u + 2) - f(r1, u)) + f(r2, u + 2) - f(r2, u);
+    let gy =
+        f(r2, u) - f(r0, u) + 2.0 * (f(r2, u + 1) - f(r0, u + 1)) + f(r2, u + 2) - f(r0, u + 2);
+    (gx, gy)
+}
+
+/// Rows `v, v + 1, v + 2` of an image of width `w`.
+fn three_rows(img: &ImageF32, v: usize, w: usize) -> (&[f32], &[f32], &[f32]) {
+    let r = |k: usize| &img.data[(v + k) * w..(v + k + 1) * w];
+    (r(0), r(1), r(2))
+}
+
+/// Correlation moments `[n, Σx, Σy, Σx², Σy², Σxy]` of one gradient component pair.
+type Moments = [f64; 6];
+
+fn add_moments(m: &mut Moments, x: f64, y: f64) {
+    m[0] += 1.0;
+    m[1] += x;
+    m[2] += y;
+    m[3] += x * x;
+    m[4] += y * y;
+    m[5] += x * y;
+}
+
+fn correlation(m: &Moments) -> Result<f64> {
+    let [n, sx, sy, sxx, syy, sxy] = *m;
+    let (vx, vy, cxy) = (sxx - sx * sx / n, syy - sy * sy / n, sxy - sx * sy / n);
+    if vx <= 0.0 || vy <= 0.0 {
+        return Err(Error::Numerical(
+            "gradient correlation is undefined for an image without gradients".into(),
+        ));
+    }
+    Ok(cxy / (vx * vy).sqrt())
+}
+
+/// Gradient correlation (Penney et al. 1998): the mean of the NCCs of the Sobel x and y gradient images.
+pub fn gradient_correlation(a: &ImageF32, b: &ImageF32) -> Result<f64> {
+    check_pair(a, b)?;
+    if a.width < 3 || a.height < 3 {
+        return Err(Error::invalid(
+            "images",
+            "gradient correlation needs at least 3×3 pixels",
+        ));
+    }
+    // One pass over the rows: the Sobel responses of both images feed the correlation moments
+    // directly (gradients have near-zero mean, so the one-pass variance loses nothing in f64).
+    let w = a.width as usize;
+    let zero = || ([0.0; 6], [0.0; 6]);
+    let (mx, my) = (0..a.height as usize - 2)
+        .into_par_iter()
+        .fold(zero, |(mut mx, mut my), v| {
+            let ((a0, a1, a2), (b0, b1, b2)) = (three_rows(a, v, w), three_rows(b, v, w));
+            for u in 0..w - 2 {
+                let (ax, ay) = sobel_at(a0, a1, a2, u);
+                let (bx, by) = sobel_at(b0, b1, b2, u);
+                add_moments(&mut mx, ax, bx);
+                add_moments(&mut my, ay, by);
+            }
+            (mx, my)
+        })
+        .reduce(zero, |(mut x1, mut y1), (x2, y2)| {
+            for k in 0..6 {
+                x1[k] += x2[k];
+                y1[k] += y2[k];
+            }
+            (x1, y1)
+        });
+    let (cx, cy) = (correlation(&mx)?, correlation(&my)?);
+    Ok(0.5 * (cx + cy))
+}
