@@ -1,5 +1,6 @@
 //! Anatomy: triangle meshes, mesh files, the parametric lumbar phantom and landmarks.
 
+pub mod decimate;
 pub mod isosurface;
 pub mod landmarks;
 mod mesh;
