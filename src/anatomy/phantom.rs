@@ -390,7 +390,10 @@ fn mesh_soft_tissue(s: &Placed) -> Result<TriMesh> {
     let h = s.shape.half_extent();
     let to_world = RigidTransform::new(s.frame.axes, s.frame.origin);
     let grid = sample((-h, h), 3.0, &to_world, [0.0, 0.0], |q| s.shape.sdf(q))?;
-    let mut m = extract_isosurface(&grid, 0.0)?;
+    let f = |p: DVec3| s.sdf(p);
+    let project = |p: DVec3| project_to_zero(&f, p);
+    // 3 mm grid, then simplified toward 8 mm edges: an outline, not anatomy.
+    let mut m = collapse_short_edges(&extract_isosurface(&grid, 0.0)?, 8.0, 6, Some(&project));
     m.name = "soft_tissue".into();
     m.labels = vec![Structure::SoftTissue as u8; m.triangles.len()];
     Ok(m)
