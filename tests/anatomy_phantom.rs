@@ -20,6 +20,9 @@ fn phantom() -> &'static Phantom {
     })
 }
 
+/// Bound on the SDFs' gradient norm, checked by `sdf_gradient_is_bounded`.
+const LIPSCHITZ: f64 = 4.0;
+
 /// Volume of `{f < 0}` by adaptive point counting: a cube whose centre is farther from the surface than
 /// its half-diagonal times a Lipschitz bound is wholly in or out; others are split down to `min_cell` and
 /// counted by their centre. Independent of the mesher (no interpolation, no triangles).
@@ -28,7 +31,7 @@ fn sdf_volume(f: &(dyn Fn(DVec3) -> f64 + Sync), lo: DVec3, hi: DVec3) -> f64 {
     const MIN_CELL: f64 = 0.125;
     fn cell(f: &(dyn Fn(DVec3) -> f64 + Sync), c: DVec3, s: f64) -> f64 {
         let d = f(c);
-        let reach = s * 2.0; // half-diagonal 0.87 s, with margin for gradient norms up to 2.3
+        let reach = s * 0.87 * LIPSCHITZ;
         if d > reach {
             0.0
         } else if d < -reach {
@@ -101,6 +104,28 @@ fn every_vertebra_mesh_is_closed_and_matches_the_sdf_volume() {
         assert_closed_with_volume(&v.cancellous, &|x| v.sdf(x) + c);
         assert!(v.cancellous.volume() < v.cortical.volume());
         assert_eq!(v.cortical.labels.len(), v.cortical.triangles.len());
+    }
+}
+
+#[test]
+fn sdf_gradient_is_bounded() {
+    // The adaptive volume count relies on |f(p) − f(q)| ≤ LIPSCHITZ·|p − q|: check on random pairs.
+    let p = phantom();
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut rnd = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for v in &p.vertebrae {
+        let (lo, hi) = padded_bounds(&v.cortical);
+        for _ in 0..200_000 {
+            let x = lo + (hi - lo) * DVec3::new(rnd(), rnd(), rnd());
+            let d = DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5).normalize() * 0.01;
+            let g = (v.sdf(x + d) - v.sdf(x)).abs() / 0.01;
+            assert!(g < LIPSCHITZ, "{}: gradient {g} at {x:?}", v.level);
+        }
     }
 }
 

@@ -1,6 +1,7 @@
 //! Anatomy: triangle meshes, mesh files, the parametric lumbar phantom and landmarks.
 
 pub mod ct;
+pub mod decimate;
 pub mod isosurface;
 pub mod labels;
 pub mod landmarks;

@@ -18,6 +18,7 @@
 use glam::{DMat3, DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 
+use super::decimate::{collapse_short_edges, project_to_zero};
 use super::isosurface::{ScalarGrid, extract_isosurface, remove_small_components};
 use super::landmarks::Landmarks;
 use super::sdf::{Frame, Placed, Shape, ellipse_distance};
@@ -40,6 +41,9 @@ pub struct PhantomOptions {
     pub disc_mm: f64,
     /// Lordotic tilt between adjacent levels (degrees).
     pub lordosis_deg: f64,
+    /// After extraction, simplify toward this edge length (mm): collapse edges shorter than 4/5 of it with vertices projected back onto the
+    /// SDF ([`super::decimate`]); 0 keeps the raw marching-tetrahedra mesh.
+    pub simplify_edge_mm: f64,
 }
 
 impl Default for PhantomOptions {
@@ -52,6 +56,7 @@ impl Default for PhantomOptions {
             discs: true,
             disc_mm: 10.0,
             lordosis_deg: 4.0,
+            simplify_edge_mm: 1.0,
         }
     }
 }
@@ -185,15 +190,26 @@ fn sample(
     bounds: (DVec3, DVec3),
     voxel: f64,
     to_world: &RigidTransform,
+    band: [f64; 2],
     f: impl Fn(DVec3) -> f64 + Sync,
 ) -> Result<ScalarGrid> {
     let lo = bounds.0 - DVec3::splat(2.0 * voxel);
     let n = ((bounds.1 + DVec3::splat(2.0 * voxel) - lo) / voxel).ceil();
     let dims = [n.x as usize + 1, n.y as usize + 1, n.z as usize + 1];
     let index_to_local = DMat4::from_translation(lo) * DMat4::from_scale(DVec3::splat(voxel));
-    let mut grid = ScalarGrid::from_fn(dims, index_to_local, f)?;
+    // Gradient-norm margin 4: the elliptic distances stay below ~3 for our aspect ratios (tested).
+    let mut grid = ScalarGrid::from_fn_banded(dims, index_to_local, f, band, 4.0)?;
     grid.index_to_world = rigid_to_mat4(to_world) * index_to_local;
     Ok(grid)
+}
+
+/// Simplifies `m` (when enabled) with vertices projected onto the zero set of `f` (world frame).
+fn simplify(m: TriMesh, opts: &PhantomOptions, f: &(dyn Fn(DVec3) -> f64 + Sync)) -> TriMesh {
+    if opts.simplify_edge_mm <= 0.0 {
+        return m;
+    }
+    let project = |p: DVec3| project_to_zero(f, p);
+    collapse_short_edges(&m, opts.simplify_edge_mm, 6, Some(&project))
 }
 
 fn mesh_vertebra(
@@ -201,11 +217,14 @@ fn mesh_vertebra(
     pose: RigidTransform,
     opts: &PhantomOptions,
 ) -> Result<VertebraModel> {
-    let grid = sample(shape.bounds(), opts.voxel_mm, &pose, |p| shape.sdf(p))?;
+    let band = [-opts.cortical_mm, 0.0];
+    let grid = sample(shape.bounds(), opts.voxel_mm, &pose, band, |p| shape.sdf(p))?;
     let name = shape.level.name();
-    let mut cortical = extract_isosurface(&grid, 0.0)?;
-    cortical.name = format!("{name}_cortical");
     let inv = pose.inverse();
+    let outer = |p: DVec3| shape.sdf(inv.apply(p));
+    let inner = |p: DVec3| shape.sdf(inv.apply(p)) + opts.cortical_mm;
+    let mut cortical = simplify(extract_isosurface(&grid, 0.0)?, opts, &outer);
+    cortical.name = format!("{name}_cortical");
     cortical.labels = (0..cortical.triangles.len())
         .into_par_iter()
         .map(|i| {
@@ -214,8 +233,8 @@ fn mesh_vertebra(
             shape.structure_at(inv.apply((a + b + c) / 3.0), n) as u8
         })
         .collect();
-    let mut cancellous = extract_isosurface(&grid, -opts.cortical_mm as f32)?;
-    cancellous = remove_small_components(&cancellous, 1.0);
+    let raw = extract_isosurface(&grid, -opts.cortical_mm as f32)?;
+    let mut cancellous = simplify(remove_small_components(&raw, 1.0), opts, &inner);
     cancellous.name = format!("{name}_cancellous");
     let landmarks = shape.landmarks(|p| pose.apply(p));
     Ok(VertebraModel {
@@ -289,7 +308,7 @@ pub fn build_phantom(opts: &PhantomOptions) -> Result<Phantom> {
     levels.dedup();
     let poses = level_poses(&levels, opts.disc_mm, opts.lordosis_deg);
     let vertebrae = poses
-        .iter()
+        .par_iter()
         .filter(|(l, _)| levels.contains(l))
         .map(|(l, p)| mesh_vertebra(VertebraShape::new(*l), *p, opts))
         .collect::<Result<Vec<_>>>()?;
@@ -306,7 +325,7 @@ pub fn build_phantom(opts: &PhantomOptions) -> Result<Phantom> {
             );
             discs.push(mesh_disc(
                 &d,
-                opts.voxel_mm,
+                opts,
                 &format!("{}-{}_disc", w[0].level, w[1].level),
             )?);
             disc_shapes.push(d);
@@ -327,17 +346,18 @@ pub fn build_phantom(opts: &PhantomOptions) -> Result<Phantom> {
     })
 }
 
-fn mesh_disc(d: &DiscShape, voxel: f64, name: &str) -> Result<TriMesh> {
+fn mesh_disc(d: &DiscShape, opts: &PhantomOptions, name: &str) -> Result<TriMesh> {
+    let voxel = opts.voxel_mm;
     let half = DVec3::new(
         d.a,
         d.b,
         (d.upper.0 - d.lower.0).length() / 2.0 + d.a.max(d.b) * 0.1 + 2.0,
     );
     let to_world = RigidTransform::new(d.frame.axes, d.frame.origin);
-    let grid = sample((-half, half), voxel, &to_world, |q| {
+    let grid = sample((-half, half), voxel, &to_world, [0.0, 0.0], |q| {
         d.sdf(d.frame.to_parent(q))
     })?;
-    let mut m = extract_isosurface(&grid, 0.0)?;
+    let mut m = simplify(extract_isosurface(&grid, 0.0)?, opts, &|p| d.sdf(p));
     m.name = name.to_string();
     Ok(m)
 }
@@ -369,8 +389,11 @@ fn soft_tissue_cylinder(vertebrae: &[VertebraModel]) -> Placed {
 fn mesh_soft_tissue(s: &Placed) -> Result<TriMesh> {
     let h = s.shape.half_extent();
     let to_world = RigidTransform::new(s.frame.axes, s.frame.origin);
-    let grid = sample((-h, h), 3.0, &to_world, |q| s.shape.sdf(q))?;
-    let mut m = extract_isosurface(&grid, 0.0)?;
+    let grid = sample((-h, h), 3.0, &to_world, [0.0, 0.0], |q| s.shape.sdf(q))?;
+    let f = |p: DVec3| s.sdf(p);
+    let project = |p: DVec3| project_to_zero(&f, p);
+    // 3 mm grid, then simplified toward 8 mm edges: an outline, not anatomy.
+    let mut m = collapse_short_edges(&extract_isosurface(&grid, 0.0)?, 8.0, 6, Some(&project));
     m.name = "soft_tissue".into();
     m.labels = vec![Structure::SoftTissue as u8; m.triangles.len()];
     Ok(m)

@@ -1,8 +1,8 @@
 //! Signed-distance primitives (negative inside, millimetres) and their smooth union.
 //!
 //! The rounded box is exact (Quílez's formula); the elliptic cross-section uses [`ellipse_distance`],
-//! exact on the axes and to first order near the curve (its gradient norm can exceed 1 far from the curve
-//! of an elongated ellipse). The polynomial smooth minimum and rigid placements keep these properties.
+//! exact on the axes and to first order near the curve; inside an elongated ellipse its gradient norm
+//! reaches ~3 (the pedicles), so it is a distance estimate, not a 1-Lipschitz bound. The polynomial smooth minimum and rigid placements keep these properties.
 
 use glam::{DMat3, DVec2, DVec3};
 
@@ -117,8 +117,8 @@ impl Placed {
 
 /// Approximate signed distance to the ellipse `(x/a)² + (y/b)² = 1`: the implicit `k₀ − 1` divided by
 /// its gradient norm, `k₀ (k₀ − 1) / k₁` with `k₀ = ‖(x/a, y/b)‖`, `k₁ = ‖(x/a², y/b²)‖` (Taubin's
-/// first-order distance). Exact on both axes and to first order near the curve, so offsets (rounded
-/// rims) keep the nominal semi-axes.
+/// first-order distance), clamped to `−min(a, b)` inside. Exact on both axes and to first order near the
+/// curve, so offsets (rounded rims) keep the nominal semi-axes.
 #[inline]
 pub fn ellipse_distance(p: DVec2, a: f64, b: f64) -> f64 {
     let k0 = DVec2::new(p.x / a, p.y / b).length();
@@ -126,7 +126,9 @@ pub fn ellipse_distance(p: DVec2, a: f64, b: f64) -> f64 {
     if k1 < 1e-12 {
         return -a.min(b);
     }
-    k0 * (k0 - 1.0) / k1
+    // No interior point is deeper than the minor semi-axis; the clamp also removes the direction-
+    // dependent jump of the first-order formula at the centre (its gradient blows up there).
+    (k0 * (k0 - 1.0) / k1).max(-a.min(b))
 }
 
 /// Polynomial smooth minimum (Quílez): equals `min(a, b)` when `|a − b| ≥ k`, otherwise blends with a

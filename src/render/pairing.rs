@@ -4,8 +4,8 @@
 //! produce the same distances once they agree on which triangles a ray crosses. Per mesh, hits are sorted
 //! and clustered (a ray through a shared edge or vertex reports it once per triangle). A cluster whose
 //! triangles all face the ray is an entry, all facing away an exit, and a mixed one a tangential touch.
-//! Entries and exits must then alternate, starting with an entry; a ray where they do not is reported as
-//! invalid and the renderer repairs it.
+//! The ray is inside where the winding number (entries − exits) is positive; a ray whose winding goes
+//! negative or does not return to zero lost a crossing, is reported as invalid, and the renderer repairs it.
 
 use glam::DVec3;
 
@@ -111,8 +111,13 @@ fn same_point(a: f64, b: f64) -> bool {
 }
 
 /// Total inside length of one mesh from its sorted crossings, and whether they paired up.
+///
+/// Inside is a positive winding number: entries raise it, exits lower it, so overlapping closed pieces of one
+/// surface (or a self-intersecting surface) count their union once. The crossings pair up when the winding
+/// never goes negative and returns to zero.
 fn pair_mesh(crossings: &[Crossing]) -> (f64, bool) {
-    let mut inside_since: Option<f64> = None;
+    let mut winding: i32 = 0;
+    let mut inside_since = 0.0;
     let mut length = 0.0;
     let mut ok = true;
     let mut i = 0;
@@ -123,24 +128,27 @@ fn pair_mesh(crossings: &[Crossing]) -> (f64, bool) {
             j += 1;
         }
         let cluster = &crossings[i..j];
-        let entering = cluster.iter().all(|c| c.facing < 0.0);
-        let exiting = cluster.iter().all(|c| c.facing > 0.0);
         let t = cluster[0].t;
-        match (entering, exiting, inside_since) {
-            (true, _, None) => inside_since = Some(t),
-            (_, true, Some(t0)) => {
-                length += t - t0;
-                inside_since = None;
-            }
-            (false, false, _) => {} // tangential touch: no change of state
-            _ => ok = false,        // two entries or two exits in a row: a hit was missed
+        let step = if cluster.iter().all(|c| c.facing < 0.0) {
+            1
+        } else if cluster.iter().all(|c| c.facing > 0.0) {
+            -1
+        } else {
+            0 // tangential touch: no change of state
+        };
+        if winding == 0 && step > 0 {
+            inside_since = t;
+        }
+        winding += step;
+        if winding < 0 {
+            ok = false;
+            winding = 0;
+        } else if winding == 0 && step < 0 {
+            length += t - inside_since;
         }
         i = j;
     }
-    if inside_since.is_some() {
-        ok = false;
-    }
-    (length, ok)
+    (length, ok && winding == 0)
 }
 
 #[cfg(test)]
@@ -177,8 +185,16 @@ mod tests {
     }
 
     #[test]
+    fn overlapping_pieces_count_their_union_once() {
+        let (l, ok) = pair_mesh(&[c(1.0, -1.0), c(2.0, -1.0), c(3.0, 1.0), c(4.0, 1.0)]);
+        assert!(ok);
+        assert!((l - 3.0).abs() < 1e-12);
+    }
+
+    #[test]
     fn missing_exit_is_invalid() {
         assert!(!pair_mesh(&[c(1.0, -1.0), c(2.0, -1.0), c(3.0, 1.0)]).1);
+        assert!(!pair_mesh(&[c(1.0, -1.0), c(2.0, 1.0), c(3.0, 1.0)]).1);
         assert!(!pair_mesh(&[c(1.0, -1.0)]).1);
         assert!(!pair_mesh(&[c(1.0, 1.0)]).1);
     }

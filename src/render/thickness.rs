@@ -208,32 +208,29 @@ impl ThicknessRenderer {
                         stats.rays_culled += ((u1 - u0) * rows) as u64;
                         continue;
                     }
-                    for r in 0..rows {
-                        let v = ty * TILE as usize + r;
+                    // The tile's pixels, row-major, in packets of PACKET lanes.
+                    let pixels: Vec<(usize, usize)> = (0..rows)
+                        .flat_map(|r| (u0..u1).map(move |u| (u, r)))
+                        .collect();
+                    for chunk in pixels.chunks(PACKET) {
+                        let v0 = ty * TILE as usize;
                         let mut packet = RayPacket::default();
-                        for u in u0..u1 {
-                            packet.push(cam.source, cam.dir(u as f64, v as f64));
+                        for &(u, r) in chunk {
+                            packet.push(cam.source, cam.dir(u as f64, (v0 + r) as f64));
                         }
                         self.tracer.trace_all(&packet, &mut scratch.hits);
-                        for (lane, u) in (u0..u1).enumerate() {
-                            let origin = packet.origin[lane];
+                        for (lane, &(u, r)) in chunk.iter().enumerate() {
                             let dir = packet.dir[lane];
                             let mut ray = integrate(
                                 &self.scene,
-                                origin,
+                                packet.origin[lane],
                                 dir,
                                 &scratch.hits[lane],
                                 &mut scratch.crossings,
                             );
                             if !ray.valid {
-                                ray = self.repair(
-                                    &cam,
-                                    u as f64,
-                                    v as f64,
-                                    ray,
-                                    &mut scratch,
-                                    &mut stats,
-                                );
+                                let v = (v0 + r) as f64;
+                                ray = self.repair(&cam, u as f64, v, ray, &mut scratch, &mut stats);
                             }
                             stats.rays_traced += 1;
                             stats.hits += u64::from(ray.hits);
@@ -304,14 +301,19 @@ impl ThicknessRenderer {
                     }
                     let u0 = tx * TILE as usize;
                     let u1 = (u0 + TILE as usize).min(w);
-                    for r in 0..rows {
-                        let v = (ty * TILE as usize + r) as f64;
+                    let v0 = ty * TILE as usize;
+                    let pixels: Vec<(usize, usize)> = (0..rows)
+                        .flat_map(|r| (u0..u1).map(move |u| (u, r)))
+                        .collect();
+                    for chunk in pixels.chunks(PACKET) {
                         let mut packet = RayPacket::default();
-                        for u in u0..u1 {
-                            packet.push(cam.source, cam.dir(u as f64, v));
+                        for &(u, r) in chunk {
+                            packet.push(cam.source, cam.dir(u as f64, (v0 + r) as f64));
                         }
                         floor.first_hit(&packet, &mut t);
-                        band[r * w + u0..r * w + u1].copy_from_slice(&t[..u1 - u0]);
+                        for (lane, &(u, r)) in chunk.iter().enumerate() {
+                            band[r * w + u] = t[lane];
+                        }
                     }
                 }
             });

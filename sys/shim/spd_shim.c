@@ -14,6 +14,7 @@ typedef struct spd_context {
   spd_hit* hits;
   unsigned int capacity;
   unsigned int* counts;
+  unsigned int lanes;
 } spd_context;
 
 int spd_embree_major(void) { return SPD_EMBREE_MAJOR; }
@@ -42,6 +43,7 @@ static void spd_record_filter(const struct RTCFilterFunctionNArguments* args) {
   for (unsigned int i = 0; i < n; i++) {
     if (args->valid[i] == 0) continue;
     const unsigned int lane = spd_ray_id(args->ray, n, i);
+    if (lane >= ctx->lanes) continue; /* never expected; guards the buffers */
     const unsigned int k = ctx->counts[lane]++;
     if (k < ctx->capacity) {
       spd_hit* h = &ctx->hits[(size_t)lane * ctx->capacity + k];
@@ -140,6 +142,7 @@ void spd_all_hits(RTCScene scene, int n, const int* valid,
   ctx.hits = hits;
   ctx.capacity = capacity;
   ctx.counts = counts;
+  ctx.lanes = (unsigned int)n;
   for (int i = 0; i < n; i++) counts[i] = 0;
   spd_trace(scene, n, valid, org_x, org_y, org_z, dir_x, dir_y, dir_z, tnear, tfar, &ctx, NULL);
 }
