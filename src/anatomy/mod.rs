@@ -1,6 +1,7 @@
 //! Anatomy: triangle meshes, mesh files, the parametric lumbar phantom and landmarks.
 
 pub mod ct;
+pub mod decimate;
 pub mod isosurface;
 pub mod labels;
 pub mod landmarks;
@@ -12,6 +13,7 @@ pub mod synthetic_ct;
 mod tissue;
 pub mod vertebra;
 
+pub use decimate::{decimate, decimate_to_error};
 pub use isosurface::{Inside, ScalarGrid, extract_isosurface, extract_isosurface_with};
 pub use landmarks::{Landmarks, read_landmarks, write_landmarks};
 pub use mesh::{MeshCheck, Structure, TriMesh};
