@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod geometry;
+mod mesh;
 mod phantom;
 mod render;
 mod render_ct;
@@ -28,6 +29,9 @@ enum Command {
     /// Render a DRR (thickness DRR of the phantom or mesh files, or CT volume DRR) under the reference or a
     /// perturbed K.
     Render(Box<render::Args>),
+    /// Mesh one vertebra label of a NIfTI segmentation (closed surface, optional smoothing, decimation
+    /// and automatic landmarks).
+    Mesh(mesh::Args),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -37,6 +41,7 @@ pub fn main() -> ExitCode {
         Command::Geometry(a) => geometry::run(a),
         Command::Phantom(a) => phantom::run(a),
         Command::Render(a) => render::run(*a),
+        Command::Mesh(a) => mesh::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
