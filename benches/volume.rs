@@ -1,9 +1,11 @@
 //! CT volume DRR speed: 1024² images through a generated 512 × 512 × 133 CT (Siddon, trilinear, and a
-//! single-vertebra masked render), and surface extraction of one label from a 512 × 512 × 133 label map.
+//! single-vertebra masked render), surface extraction of one label from a 512 × 512 × 133 label map, and
+//! quadric decimation of the phantom's L3 outer surface (~300k triangles) to 40k.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::{DMat4, DVec3};
 use spinedrr::anatomy::ct::{CtVolume, LabelMap, SurfaceOptions, VoxelMask, label_surface};
+use spinedrr::anatomy::{Level, PhantomOptions, build_phantom, decimate};
 use spinedrr::geometry::CArm;
 use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
 
@@ -58,6 +60,22 @@ fn bench(c: &mut Criterion) {
     g.sample_size(10);
     g.bench_function("L1", |b| {
         b.iter(|| label_surface(&seg, 31, &SurfaceOptions::default()).unwrap())
+    });
+    g.finish();
+    let phantom = build_phantom(&PhantomOptions {
+        levels: vec![Level::L3],
+        discs: false,
+        // The raw marching-tetrahedra surface (~300k triangles), not the phantom's own simplification.
+        simplify_edge_mm: 0.0,
+        ..PhantomOptions::default()
+    })
+    .unwrap();
+    let l3 = &phantom.vertebrae[0].cortical;
+    let mut g = c.benchmark_group("decimate");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(l3.triangles.len() as u64));
+    g.bench_function("phantom_L3_to_40k", |b| {
+        b.iter(|| decimate(l3, 40_000).unwrap())
     });
     g.finish();
 }

@@ -1,5 +1,6 @@
 //! Anatomy: triangle meshes, mesh files, the parametric lumbar phantom and landmarks.
 
+pub mod auto_landmarks;
 pub mod ct;
 pub mod decimate;
 pub mod isosurface;
@@ -13,6 +14,8 @@ pub mod synthetic_ct;
 mod tissue;
 pub mod vertebra;
 
+pub use auto_landmarks::auto_landmarks;
+pub use decimate::{decimate, decimate_to_error};
 pub use isosurface::{Inside, ScalarGrid, extract_isosurface, extract_isosurface_with};
 pub use landmarks::{Landmarks, read_landmarks, write_landmarks};
 pub use mesh::{MeshCheck, Structure, TriMesh};

@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 
 mod compare;
 mod geometry;
+mod mesh;
 mod phantom;
 mod register;
 mod render;
@@ -35,6 +36,9 @@ enum Command {
     Compare(compare::Args),
     /// Register a rigid vertebra pose from landmark observations (direct LM, Kabsch, OpenCV).
     Register(register::Args),
+    /// Mesh one vertebra label of a NIfTI segmentation (closed surface, optional smoothing, decimation
+    /// and automatic landmarks).
+    Mesh(mesh::Args),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -46,6 +50,7 @@ pub fn main() -> ExitCode {
         Command::Render(a) => render::run(*a),
         Command::Compare(a) => compare::run(a),
         Command::Register(a) => register::run(a),
+        Command::Mesh(a) => mesh::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use spinedrr::anatomy::ct::{write_ct, write_labels};
+use spinedrr::anatomy::labels::LabelConvention;
+use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
 use spinedrr::anatomy::{
     MeshFormat, PhantomOptions, TriMesh, build_phantom, parse_levels, write_landmarks,
     write_mesh_as,
@@ -31,6 +34,46 @@ pub struct Args {
     /// Also build the soft-tissue outline (a 300 × 220 mm elliptic cylinder).
     #[arg(long)]
     soft_tissue: bool,
+    /// Also voxelize the phantom into a synthetic CT (Hounsfield units, NIfTI `.nii` / `.nii.gz`).
+    #[arg(long, value_name = "CT.nii.gz")]
+    ct: Option<PathBuf>,
+    /// Voxel size of the synthetic CT (mm).
+    #[arg(long, default_value_t = 0.5, requires = "ct")]
+    ct_voxel_mm: f64,
+    /// Write the CT's vertebra label map here (NIfTI).
+    #[arg(long, value_name = "SEG.nii.gz", requires = "ct")]
+    labels_out: Option<PathBuf>,
+    /// Label convention of `--labels-out`: totalseg (TotalSegmentator v2) or verse.
+    #[arg(long, default_value = "totalseg")]
+    labels: String,
+}
+
+/// Voxelizes the phantom and writes the CT and, when asked, the label map.
+fn write_synthetic_ct(
+    phantom: &spinedrr::anatomy::Phantom,
+    a: &Args,
+    ct_path: &Path,
+) -> anyhow::Result<()> {
+    let convention: LabelConvention = a.labels.parse()?;
+    let opts = SyntheticCtOptions {
+        voxel_mm: a.ct_voxel_mm,
+        labels: convention,
+        ..SyntheticCtOptions::default()
+    };
+    let (ct, seg) =
+        synthetic_ct(phantom, &opts).with_context(|| format!("--ct-voxel-mm {}", a.ct_voxel_mm))?;
+    write_ct(ct_path, &ct).with_context(|| format!("writing CT {}", ct_path.display()))?;
+    eprintln!(
+        "{}: {:?} voxels of {} mm",
+        ct_path.display(),
+        ct.dims,
+        a.ct_voxel_mm
+    );
+    if let Some(p) = &a.labels_out {
+        write_labels(p, &seg).with_context(|| format!("writing label map {}", p.display()))?;
+        eprintln!("{}: labels {:?}", p.display(), seg.labels_present());
+    }
+    Ok(())
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -63,6 +106,13 @@ fn write_one(dir: &Path, stem: &str, mesh: &TriMesh, format: MeshFormat) -> anyh
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let levels = parse_levels(&a.levels).with_context(|| format!("--levels {:?}", a.levels))?;
+    // Check the CT flags before the (slow) phantom build.
+    if a.ct.is_some() {
+        a.labels.parse::<LabelConvention>()?;
+        if !(a.ct_voxel_mm.is_finite() && (0.1..=5.0).contains(&a.ct_voxel_mm)) {
+            anyhow::bail!("--ct-voxel-mm {} is outside [0.1, 5] mm", a.ct_voxel_mm);
+        }
+    }
     let opts = PhantomOptions {
         levels,
         voxel_mm: a.voxel_mm,
@@ -102,5 +152,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     write_landmarks(&lm, &phantom.landmarks())
         .with_context(|| format!("writing {}", lm.display()))?;
     eprintln!("landmarks.json         {} levels", phantom.vertebrae.len());
+    if let Some(ct_path) = &a.ct {
+        write_synthetic_ct(&phantom, &a, ct_path)?;
+    }
     Ok(())
 }

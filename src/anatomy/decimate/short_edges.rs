@@ -15,7 +15,7 @@
 
 use glam::DVec3;
 
-use super::TriMesh;
+use crate::anatomy::TriMesh;
 
 /// Places a merged vertex on the surface (identity when `None`).
 pub type Projector<'a> = Option<&'a (dyn Fn(DVec3) -> DVec3 + Sync)>;
