@@ -13,15 +13,19 @@ deps:
 build: deps
 	$(CARGO) build --release
 
-# Renders AP and LAT thickness DRRs of the built-in L3 phantom, reference and perturbed, into out/.
+# Builds the L3 phantom, renders AP and LAT thickness DRRs (reference and Δf = 500 px) and compares them.
 demo: build
 	@mkdir -p $(OUT)
-	$(BIN) phantom --levels L3 --out $(OUT)/phantom
+	$(BIN) phantom --levels L3 --no-discs --out $(OUT)/phantom
 	$(BIN) render --phantom L3 --view ap --out $(OUT)/ap_reference.tiff --masks
 	$(BIN) render --phantom L3 --view ap --perturb df=500 --out $(OUT)/ap_df500.tiff --masks
 	$(BIN) render --phantom L3 --view lat --out $(OUT)/lat_reference.tiff --masks
 	$(BIN) render --phantom L3 --view lat --perturb df=500 --out $(OUT)/lat_df500.tiff --masks
-	@echo "DRRs, previews, masks and sidecars are in $(OUT)/"
+	$(BIN) compare --reference $(OUT)/ap_reference.tiff --perturbed $(OUT)/ap_df500.tiff \
+		--landmarks $(OUT)/phantom/landmarks.json --out $(OUT)/compare_ap_df500
+	$(BIN) compare --reference $(OUT)/lat_reference.tiff --perturbed $(OUT)/lat_df500.tiff \
+		--landmarks $(OUT)/phantom/landmarks.json --out $(OUT)/compare_lat_df500
+	@echo "DRRs, previews, masks and sidecars are in $(OUT)/; metrics and heatmaps in $(OUT)/compare_*/"
 
 test: deps
 	$(CARGO) fmt --all -- --check

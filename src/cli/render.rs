@@ -323,5 +323,14 @@ fn timing_json(
         "rays_repaired": drr.stats.rays_repaired,
         "rays_unrepaired": drr.stats.rays_unrepaired,
         "triangles": r.scene().triangle_count(),
+        "peak_rss_mb": peak_rss_mb(),
     })
+}
+
+/// Peak resident memory of this process so far (MiB), from /proc/self/status (Linux; null elsewhere).
+fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
 }

@@ -1,8 +1,8 @@
 //! Thickness DRRs: per pixel, `Σ_m μ_m · L_m` with `L_m` the path length of the pixel's ray inside mesh m.
 //!
 //! Rays start at the source and pass through pixel centres (`dir ∝ Rᵀ K⁻¹ [u, v, 1]ᵀ`). Pixels are traced in
-//! 8 × 8 tiles, in parallel over rows of tiles; a tile that no projected triangle's bounding box touches
-//! cannot see the mesh and is skipped. Rays whose crossings do not pair up (a hit lost at an edge or vertex)
+//! 4 × 4 tiles (two 4 × 2 packets each), in parallel over rows of tiles; a tile that no projected
+//! triangle's bounding box touches cannot see the mesh and is skipped. Rays whose crossings do not pair up (a hit lost at an edge or vertex)
 //! are retraced with a sub-pixel-small offset; failing that, their value is capped by the mesh's
 //! longest chord. Both counts are reported.
 
@@ -22,7 +22,7 @@ use crate::geometry::View;
 use crate::io::ImageF32;
 
 /// Side of the square pixel tiles used for culling and scheduling.
-pub const TILE: u32 = 8;
+pub const TILE: u32 = 4;
 
 /// Sub-pixel offsets (pixels) tried in turn when a ray's crossings do not pair up.
 const REPAIR_OFFSETS: [(f64, f64); 4] = [
