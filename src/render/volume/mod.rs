@@ -193,6 +193,14 @@ impl VolumeRenderer {
         (t0 < t1).then_some((t0, t1))
     }
 
+    /// The ray's direction in index space (voxels per mm) and its clipped length (mm; 0 when it misses):
+    /// for statistics such as voxel visits.
+    pub fn clipped_index_segment(&self, ray: &Ray) -> (DVec3, f64) {
+        let (p0, dp) = self.index_ray(ray);
+        let len = self.clip(p0, dp).map_or(0.0, |(t0, t1)| t1 - t0);
+        (dp, len)
+    }
+
     /// `∫ μ dl` along one world ray (unit direction), with the renderer's method.
     pub fn line_integral(&self, ray: &Ray) -> f64 {
         let (p0, dp) = self.index_ray(ray);
