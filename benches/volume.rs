@@ -44,7 +44,10 @@ fn bench(c: &mut Criterion) {
     let mask = VoxelMask::from_labels(&seg, &[31]).unwrap();
     // Full-volume 1024² renders take seconds each: time them directly (best of three) and print a summary
     // line with ms per image and voxel visits per second; criterion times the fast masked render.
-    for (name, method) in [("siddon", VolumeMethod::Siddon), ("trilinear", VolumeMethod::Trilinear)] {
+    for (name, method) in [
+        ("siddon", VolumeMethod::Siddon),
+        ("trilinear", VolumeMethod::Trilinear),
+    ] {
         let opts = VolumeRenderOptions {
             method,
             ..Default::default()
