@@ -1,6 +1,7 @@
 # spinedrr — the two commands a newcomer needs are `make demo` and `make test`.
 # Both install the system packages (Embree, OpenCV, clang) first when they are missing.
 
+SHELL := /bin/bash
 CARGO ?= cargo
 BIN := target/release/spinedrr
 OUT ?= out
@@ -27,13 +28,16 @@ demo: build
 		--landmarks $(OUT)/phantom/landmarks.json --out $(OUT)/compare_lat_df500
 	@echo "DRRs, previews, masks and sidecars are in $(OUT)/; metrics and heatmaps in $(OUT)/compare_*/"
 
+# The last line is a plain "N passed, N failed" total over every test binary.
 test: deps
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
-	$(CARGO) test --workspace
+	@mkdir -p target
+	set -o pipefail; $(CARGO) test --workspace --lib --bins --tests 2>&1 | tee target/test.log
+	@awk '/^test result:/ {p += $$4; f += $$6} END {printf "%d passed, %d failed\n", p, f}' target/test.log
 
 bench: deps
-	$(CARGO) bench --bench render
+	$(CARGO) bench
 
 clean:
 	$(CARGO) clean
