@@ -6,7 +6,7 @@ CARGO ?= cargo
 BIN := target/release/spinedrr
 OUT ?= out
 
-.PHONY: deps build demo test lint bench clean
+.PHONY: deps build demo test bench clean
 
 deps:
 	@bash scripts/install-deps.sh
