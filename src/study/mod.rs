@@ -9,6 +9,7 @@ pub mod config;
 pub mod experiments;
 pub mod figures;
 pub mod report;
+pub mod report_html;
 pub mod runner;
 pub mod tables;
 pub mod units;

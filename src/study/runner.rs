@@ -15,7 +15,7 @@ use super::config::StudyConfig;
 use super::experiments::Context;
 use super::tables::{TABLES, summarize_registration, unit_lines, write_table};
 use super::units::{Unit, UnitFile, derive_seed, enumerate_units};
-use super::{figures, report};
+use super::{figures, report, report_html};
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
 
@@ -91,6 +91,7 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         assemble(&opts.out, &units, &fp)?;
         figures::write_all(&opts.out)?;
         report::write(&opts.out, cfg)?;
+        report_html::write(&opts.out)?;
     }
     Ok(RunSummary {
         total_units: units.len(),

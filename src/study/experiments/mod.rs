@@ -4,16 +4,17 @@
 mod projection;
 mod registration;
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 
 use super::config::StudyConfig;
 use super::units::{Unit, UnitRows, targets};
 use crate::anatomy::{Phantom, PhantomOptions, TriMesh, build_phantom};
-use crate::geometry::CArm;
-use crate::render::{RenderScene, SceneMesh, ThicknessRenderer, phantom_scene};
+use crate::geometry::{CArm, View};
+use crate::render::{RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, phantom_scene};
 use crate::{Error, Result};
 
 /// A landmark marker: a small sphere rendered alone, so its blob centroid measures the landmark.
@@ -41,6 +42,15 @@ pub struct Context {
     /// A one-thread pool for image metrics whose parallel reductions would otherwise depend on the
     /// thread count (determinism).
     pub metrics_pool: rayon::ThreadPool,
+    /// Reference renders per (target, view), computed once on first use (they are deterministic, so
+    /// which unit computes one does not matter).
+    references: BTreeMap<(String, String), OnceLock<std::result::Result<Arc<Reference>, String>>>,
+}
+
+/// The unperturbed render of a target in a view and its marker centroids.
+pub struct Reference {
+    pub drr: Option<ThicknessDrr>,
+    pub markers: Vec<Option<DVec2>>,
 }
 
 impl Context {
@@ -62,12 +72,19 @@ impl Context {
             .num_threads(1)
             .build()
             .map_err(|e| Error::Numerical(format!("building the metrics thread pool: {e}")))?;
+        let mut references = BTreeMap::new();
+        for t in &targets {
+            for v in &cfg.geometry.views {
+                references.insert((t.name.clone(), v.clone()), OnceLock::new());
+            }
+        }
         Ok(Context {
             cfg: cfg.clone(),
             carm,
             targets,
             figures_dir,
             metrics_pool,
+            references,
         })
     }
 
@@ -77,6 +94,21 @@ impl Context {
             .iter()
             .find(|t| t.name == name)
             .ok_or_else(|| Error::invalid("target", format!("unknown target '{name}'")))
+    }
+
+    /// The reference render of `t` in `view` (cached).
+    pub fn reference(&self, t: &Target, view: &View) -> Result<Arc<Reference>> {
+        let cell = self
+            .references
+            .get(&(t.name.clone(), view.name.clone()))
+            .ok_or_else(|| Error::invalid("view", format!("no reference for '{}'", view.name)))?;
+        cell.get_or_init(|| {
+            projection::reference(self, t, view)
+                .map(Arc::new)
+                .map_err(|e| e.to_string())
+        })
+        .clone()
+        .map_err(Error::Numerical)
     }
 
     /// Runs one unit.

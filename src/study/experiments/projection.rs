@@ -2,7 +2,8 @@
 //! image-similarity metrics, per-structure Dice, difference heatmaps, and landmark shifts measured from
 //! marker images beside the homography prediction `x' = H x`, `H = K' K⁻¹`.
 
-use super::{Context, Target};
+use super::{Context, Reference, Target};
+use crate::Result;
 use crate::analysis::{
     MaskPair, abs_difference, blob_centroid, image_metrics, silhouette_metrics, write_heatmap_png,
 };
@@ -10,7 +11,7 @@ use crate::anatomy::Structure;
 use crate::geometry::{View, apply_homography};
 use crate::render::{ThicknessDrr, ThicknessOptions};
 use crate::study::units::{LandmarkRow, NamedPerturbation, ProjectionRow, StructureRow, UnitRows};
-use crate::{Error, Result};
+use glam::DVec2;
 
 /// Structures reported in `structures.csv`.
 const STRUCTURES: [Structure; 7] = [
@@ -28,13 +29,11 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
     let view = ctx.carm.view(view_name)?;
     let pv = view.perturbed(&np.perturbation)?;
     let mut rows = UnitRows::default();
-    if ctx.cfg.runs("projection") {
-        let opts = ThicknessOptions::default();
-        let a = t.renderer.render(view, &opts)?;
-        let b = t.renderer.render(&pv, &opts)?;
-        rows.projection
-            .push(whole_object(ctx, t, view, np, &a, &b)?);
-        rows.structures = structures(t, view, np, &a, &b)?;
+    let reference = ctx.reference(t, view)?;
+    if let Some(a) = &reference.drr {
+        let b = t.renderer.render(&pv, &ThicknessOptions::default())?;
+        rows.projection.push(whole_object(ctx, t, view, np, a, &b)?);
+        rows.structures = structures(t, view, np, a, &b)?;
         let q = &np.perturbation;
         let is_heatmap_df = ctx.cfg.heatmaps_df_px.contains(&q.df_px);
         if np.family == "focal" && is_heatmap_df {
@@ -47,9 +46,27 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
         }
     }
     if ctx.cfg.runs("landmarks") {
-        rows.landmarks = landmarks(ctx, t, view, &pv, np)?;
+        rows.landmarks = landmarks(ctx, t, view, &pv, np, &reference.markers)?;
     }
     Ok(rows)
+}
+
+/// The reference render (when the projection experiment runs) and reference marker centroids.
+pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
+    let drr = if ctx.cfg.runs("projection") {
+        Some(t.renderer.render(view, &ThicknessOptions::default())?)
+    } else {
+        None
+    };
+    let markers = if ctx.cfg.runs("landmarks") {
+        t.markers
+            .iter()
+            .map(|m| measure(ctx, m, view))
+            .collect::<Result<Vec<_>>>()?
+    } else {
+        Vec::new()
+    };
+    Ok(Reference { drr, markers })
 }
 
 fn whole_object(
@@ -126,22 +143,23 @@ fn structures(
     Ok(rows)
 }
 
-/// Blob centroid of a marker rendered alone in `view`, searched around its projected centre.
-fn measure(ctx: &Context, m: &super::Marker, view: &View) -> Result<glam::DVec2> {
-    let img = m.renderer.render(view, &ThicknessOptions::default())?;
+/// Blob centroid of a marker rendered alone in `view`, searched around its projected centre; `None`
+/// when the marker's search disc is not wholly on the detector (a cut blob has a biased centroid).
+fn measure(ctx: &Context, m: &super::Marker, view: &View) -> Result<Option<DVec2>> {
     let k = view.intrinsics;
-    let radius_px = ctx.cfg.anatomy.marker_radius_mm * k.fx.max(k.fy) / view.depth(m.position);
-    blob_centroid(
-        &img.line_integral,
-        view.project(m.position),
-        1.5 * radius_px + 2.0,
-    )
-    .ok_or_else(|| {
-        Error::Numerical(format!(
-            "marker '{}' is not visible in view '{}'",
-            m.name, view.name
-        ))
-    })
+    let radius_px =
+        1.5 * ctx.cfg.anatomy.marker_radius_mm * k.fx.max(k.fy) / view.depth(m.position) + 2.0;
+    let c = view.project(m.position);
+    let (w, h) = (f64::from(k.width) - 1.0, f64::from(k.height) - 1.0);
+    let inside = c.x - radius_px >= 0.0
+        && c.y - radius_px >= 0.0
+        && c.x + radius_px <= w
+        && c.y + radius_px <= h;
+    if !(inside && view.depth(m.position) > 0.0) {
+        return Ok(None);
+    }
+    let img = m.renderer.render(view, &ThicknessOptions::default())?;
+    Ok(blob_centroid(&img.line_integral, c, radius_px))
 }
 
 fn landmarks(
@@ -150,13 +168,16 @@ fn landmarks(
     view: &View,
     pv: &View,
     np: &NamedPerturbation,
+    reference: &[Option<DVec2>],
 ) -> Result<Vec<LandmarkRow>> {
     let h = view.homography_to(pv);
     let q = &np.perturbation;
     let mut rows = Vec::new();
-    for m in &t.markers {
-        let x = measure(ctx, m, view)?;
-        let y = measure(ctx, m, pv)?;
+    for (m, x_ref) in t.markers.iter().zip(reference) {
+        // Off the detector: the row stays, with NaN measurements (it shows in the table, not lost).
+        let nan = DVec2::splat(f64::NAN);
+        let x = x_ref.unwrap_or(nan);
+        let y = measure(ctx, m, pv)?.unwrap_or(nan);
         let p = apply_homography(&h, x);
         rows.push(LandmarkRow {
             target: t.name.clone(),
