@@ -12,7 +12,7 @@ use glam::{DVec2, DVec3};
 
 use super::config::StudyConfig;
 use super::units::{Unit, UnitRows, targets};
-use crate::anatomy::{Phantom, PhantomOptions, TriMesh, build_phantom};
+use crate::anatomy::{Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels};
 use crate::geometry::{CArm, View};
 use crate::render::{RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, phantom_scene};
 use crate::{Error, Result};
@@ -44,8 +44,11 @@ pub struct Context {
     pub metrics_pool: rayon::ThreadPool,
     /// Reference renders per (target, view), computed once on first use (they are deterministic, so
     /// which unit computes one does not matter).
-    references: BTreeMap<(String, String), OnceLock<std::result::Result<Arc<Reference>, String>>>,
+    references: BTreeMap<(String, String), ReferenceCell>,
 }
+
+/// A lazily computed reference (the error kept as text so the cell can be shared).
+type ReferenceCell = OnceLock<std::result::Result<Arc<Reference>, String>>;
 
 /// The unperturbed render of a target in a view and its marker centroids.
 pub struct Reference {
@@ -57,23 +60,32 @@ impl Context {
     /// Builds the phantom, the scenes and the marker renderers.
     pub fn build(cfg: &StudyConfig, figures_dir: PathBuf) -> Result<Context> {
         let carm = cfg.carm()?;
-        let phantom = build_phantom(&PhantomOptions {
-            levels: cfg.levels()?,
-            voxel_mm: cfg.anatomy.voxel_mm,
-            discs: false,
-            soft_tissue: false,
-            ..PhantomOptions::default()
-        })?;
-        let targets = targets(cfg)
-            .iter()
-            .map(|t| build_target(cfg, &phantom, t))
-            .collect::<Result<Vec<_>>>()?;
+        // Each level alone is built on its own, so it sits where the views aim (the world origin), as in
+        // the paper's single-vertebra experiments; the segment is the whole stack.
+        let phantom_of = |levels: Vec<Level>| {
+            build_phantom(&PhantomOptions {
+                levels,
+                voxel_mm: cfg.anatomy.voxel_mm,
+                discs: false,
+                soft_tissue: false,
+                ..PhantomOptions::default()
+            })
+        };
+        let mut built = Vec::new();
+        for name in targets(cfg) {
+            let levels = if name == "segment" {
+                cfg.levels()?
+            } else {
+                parse_levels(&name)?
+            };
+            built.push(build_target(cfg, &phantom_of(levels)?, &name)?);
+        }
         let metrics_pool = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .build()
             .map_err(|e| Error::Numerical(format!("building the metrics thread pool: {e}")))?;
         let mut references = BTreeMap::new();
-        for t in &targets {
+        for t in &built {
             for v in &cfg.geometry.views {
                 references.insert((t.name.clone(), v.clone()), OnceLock::new());
             }
@@ -81,7 +93,7 @@ impl Context {
         Ok(Context {
             cfg: cfg.clone(),
             carm,
-            targets,
+            targets: built,
             figures_dir,
             metrics_pool,
             references,
@@ -124,10 +136,7 @@ impl Context {
 
 /// The scene of one level (or all levels for `segment`), its landmarks and markers.
 fn build_target(cfg: &StudyConfig, phantom: &Phantom, name: &str) -> Result<Target> {
-    let mut sub = phantom.clone();
-    if name != "segment" {
-        sub.vertebrae.retain(|v| v.level.name() == name);
-    }
+    let sub = phantom;
     if sub.vertebrae.is_empty() {
         return Err(Error::invalid(
             "anatomy.levels",
@@ -135,7 +144,7 @@ fn build_target(cfg: &StudyConfig, phantom: &Phantom, name: &str) -> Result<Targ
         ));
     }
     let backend = cfg.geometry.backend;
-    let renderer = backend.renderer(phantom_scene(&sub)?)?;
+    let renderer = backend.renderer(phantom_scene(sub)?)?;
     let segment = name == "segment";
     let mut landmarks = Vec::new();
     for set in sub.landmarks() {
