@@ -111,3 +111,26 @@ fn example_config_parses() {
     let cfg = spinedrr::study::StudyConfig::from_file(&path).expect("examples/study.toml");
     assert_eq!(cfg, spinedrr::study::StudyConfig::default());
 }
+
+#[test]
+fn trial_chunking_does_not_change_registration_results() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut cfg = spinedrr::study::StudyConfig::quick();
+    cfg.experiments = vec!["registration".into()];
+    cfg.registration.methods = vec!["direct-ap+lat".into(), "kabsch".into()];
+    let run = |per_unit: usize, name: &str| {
+        let mut c = cfg.clone();
+        c.registration.trials_per_unit = per_unit;
+        let path = dir.path().join(format!("{name}.toml"));
+        std::fs::write(&path, toml::to_string(&c).unwrap()).unwrap();
+        let out = dir.path().join(name);
+        let o = spinedrr(&["study", "--config", path.to_str().unwrap()], &out);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(out.join("tables/registration.csv")).unwrap()
+    };
+    let (one, three) = (run(1, "one"), run(3, "three"));
+    assert_eq!(
+        one, three,
+        "trial results depend on how trials are chunked into units"
+    );
+}
