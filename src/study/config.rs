@@ -369,3 +369,33 @@ fn finite_list(key: &str, v: &[f64]) -> Result<()> {
         None => Ok(()),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_and_quick_validate() {
+        StudyConfig::default().validate().unwrap();
+        StudyConfig::quick().validate().unwrap();
+    }
+
+    #[test]
+    fn binning_scales_k_like_merging_pixels() {
+        // 1024 px at 0.30 mm, SDD 1350 → fx = 4500, cx = 511.5; binned ×2: 512 px at 0.60 mm → fx = 2250,
+        // and the detector centre (511.5 + 0.5) / 2 − 0.5 = 255.5.
+        let mut cfg = StudyConfig::default();
+        cfg.geometry.binning = 2;
+        let k = cfg.carm().unwrap().view("ap").unwrap().intrinsics;
+        assert_eq!((k.width, k.height), (512, 512));
+        assert!((k.fx - 2250.0).abs() < 1e-9 && (k.fy - 2250.0).abs() < 1e-9);
+        assert!((k.cx - 255.5).abs() < 1e-9 && (k.cy - 255.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn config_round_trips_through_toml() {
+        let q = StudyConfig::quick();
+        let text = toml::to_string(&q).unwrap();
+        assert_eq!(StudyConfig::from_toml_str(&text, "test").unwrap(), q);
+    }
+}
