@@ -54,6 +54,25 @@ pub struct AnatomyConfig {
     pub voxel_mm: f64,
     /// Radius of the landmark marker spheres (mm).
     pub marker_radius_mm: f64,
+    /// The user's own anatomy: closed meshes with landmarks, each studied as one target.
+    pub meshes: Vec<MeshTarget>,
+}
+
+/// `[[anatomy.meshes]]`: one target made of closed surface files (STL/OBJ/PLY, world mm) and a landmarks
+/// JSON file (the format `spinedrr phantom` writes).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshTarget {
+    pub name: String,
+    pub files: Vec<PathBuf>,
+    pub landmarks: PathBuf,
+    /// Attenuation of every surface (mm⁻¹); default: cortical bone.
+    #[serde(default = "default_mu")]
+    pub mu_per_mm: f64,
+}
+
+fn default_mu() -> f64 {
+    crate::render::tissue_mu(crate::anatomy::Tissue::Cortical)
 }
 
 /// `[geometry]`: the C-arm file (default: the built-in paper geometry), its views and detector binning.
@@ -123,6 +142,7 @@ impl Default for AnatomyConfig {
             segment: true,
             voxel_mm: 0.8,
             marker_radius_mm: 2.0,
+            meshes: Vec::new(),
         }
     }
 }
@@ -173,7 +193,8 @@ impl StudyConfig {
                 levels: vec!["L1".into()],
                 segment: false,
                 voxel_mm: 1.0,
-                marker_radius_mm: 3.0,
+                marker_radius_mm: 4.0,
+                meshes: Vec::new(),
             },
             geometry: GeometrySection {
                 binning: 2,
@@ -212,6 +233,9 @@ impl StudyConfig {
 
     /// The phantom levels, parsed.
     pub fn levels(&self) -> Result<Vec<Level>> {
+        if self.anatomy.levels.is_empty() {
+            return Ok(Vec::new());
+        }
         parse_levels(&self.anatomy.levels.join(","))
             .map_err(|e| Error::invalid("anatomy.levels", e.to_string()))
     }
@@ -226,13 +250,14 @@ impl StudyConfig {
                 ));
             }
         }
-        if self.anatomy.levels.is_empty() {
+        if self.anatomy.levels.is_empty() && self.anatomy.meshes.is_empty() {
             return Err(Error::invalid(
                 "anatomy.levels",
-                "must list at least one level",
+                "must list at least one level (or give [[anatomy.meshes]])",
             ));
         }
         self.levels()?;
+        self.validate_meshes()?;
         positive("anatomy.voxel_mm", self.anatomy.voxel_mm)?;
         positive("anatomy.marker_radius_mm", self.anatomy.marker_radius_mm)?;
         if self.geometry.binning == 0 {
@@ -262,6 +287,48 @@ impl StudyConfig {
         }
         finite_list("heatmaps_df_px", &self.heatmaps_df_px)?;
         self.validate_registration()
+    }
+
+    fn validate_meshes(&self) -> Result<()> {
+        let mut names: Vec<&str> = self.anatomy.levels.iter().map(String::as_str).collect();
+        names.push("segment");
+        for m in &self.anatomy.meshes {
+            let ok = !m.name.is_empty()
+                && m.name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '-');
+            if !ok || names.contains(&m.name.as_str()) {
+                return Err(Error::invalid(
+                    "anatomy.meshes.name",
+                    format!(
+                        "'{}' must be unique, non-empty, letters/digits/'-' only",
+                        m.name
+                    ),
+                ));
+            }
+            names.push(&m.name);
+            if m.files.is_empty() {
+                return Err(Error::invalid(
+                    "anatomy.meshes.files",
+                    format!("target '{}' lists no files", m.name),
+                ));
+            }
+            for f in m.files.iter().chain([&m.landmarks]) {
+                if !f.is_file() {
+                    return Err(Error::invalid(
+                        "anatomy.meshes",
+                        format!("target '{}': no such file {}", m.name, f.display()),
+                    ));
+                }
+            }
+            if !m.mu_per_mm.is_finite() {
+                return Err(Error::invalid(
+                    "anatomy.meshes.mu_per_mm",
+                    format!("{} is not finite", m.mu_per_mm),
+                ));
+            }
+        }
+        Ok(())
     }
 
     fn validate_registration(&self) -> Result<()> {

@@ -49,7 +49,7 @@ pub fn write(out: &Path, cfg: &StudyConfig) -> Result<()> {
     writeln!(md, "# spinedrr sensitivity study\n").map_err(fmt_err)?;
     writeln!(
         md,
-        "Targets: {}{}; views: {}; seed {}; detector binning {}. The full configuration is `study.toml`.\n",
+        "Levels: {}{}; views: {}; seed {}; detector binning {}. The full configuration is `study.toml`.\n",
         cfg.anatomy.levels.join(", "),
         if cfg.anatomy.segment { " and the segment" } else { "" },
         cfg.geometry.views.join(", "),
@@ -59,7 +59,10 @@ pub fn write(out: &Path, cfg: &StudyConfig) -> Result<()> {
     .map_err(fmt_err)?;
     list_dir(&mut md, out, "tables", "Tables")?;
     list_dir(&mut md, out, "figures", "Figures")?;
-    let first = cfg.anatomy.levels.first().cloned().unwrap_or_default();
+    let first = super::units::targets(cfg)
+        .first()
+        .cloned()
+        .unwrap_or_default();
     let p = out.join("tables/projection.csv");
     if p.exists() {
         let t = Table::read(&p)?;

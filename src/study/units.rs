@@ -137,12 +137,13 @@ pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
     out
 }
 
-/// The targets: each level, then `segment` when enabled.
+/// The targets: each level, then `segment` when enabled, then the mesh targets.
 pub fn targets(cfg: &StudyConfig) -> Vec<String> {
     let mut t: Vec<String> = cfg.anatomy.levels.clone();
-    if cfg.anatomy.segment {
+    if cfg.anatomy.segment && !t.is_empty() {
         t.push("segment".into());
     }
+    t.extend(cfg.anatomy.meshes.iter().map(|m| m.name.clone()));
     t
 }
 

@@ -10,9 +10,11 @@ use std::sync::{Arc, OnceLock};
 
 use glam::{DVec2, DVec3};
 
-use super::config::StudyConfig;
+use super::config::{MeshTarget, StudyConfig};
 use super::units::{Unit, UnitRows, targets};
-use crate::anatomy::{Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels};
+use crate::anatomy::{
+    Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels, read_landmarks, read_mesh,
+};
 use crate::geometry::{CArm, View};
 use crate::render::{RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, phantom_scene};
 use crate::{Error, Result};
@@ -73,6 +75,10 @@ impl Context {
         };
         let mut built = Vec::new();
         for name in targets(cfg) {
+            if let Some(m) = cfg.anatomy.meshes.iter().find(|m| m.name == name) {
+                built.push(mesh_target(cfg, m)?);
+                continue;
+            }
             let levels = if name == "segment" {
                 cfg.levels()?
             } else {
@@ -167,6 +173,49 @@ fn build_target(cfg: &StudyConfig, phantom: &Phantom, name: &str) -> Result<Targ
     };
     Ok(Target {
         name: name.to_string(),
+        renderer,
+        landmarks,
+        markers,
+    })
+}
+
+/// A target from the user's mesh files and landmarks JSON.
+fn mesh_target(cfg: &StudyConfig, m: &MeshTarget) -> Result<Target> {
+    let meshes = m
+        .files
+        .iter()
+        .map(|f| {
+            Ok(SceneMesh {
+                mesh: Arc::new(read_mesh(f)?),
+                mu_per_mm: m.mu_per_mm,
+                object: m.name.clone(),
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let renderer = cfg.geometry.backend.renderer(RenderScene::new(meshes)?)?;
+    let sets = read_landmarks(&m.landmarks)?;
+    let several = sets.len() > 1;
+    let mut landmarks = Vec::new();
+    for set in sets {
+        for (n, &p) in &set.points {
+            let full = if several {
+                format!("{}/{n}", set.level)
+            } else {
+                n.clone()
+            };
+            landmarks.push((full, p));
+        }
+    }
+    let markers = if cfg.runs("landmarks") {
+        landmarks
+            .iter()
+            .map(|(n, p)| marker(cfg, n, *p))
+            .collect::<Result<Vec<_>>>()?
+    } else {
+        Vec::new()
+    };
+    Ok(Target {
+        name: m.name.clone(),
         renderer,
         landmarks,
         markers,
