@@ -48,6 +48,10 @@ fn quick_study_writes_every_table_figure_and_report() {
         "chamfer_vs_perturbation.png".into(),
         "ssim_vs_perturbation.png".into(),
         "landmark_shift_vs_df.png".into(),
+        "landmark_overlay_L1_ap.png".into(),
+        "landmark_overlay_L1_lat.png".into(),
+        "structures_dice_L1_ap.png".into(),
+        "structures_dice_L1_lat.png".into(),
     ];
     for v in ["ap", "lat"] {
         for df in [100, 500] {
@@ -70,6 +74,13 @@ fn quick_study_writes_every_table_figure_and_report() {
     }
     let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
     assert!(report.contains("dice_vs_perturbation.png") && report.contains("paper"));
+    let html = std::fs::read_to_string(out.join("report.html")).expect("report.html");
+    let embedded = html.matches("data:image/png;base64,").count();
+    let pngs = report.matches("![").count();
+    assert!(
+        embedded > 0 && embedded == pngs,
+        "report.html embeds {embedded} of {pngs} figures"
+    );
 }
 
 /// Per (view, landmark): Δf → measured shift, focal family.
