@@ -265,3 +265,42 @@ pub fn summarize_registration(dir: &Path) -> Result<()> {
     }
     write_table(dir, "registration_summary", &lines)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mean_and_sample_sd_match_hand_values_and_skip_nan() {
+        // mean 2.5; Σ(x − m)² = 5 → sample variance 5/3.
+        let (m, s) = mean_sd(&[1.0, 2.0, f64::NAN, 3.0, 4.0]);
+        assert_eq!(m, 2.5);
+        assert!((s - (5.0f64 / 3.0).sqrt()).abs() < 1e-15);
+        assert!(mean_sd(&[f64::NAN]).0.is_nan());
+    }
+
+    #[test]
+    fn rows_round_trip_exactly_through_a_written_table() {
+        let dir = tempfile::tempdir().unwrap();
+        let row = RegistrationRow {
+            target: "L1".into(),
+            method: "kabsch".into(),
+            df_px: 100.0,
+            piercing_px: 0.1 + 0.2,
+            trial: 3,
+            rot_err_deg: 1.0 / 3.0,
+            trans_err_mm: f64::NAN,
+            residual_px: 1e-300,
+            iterations: 7,
+            converged: true,
+        };
+        write_table(dir.path(), "registration", &[row.line()]).unwrap();
+        let t = Table::read(&dir.path().join("registration.csv")).unwrap();
+        let r = &t.rows[0];
+        assert_eq!(t.num(r, "piercing_px").unwrap(), 0.1 + 0.2);
+        assert_eq!(t.num(r, "rot_err_deg").unwrap(), 1.0 / 3.0);
+        assert_eq!(t.num(r, "residual_px").unwrap(), 1e-300);
+        assert!(t.num(r, "trans_err_mm").unwrap().is_nan());
+        assert_eq!(t.str(r, "converged").unwrap(), "true");
+    }
+}
