@@ -20,6 +20,7 @@ pub mod geometry;
 pub mod io;
 pub mod registration;
 pub mod render;
+pub mod study;
 
 pub use error::{Error, Result};
 

@@ -11,6 +11,7 @@ mod phantom;
 mod register;
 mod render;
 mod render_ct;
+mod study;
 
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of
 /// vertebrae under ground-truth and perturbed C-arm intrinsics and measures what changes.
@@ -39,6 +40,9 @@ enum Command {
     /// Mesh one vertebra label of a NIfTI segmentation (closed surface, optional smoothing, decimation
     /// and automatic landmarks).
     Mesh(mesh::Args),
+    /// Run the sensitivity study (paper defaults, --quick, or --config FILE): CSV tables, PNG figures,
+    /// report.md; parallel, deterministic and resumable.
+    Study(study::Args),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -51,6 +55,7 @@ pub fn main() -> ExitCode {
         Command::Compare(a) => compare::run(a),
         Command::Register(a) => register::run(a),
         Command::Mesh(a) => mesh::run(a),
+        Command::Study(a) => study::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

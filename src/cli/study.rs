@@ -1,0 +1,63 @@
+//! `spinedrr study`: the paper's sensitivity study (or one from a config file) as tables, figures and a
+//! report.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args as ClapArgs;
+use spinedrr::study::{RunOptions, StudyConfig, run_study};
+
+#[derive(ClapArgs)]
+pub struct Args {
+    /// Study config (TOML; see examples/study.toml). Without it, the paper's defaults.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// A tiny grid (one level, binned detector, two Δf, three trials) for a smoke test.
+    #[arg(long, conflicts_with = "config")]
+    quick: bool,
+    /// Output folder (tables/, figures/, units/, report.md).
+    #[arg(long, default_value = "study-out")]
+    out: PathBuf,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Stop after running this many work units (the rest run on the next invocation).
+    #[arg(long)]
+    max_units: Option<usize>,
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let cfg = match &a.config {
+        Some(p) => StudyConfig::from_file(p)
+            .with_context(|| format!("reading study config {}", p.display()))?,
+        None if a.quick => StudyConfig::quick(),
+        None => StudyConfig::default(),
+    };
+    if a.threads == Some(0) {
+        anyhow::bail!("--threads must be at least 1");
+    }
+    let opts = RunOptions {
+        out: a.out.clone(),
+        threads: a.threads,
+        max_units: a.max_units,
+        progress: true,
+    };
+    let s = run_study(&cfg, &opts).context("running the study")?;
+    if s.complete {
+        eprintln!(
+            "study complete: {} units ({} reused, {} run); see {}",
+            s.total_units,
+            s.skipped_units,
+            s.ran_units,
+            a.out.join("report.md").display()
+        );
+    } else {
+        eprintln!(
+            "study stopped after {} units ({} of {} done); run again to continue",
+            s.ran_units,
+            s.skipped_units + s.ran_units,
+            s.total_units
+        );
+    }
+    Ok(())
+}

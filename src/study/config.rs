@@ -1,0 +1,468 @@
+//! The study configuration (TOML): anatomy, geometry, perturbation grid, registration trials, outputs.
+//!
+//! Every table has a default, and the defaults are the paper's experiments; `StudyConfig::quick` is a
+//! tiny grid for smoke tests. [`StudyConfig::validate`] runs before any work and names the bad key.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::anatomy::{Level, parse_levels};
+use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig};
+use crate::registration::Method;
+use crate::render::Backend;
+use crate::{Error, Result};
+
+/// Experiments a study can run.
+pub const EXPERIMENTS: [&str; 3] = ["projection", "landmarks", "registration"];
+
+/// Registration methods a study can run (method and the views it observes).
+pub const METHODS: [&str; 6] = [
+    "direct-ap",
+    "direct-lat",
+    "direct-ap+lat",
+    "kabsch",
+    "opencv-ap",
+    "opencv-lat",
+];
+
+/// The whole study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StudyConfig {
+    /// Master seed; every unit derives its own from (seed, unit id).
+    pub seed: u64,
+    /// Which experiments run (of [`EXPERIMENTS`]).
+    pub experiments: Vec<String>,
+    pub anatomy: AnatomyConfig,
+    pub geometry: GeometrySection,
+    pub perturbations: PerturbationGrid,
+    pub registration: RegistrationConfig,
+    /// Δf values (px, focal family) at which difference heatmaps are written.
+    pub heatmaps_df_px: Vec<f64>,
+}
+
+/// `[anatomy]`: the built-in phantom levels and the marker spheres used to measure landmarks.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AnatomyConfig {
+    /// Levels studied one by one, e.g. `["L1", "L2"]`.
+    pub levels: Vec<String>,
+    /// Also study the levels together as one segment.
+    pub segment: bool,
+    /// Marching-cubes grid of the phantom (mm).
+    pub voxel_mm: f64,
+    /// Radius of the landmark marker spheres (mm).
+    pub marker_radius_mm: f64,
+    /// The user's own anatomy: closed meshes with landmarks, each studied as one target.
+    pub meshes: Vec<MeshTarget>,
+}
+
+/// `[[anatomy.meshes]]`: one target made of closed surface files (STL/OBJ/PLY, world mm) and a landmarks
+/// JSON file (the format `spinedrr phantom` writes).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshTarget {
+    pub name: String,
+    pub files: Vec<PathBuf>,
+    pub landmarks: PathBuf,
+    /// Attenuation of every surface (mm⁻¹); default: cortical bone.
+    #[serde(default = "default_mu")]
+    pub mu_per_mm: f64,
+}
+
+fn default_mu() -> f64 {
+    crate::render::tissue_mu(crate::anatomy::Tissue::Cortical)
+}
+
+/// `[geometry]`: the C-arm file (default: the built-in paper geometry), its views and detector binning.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GeometrySection {
+    pub file: Option<PathBuf>,
+    /// Views compared (names in the geometry).
+    pub views: Vec<String>,
+    /// Detector binning: `b` merges b×b pixels (width/b, spacing×b, so K scales by 1/b).
+    pub binning: u32,
+    pub backend: Backend,
+}
+
+/// `[perturbations]`: the intrinsic perturbations of the projection experiments.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PerturbationGrid {
+    /// Focal offsets Δf (px), each alone (family `focal`) and paired in order with the non-zero piercing
+    /// shifts (family `joint`).
+    pub df_px: Vec<f64>,
+    /// Piercing-point shifts (px), applied as (Δcx, Δcy) = (p, p) (family `piercing`).
+    pub piercing_px: Vec<f64>,
+    /// Skew values (px) (family `skew`).
+    pub skew_px: Vec<f64>,
+    /// Anisotropic pixel-scale factors applied to fy (family `scale`).
+    pub pixel_scale: Vec<f64>,
+}
+
+/// `[registration]`: the Monte-Carlo registration experiment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RegistrationConfig {
+    /// Methods (of [`METHODS`]).
+    pub methods: Vec<String>,
+    pub df_px: Vec<f64>,
+    /// Piercing shifts p (px), applied as (p, p).
+    pub piercing_px: Vec<f64>,
+    pub trials: usize,
+    /// Trials per work unit (the resume granularity).
+    pub trials_per_unit: usize,
+    /// Initial pose: exact rotation (deg) about a random axis and translation (mm) in a random direction.
+    pub init_rot_deg: f64,
+    pub init_trans_mm: f64,
+    /// Gaussian noise σ (px) on the observed landmarks.
+    pub noise_px: f64,
+}
+
+impl Default for StudyConfig {
+    fn default() -> Self {
+        StudyConfig {
+            seed: 20240601,
+            experiments: EXPERIMENTS.iter().map(|s| s.to_string()).collect(),
+            anatomy: AnatomyConfig::default(),
+            geometry: GeometrySection::default(),
+            perturbations: PerturbationGrid::default(),
+            registration: RegistrationConfig::default(),
+            heatmaps_df_px: vec![100.0, 500.0],
+        }
+    }
+}
+
+impl Default for AnatomyConfig {
+    fn default() -> Self {
+        AnatomyConfig {
+            levels: ["L1", "L2", "L3", "L4", "L5"].map(String::from).to_vec(),
+            segment: true,
+            voxel_mm: 0.8,
+            marker_radius_mm: 2.0,
+            meshes: Vec::new(),
+        }
+    }
+}
+
+impl Default for GeometrySection {
+    fn default() -> Self {
+        GeometrySection {
+            file: None,
+            views: vec!["ap".into(), "lat".into()],
+            binning: 1,
+            backend: Backend::Embree,
+        }
+    }
+}
+
+impl Default for PerturbationGrid {
+    fn default() -> Self {
+        PerturbationGrid {
+            df_px: vec![100.0, 200.0, 300.0, 400.0, 500.0],
+            piercing_px: vec![0.0, 10.0, 20.0, 30.0, 40.0, 50.0],
+            skew_px: vec![],
+            pixel_scale: vec![],
+        }
+    }
+}
+
+impl Default for RegistrationConfig {
+    fn default() -> Self {
+        RegistrationConfig {
+            methods: METHODS.iter().map(|s| s.to_string()).collect(),
+            df_px: vec![0.0, 100.0, 200.0, 300.0, 400.0, 500.0],
+            piercing_px: vec![0.0, 10.0, 20.0, 30.0, 40.0, 50.0],
+            trials: 20,
+            trials_per_unit: 20,
+            init_rot_deg: 2.0,
+            init_trans_mm: 2.0,
+            noise_px: 0.0,
+        }
+    }
+}
+
+impl StudyConfig {
+    /// A tiny grid for smoke tests: L1 only, 2× binned detector, Δf {100, 500}, piercing {0, 50}, 3 trials.
+    pub fn quick() -> Self {
+        let d = StudyConfig::default();
+        StudyConfig {
+            anatomy: AnatomyConfig {
+                levels: vec!["L1".into()],
+                segment: false,
+                voxel_mm: 1.0,
+                marker_radius_mm: 4.0,
+                meshes: Vec::new(),
+            },
+            geometry: GeometrySection {
+                binning: 2,
+                ..d.geometry
+            },
+            perturbations: PerturbationGrid {
+                df_px: vec![100.0, 500.0],
+                piercing_px: vec![0.0, 50.0],
+                ..d.perturbations
+            },
+            registration: RegistrationConfig {
+                df_px: vec![0.0, 100.0, 500.0],
+                piercing_px: vec![0.0, 50.0],
+                trials: 3,
+                trials_per_unit: 3,
+                ..d.registration
+            },
+            ..d
+        }
+    }
+
+    /// Parses a study TOML document (`origin` names it in errors) and validates it.
+    pub fn from_toml_str(text: &str, origin: &str) -> Result<Self> {
+        let cfg: StudyConfig =
+            toml::from_str(text).map_err(|e| Error::format(origin, e.to_string()))?;
+        cfg.validate()
+            .map_err(|e| Error::format(origin, e.to_string()))?;
+        Ok(cfg)
+    }
+
+    /// Reads and validates a study file.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::from_toml_str(&text, &path.display().to_string())
+    }
+
+    /// The phantom levels, parsed.
+    pub fn levels(&self) -> Result<Vec<Level>> {
+        if self.anatomy.levels.is_empty() {
+            return Ok(Vec::new());
+        }
+        parse_levels(&self.anatomy.levels.join(","))
+            .map_err(|e| Error::invalid("anatomy.levels", e.to_string()))
+    }
+
+    /// Checks every key before any work; errors name the key and the value.
+    pub fn validate(&self) -> Result<()> {
+        for e in &self.experiments {
+            if !EXPERIMENTS.contains(&e.as_str()) {
+                return Err(Error::invalid(
+                    "experiments",
+                    format!("unknown experiment '{e}' (use {})", EXPERIMENTS.join(", ")),
+                ));
+            }
+        }
+        if self.anatomy.levels.is_empty() && self.anatomy.meshes.is_empty() {
+            return Err(Error::invalid(
+                "anatomy.levels",
+                "must list at least one level (or give [[anatomy.meshes]])",
+            ));
+        }
+        self.levels()?;
+        self.validate_meshes()?;
+        positive("anatomy.voxel_mm", self.anatomy.voxel_mm)?;
+        positive("anatomy.marker_radius_mm", self.anatomy.marker_radius_mm)?;
+        if self.geometry.binning == 0 {
+            return Err(Error::invalid("geometry.binning", "must be at least 1"));
+        }
+        let carm = self.carm()?;
+        if self.geometry.views.is_empty() {
+            return Err(Error::invalid(
+                "geometry.views",
+                "must list at least one view",
+            ));
+        }
+        for v in &self.geometry.views {
+            carm.view(v)
+                .map_err(|e| Error::invalid("geometry.views", e.to_string()))?;
+        }
+        let p = &self.perturbations;
+        finite_list("perturbations.df_px", &p.df_px)?;
+        finite_list("perturbations.piercing_px", &p.piercing_px)?;
+        finite_list("perturbations.skew_px", &p.skew_px)?;
+        finite_list("perturbations.pixel_scale", &p.pixel_scale)?;
+        if let Some(s) = p.pixel_scale.iter().find(|s| **s <= 0.0) {
+            return Err(Error::invalid(
+                "perturbations.pixel_scale",
+                format!("{s} must be > 0"),
+            ));
+        }
+        finite_list("heatmaps_df_px", &self.heatmaps_df_px)?;
+        self.validate_registration()
+    }
+
+    fn validate_meshes(&self) -> Result<()> {
+        let mut names: Vec<&str> = self.anatomy.levels.iter().map(String::as_str).collect();
+        names.push("segment");
+        for m in &self.anatomy.meshes {
+            let ok = !m.name.is_empty()
+                && m.name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '-');
+            if !ok || names.contains(&m.name.as_str()) {
+                return Err(Error::invalid(
+                    "anatomy.meshes.name",
+                    format!(
+                        "'{}' must be unique, non-empty, letters/digits/'-' only",
+                        m.name
+                    ),
+                ));
+            }
+            names.push(&m.name);
+            if m.files.is_empty() {
+                return Err(Error::invalid(
+                    "anatomy.meshes.files",
+                    format!("target '{}' lists no files", m.name),
+                ));
+            }
+            for f in m.files.iter().chain([&m.landmarks]) {
+                if !f.is_file() {
+                    return Err(Error::invalid(
+                        "anatomy.meshes",
+                        format!("target '{}': no such file {}", m.name, f.display()),
+                    ));
+                }
+            }
+            if !m.mu_per_mm.is_finite() {
+                return Err(Error::invalid(
+                    "anatomy.meshes.mu_per_mm",
+                    format!("{} is not finite", m.mu_per_mm),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn validate_registration(&self) -> Result<()> {
+        let r = &self.registration;
+        for m in &r.methods {
+            method_spec(m)?;
+        }
+        finite_list("registration.df_px", &r.df_px)?;
+        finite_list("registration.piercing_px", &r.piercing_px)?;
+        if r.trials == 0 {
+            return Err(Error::invalid("registration.trials", "must be at least 1"));
+        }
+        if r.trials_per_unit == 0 {
+            return Err(Error::invalid(
+                "registration.trials_per_unit",
+                "must be at least 1",
+            ));
+        }
+        for (k, v) in [
+            ("registration.init_rot_deg", r.init_rot_deg),
+            ("registration.init_trans_mm", r.init_trans_mm),
+            ("registration.noise_px", r.noise_px),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::invalid(k, format!("{v} must be finite and >= 0")));
+            }
+        }
+        Ok(())
+    }
+
+    /// The C-arm: the geometry file (or the built-in one) with the detector binned.
+    pub fn carm(&self) -> Result<CArm> {
+        let (text, origin) = match &self.geometry.file {
+            Some(path) => (
+                std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?,
+                path.display().to_string(),
+            ),
+            None => (
+                DEFAULT_GEOMETRY_TOML.to_string(),
+                "built-in geometry".into(),
+            ),
+        };
+        let mut g: GeometryConfig =
+            toml::from_str(&text).map_err(|e| Error::format(&origin, e.to_string()))?;
+        let b = self.geometry.binning;
+        if b > 1 {
+            let d = &mut g.detector;
+            if d.k.is_some() {
+                return Err(Error::invalid(
+                    "geometry.binning",
+                    format!("{origin} gives an explicit K; binning needs pixel spacing"),
+                ));
+            }
+            let bf = f64::from(b);
+            d.width /= b;
+            d.height /= b;
+            d.pixel_spacing_mm = d.pixel_spacing_mm.map(|s| s * bf);
+            d.principal_point_px = d
+                .principal_point_px
+                .map(|c| c.map(|c| (c + 0.5) / bf - 0.5));
+            d.skew_px = d.skew_px.map(|s| s / bf);
+        }
+        g.build().map_err(|e| Error::format(&origin, e.to_string()))
+    }
+
+    /// Whether experiment `name` runs.
+    pub fn runs(&self, name: &str) -> bool {
+        self.experiments.iter().any(|e| e == name)
+    }
+}
+
+/// A registration method name → the solver and the views it observes.
+pub fn method_spec(name: &str) -> Result<(Method, Vec<String>)> {
+    let (m, views) = match name {
+        "direct-ap" => ("direct", vec!["ap"]),
+        "direct-lat" => ("direct", vec!["lat"]),
+        "direct-ap+lat" => ("direct", vec!["ap", "lat"]),
+        "kabsch" => ("kabsch", vec!["ap", "lat"]),
+        "opencv-ap" => ("opencv", vec!["ap"]),
+        "opencv-lat" => ("opencv", vec!["lat"]),
+        _ => {
+            return Err(Error::invalid(
+                "registration.methods",
+                format!("unknown method '{name}' (use {})", METHODS.join(", ")),
+            ));
+        }
+    };
+    Ok((
+        Method::parse(m)?,
+        views.into_iter().map(String::from).collect(),
+    ))
+}
+
+fn positive(key: &str, v: f64) -> Result<()> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::invalid(key, format!("{v} must be finite and > 0")))
+    }
+}
+
+fn finite_list(key: &str, v: &[f64]) -> Result<()> {
+    match v.iter().find(|x| !x.is_finite()) {
+        Some(x) => Err(Error::invalid(key, format!("{x} is not finite"))),
+        None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_and_quick_validate() {
+        StudyConfig::default().validate().unwrap();
+        StudyConfig::quick().validate().unwrap();
+    }
+
+    #[test]
+    fn binning_scales_k_like_merging_pixels() {
+        // 1024 px at 0.30 mm, SDD 1350 → fx = 4500, cx = 511.5; binned ×2: 512 px at 0.60 mm → fx = 2250,
+        // and the detector centre (511.5 + 0.5) / 2 − 0.5 = 255.5.
+        let mut cfg = StudyConfig::default();
+        cfg.geometry.binning = 2;
+        let k = cfg.carm().unwrap().view("ap").unwrap().intrinsics;
+        assert_eq!((k.width, k.height), (512, 512));
+        assert!((k.fx - 2250.0).abs() < 1e-9 && (k.fy - 2250.0).abs() < 1e-9);
+        assert!((k.cx - 255.5).abs() < 1e-9 && (k.cy - 255.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn config_round_trips_through_toml() {
+        let q = StudyConfig::quick();
+        let text = toml::to_string(&q).unwrap();
+        assert_eq!(StudyConfig::from_toml_str(&text, "test").unwrap(), q);
+    }
+}

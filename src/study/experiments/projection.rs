@@ -1,0 +1,202 @@
+//! Projection experiments of one (target, view, perturbation): whole-object silhouette + contour +
+//! image-similarity metrics, per-structure Dice, difference heatmaps, and landmark shifts measured from
+//! marker images beside the homography prediction `x' = H x`, `H = K' K⁻¹`.
+
+use super::{Context, Reference, Target};
+use crate::Result;
+use crate::analysis::{
+    MaskPair, abs_difference, blob_centroid, image_metrics, silhouette_metrics, write_heatmap_png,
+};
+use crate::anatomy::Structure;
+use crate::geometry::{View, apply_homography};
+use crate::render::{ThicknessDrr, ThicknessOptions};
+use crate::study::units::{LandmarkRow, NamedPerturbation, ProjectionRow, StructureRow, UnitRows};
+use glam::DVec2;
+
+/// Structures reported in `structures.csv`.
+const STRUCTURES: [Structure; 7] = [
+    Structure::Body,
+    Structure::PedicleLeft,
+    Structure::PedicleRight,
+    Structure::Lamina,
+    Structure::Spinous,
+    Structure::Transverse,
+    Structure::Articular,
+];
+
+/// Runs the projection unit.
+pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -> Result<UnitRows> {
+    let view = ctx.carm.view(view_name)?;
+    let pv = view.perturbed(&np.perturbation)?;
+    let mut rows = UnitRows::default();
+    let reference = ctx.reference(t, view)?;
+    if let Some(a) = &reference.drr {
+        let b = t.renderer.render(&pv, &ThicknessOptions::default())?;
+        rows.projection.push(whole_object(ctx, t, view, np, a, &b)?);
+        rows.structures = structures(t, view, np, a, &b)?;
+        let q = &np.perturbation;
+        let is_heatmap_df = ctx.cfg.heatmaps_df_px.contains(&q.df_px);
+        if np.family == "focal" && is_heatmap_df {
+            let diff = abs_difference(&a.line_integral, &b.line_integral)?;
+            let path = ctx.figures_dir.join(format!(
+                "heatmap_{}_{}_df{}.png",
+                t.name, view.name, q.df_px
+            ));
+            write_heatmap_png(&path, &diff)?;
+        }
+    }
+    if ctx.cfg.runs("landmarks") {
+        rows.landmarks = landmarks(ctx, t, view, &pv, np, &reference.markers)?;
+    }
+    Ok(rows)
+}
+
+/// The reference render (when the projection experiment runs) and reference marker centroids.
+pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
+    let drr = if ctx.cfg.runs("projection") {
+        Some(t.renderer.render(view, &ThicknessOptions::default())?)
+    } else {
+        None
+    };
+    let markers = if ctx.cfg.runs("landmarks") {
+        t.markers
+            .iter()
+            .map(|m| measure(ctx, m, view))
+            .collect::<Result<Vec<_>>>()?
+    } else {
+        Vec::new()
+    };
+    Ok(Reference { drr, markers })
+}
+
+fn whole_object(
+    ctx: &Context,
+    t: &Target,
+    view: &View,
+    np: &NamedPerturbation,
+    a: &ThicknessDrr,
+    b: &ThicknessDrr,
+) -> Result<ProjectionRow> {
+    let k = view.intrinsics;
+    let pair = MaskPair {
+        name: t.name.clone(),
+        width: k.width,
+        height: k.height,
+        reference: a.union_mask(),
+        perturbed: b.union_mask(),
+    };
+    let s = silhouette_metrics(&pair)?;
+    let im = ctx
+        .metrics_pool
+        .install(|| image_metrics(&a.line_integral, &b.line_integral))?;
+    let q = &np.perturbation;
+    Ok(ProjectionRow {
+        target: t.name.clone(),
+        view: view.name.clone(),
+        family: np.family.to_string(),
+        df_px: q.df_px,
+        dcx_px: q.dcx_px,
+        dcy_px: q.dcy_px,
+        skew_px: q.skew_px,
+        sy: q.sy,
+        dice: s.dice,
+        iou: s.iou,
+        chamfer_mean_px: s.chamfer_mean_px,
+        hausdorff_px: s.hausdorff_px,
+        hd95_px: s.hd95_px,
+        edge_distance_mean_px: s.edge_distance_mean_px,
+        ncc: im.ncc,
+        ssim: im.ssim,
+        mutual_information_nats: im.mutual_information_nats,
+        gradient_correlation: im.gradient_correlation,
+        mean_abs_diff_per_mm: im.mean_abs_diff,
+    })
+}
+
+fn structures(
+    t: &Target,
+    view: &View,
+    np: &NamedPerturbation,
+    a: &ThicknessDrr,
+    b: &ThicknessDrr,
+) -> Result<Vec<StructureRow>> {
+    let q = &np.perturbation;
+    let mut rows = Vec::new();
+    for s in STRUCTURES {
+        let (ma, mb) = (a.structure_mask(s), b.structure_mask(s));
+        if !ma.iter().any(|x| *x) {
+            continue;
+        }
+        let (dice, iou) = crate::analysis::dice_iou(&ma, &mb)?;
+        rows.push(StructureRow {
+            target: t.name.clone(),
+            view: view.name.clone(),
+            family: np.family.to_string(),
+            df_px: q.df_px,
+            dcx_px: q.dcx_px,
+            dcy_px: q.dcy_px,
+            structure: s.name().to_string(),
+            dice,
+            iou,
+        });
+    }
+    Ok(rows)
+}
+
+/// Blob centroid of a marker rendered alone in `view`, searched around its projected centre; `None`
+/// when the marker's search disc is not wholly on the detector (a cut blob has a biased centroid).
+fn measure(ctx: &Context, m: &super::Marker, view: &View) -> Result<Option<DVec2>> {
+    let k = view.intrinsics;
+    let radius_px =
+        1.5 * ctx.cfg.anatomy.marker_radius_mm * k.fx.max(k.fy) / view.depth(m.position) + 2.0;
+    let c = view.project(m.position);
+    let (w, h) = (f64::from(k.width) - 1.0, f64::from(k.height) - 1.0);
+    let inside = c.x - radius_px >= 0.0
+        && c.y - radius_px >= 0.0
+        && c.x + radius_px <= w
+        && c.y + radius_px <= h;
+    if !(inside && view.depth(m.position) > 0.0) {
+        return Ok(None);
+    }
+    let img = m.renderer.render(view, &ThicknessOptions::default())?;
+    Ok(blob_centroid(&img.line_integral, c, radius_px))
+}
+
+fn landmarks(
+    ctx: &Context,
+    t: &Target,
+    view: &View,
+    pv: &View,
+    np: &NamedPerturbation,
+    reference: &[Option<DVec2>],
+) -> Result<Vec<LandmarkRow>> {
+    let h = view.homography_to(pv);
+    let q = &np.perturbation;
+    let mut rows = Vec::new();
+    for (m, x_ref) in t.markers.iter().zip(reference) {
+        // Off the detector: the row stays, with NaN measurements (it shows in the table, not lost).
+        let nan = DVec2::splat(f64::NAN);
+        let x = x_ref.unwrap_or(nan);
+        let y = measure(ctx, m, pv)?.unwrap_or(nan);
+        let p = apply_homography(&h, x);
+        rows.push(LandmarkRow {
+            target: t.name.clone(),
+            view: view.name.clone(),
+            family: np.family.to_string(),
+            df_px: q.df_px,
+            dcx_px: q.dcx_px,
+            dcy_px: q.dcy_px,
+            landmark: m.name.clone(),
+            ref_u_px: x.x,
+            ref_v_px: x.y,
+            meas_u_px: y.x,
+            meas_v_px: y.y,
+            shift_px: (y - x).length(),
+            pred_u_px: p.x,
+            pred_v_px: p.y,
+            pred_shift_px: (p - x).length(),
+            pred_error_px: (y - p).length(),
+        });
+    }
+    Ok(rows)
+}

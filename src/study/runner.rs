@@ -1,0 +1,172 @@
+//! Parallel, deterministic, resumable execution of a study's work units.
+//!
+//! Each unit's CSV lines go atomically to `out/units/<id>.json`, tagged with the config fingerprint; a
+//! unit whose file exists with the same fingerprint is skipped (resume). Tables, figures and the report
+//! are assembled only once every unit is present, in the fixed unit order, so their bytes do not depend
+//! on the thread count or on interruptions.
+
+use std::collections::BTreeMap;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use super::config::StudyConfig;
+use super::experiments::Context;
+use super::tables::{TABLES, summarize_registration, unit_lines, write_table};
+use super::units::{Unit, UnitFile, derive_seed, enumerate_units};
+use super::{figures, report, report_html};
+use crate::io::write_atomic_bytes;
+use crate::{Error, Result};
+
+/// How to run a study.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    pub out: PathBuf,
+    /// Worker threads (default: rayon's choice).
+    pub threads: Option<usize>,
+    /// Stop after running this many units (for interruption tests).
+    pub max_units: Option<usize>,
+    /// Show a progress bar (only when stderr is a terminal and not in CI).
+    pub progress: bool,
+}
+
+/// What a run did.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunSummary {
+    pub total_units: usize,
+    pub skipped_units: usize,
+    pub ran_units: usize,
+    /// All units present and the tables, figures and report written.
+    pub complete: bool,
+}
+
+/// The fingerprint of a config: FNV-1a over its canonical TOML.
+pub fn fingerprint(cfg: &StudyConfig) -> Result<String> {
+    let text = toml::to_string(cfg)
+        .map_err(|e| Error::Numerical(format!("serialising the study config: {e}")))?;
+    Ok(format!("{:016x}", derive_seed(0, &text, 0)))
+}
+
+fn unit_path(out: &Path, id: &str) -> PathBuf {
+    out.join("units").join(format!("{id}.json"))
+}
+
+/// The unit file at `path` if it exists, parses and carries `fp`.
+fn load_unit(path: &Path, fp: &str) -> Option<UnitFile> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let f: UnitFile = serde_json::from_str(&text).ok()?;
+    (f.fingerprint == fp).then_some(f)
+}
+
+fn create_dir(p: &Path) -> Result<()> {
+    std::fs::create_dir_all(p).map_err(|e| Error::io(p, e))
+}
+
+/// Runs (or resumes) the study.
+pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
+    cfg.validate()?;
+    let fp = fingerprint(cfg)?;
+    let units = enumerate_units(cfg)?;
+    for d in ["units", "tables", "figures"] {
+        create_dir(&opts.out.join(d))?;
+    }
+    let config_text = toml::to_string(cfg)
+        .map_err(|e| Error::Numerical(format!("serialising the study config: {e}")))?;
+    write_atomic_bytes(&opts.out.join("study.toml"), config_text.as_bytes())?;
+    let pending: Vec<&Unit> = units
+        .iter()
+        .filter(|u| load_unit(&unit_path(&opts.out, &u.id()), &fp).is_none())
+        .collect();
+    let skipped = units.len() - pending.len();
+    let todo: Vec<&Unit> = match opts.max_units {
+        Some(n) => pending.iter().take(n).copied().collect(),
+        None => pending.clone(),
+    };
+    if !todo.is_empty() {
+        run_units(cfg, opts, &fp, &todo)?;
+    }
+    let complete = todo.len() == pending.len();
+    if complete {
+        assemble(&opts.out, &units, &fp)?;
+        figures::write_all(&opts.out)?;
+        report::write(&opts.out, cfg)?;
+        report_html::write(&opts.out)?;
+    }
+    Ok(RunSummary {
+        total_units: units.len(),
+        skipped_units: skipped,
+        ran_units: todo.len(),
+        complete,
+    })
+}
+
+fn run_units(cfg: &StudyConfig, opts: &RunOptions, fp: &str, todo: &[&Unit]) -> Result<()> {
+    let mut builder = rayon::ThreadPoolBuilder::new();
+    if let Some(n) = opts.threads {
+        builder = builder.num_threads(n);
+    }
+    let pool = builder
+        .build()
+        .map_err(|e| Error::invalid("threads", e.to_string()))?;
+    let ctx = Context::build(cfg, opts.out.join("figures"))?;
+    let bar = progress_bar(opts.progress, todo.len());
+    pool.install(|| {
+        todo.par_iter().try_for_each(|u| -> Result<()> {
+            let rows = ctx.run(u)?;
+            let file = UnitFile {
+                id: u.id(),
+                fingerprint: fp.to_string(),
+                tables: unit_lines(&rows),
+            };
+            let text = serde_json::to_string(&file)
+                .map_err(|e| Error::Numerical(format!("serialising unit {}: {e}", u.id())))?;
+            write_atomic_bytes(&unit_path(&opts.out, &u.id()), text.as_bytes())?;
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            Ok(())
+        })
+    })?;
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    Ok(())
+}
+
+fn progress_bar(wanted: bool, n: usize) -> Option<indicatif::ProgressBar> {
+    let ci = std::env::var_os("CI").is_some();
+    if !(wanted && std::io::stderr().is_terminal() && !ci) {
+        return None;
+    }
+    let bar = indicatif::ProgressBar::new(n as u64);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{bar:40} {pos}/{len} units, {elapsed_precise} elapsed, ETA {eta}",
+    ) {
+        bar.set_style(style);
+    }
+    Some(bar)
+}
+
+/// Concatenates every unit's lines, in unit order, into `tables/*.csv`.
+fn assemble(out: &Path, units: &[Unit], fp: &str) -> Result<()> {
+    let mut tables: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for u in units {
+        let path = unit_path(out, &u.id());
+        let f = load_unit(&path, fp)
+            .ok_or_else(|| Error::format(&path, "unit result missing or from another config"))?;
+        for (name, lines) in f.tables {
+            tables.entry(name).or_default().extend(lines);
+        }
+    }
+    let dir = out.join("tables");
+    for name in TABLES {
+        if let Some(lines) = tables.get(name) {
+            write_table(&dir, name, lines)?;
+        }
+    }
+    if tables.contains_key("registration") {
+        summarize_registration(&dir)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,282 @@
+//! Work units (independent pieces of a study, each resumable) and the table rows they produce.
+
+use serde::{Deserialize, Serialize};
+
+use super::config::StudyConfig;
+use crate::Result;
+use crate::geometry::Perturbation;
+
+/// A projection perturbation with its family (`focal`, `piercing`, `joint`, `skew`, `scale`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NamedPerturbation {
+    pub family: &'static str,
+    pub perturbation: Perturbation,
+}
+
+/// One independent piece of work.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Unit {
+    /// Silhouette, image and landmark metrics of `target` in `view` under one perturbation.
+    Projection {
+        target: String,
+        view: String,
+        p: NamedPerturbation,
+    },
+    /// Trials `first..first + count` of one registration cell.
+    Registration {
+        target: String,
+        method: String,
+        df_px: f64,
+        piercing_px: f64,
+        first: usize,
+        count: usize,
+    },
+}
+
+impl Unit {
+    /// A file-name-safe, unique id.
+    pub fn id(&self) -> String {
+        let raw = match self {
+            Unit::Projection { target, view, p } => {
+                let q = &p.perturbation;
+                format!(
+                    "proj_{target}_{view}_{}_df{}_cx{}_cy{}_s{}_sy{}",
+                    p.family, q.df_px, q.dcx_px, q.dcy_px, q.skew_px, q.sy
+                )
+            }
+            Unit::Registration {
+                target,
+                method,
+                df_px,
+                piercing_px,
+                first,
+                ..
+            } => format!("reg_{target}_{method}_df{df_px}_p{piercing_px}_t{first}"),
+        };
+        raw.replace('+', "_")
+    }
+
+    /// The key every random draw of this unit derives from (trial chunking excluded, so the same trial
+    /// draws the same numbers whatever `trials_per_unit` is).
+    pub fn seed_key(&self) -> String {
+        match self {
+            Unit::Registration {
+                target,
+                method,
+                df_px,
+                piercing_px,
+                ..
+            } => format!("reg/{target}/{method}/{df_px}/{piercing_px}"),
+            other => other.id(),
+        }
+    }
+}
+
+/// A seed for `(seed, key, index)`: FNV-1a of the key mixed with the master seed and the index.
+pub fn derive_seed(seed: u64, key: &str, index: u64) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in key.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    let mut z = h ^ seed.rotate_left(17) ^ index.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// The projection perturbations of the grid, in table order.
+pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
+    let g = &cfg.perturbations;
+    let mut out = Vec::new();
+    let mut push = |family, perturbation| {
+        out.push(NamedPerturbation {
+            family,
+            perturbation,
+        })
+    };
+    for &df in &g.df_px {
+        push("focal", Perturbation::focal(df));
+    }
+    let nonzero: Vec<f64> = g
+        .piercing_px
+        .iter()
+        .copied()
+        .filter(|p| *p != 0.0)
+        .collect();
+    for &p in &nonzero {
+        push("piercing", Perturbation::piercing(p, p));
+    }
+    for (&df, &p) in g.df_px.iter().zip(&nonzero) {
+        push(
+            "joint",
+            Perturbation {
+                df_px: df,
+                ..Perturbation::piercing(p, p)
+            },
+        );
+    }
+    for &s in &g.skew_px {
+        push(
+            "skew",
+            Perturbation {
+                skew_px: s,
+                ..Perturbation::NONE
+            },
+        );
+    }
+    for &sy in &g.pixel_scale {
+        push(
+            "scale",
+            Perturbation {
+                sy,
+                ..Perturbation::NONE
+            },
+        );
+    }
+    out
+}
+
+/// The targets: each level, then `segment` when enabled, then the mesh targets.
+pub fn targets(cfg: &StudyConfig) -> Vec<String> {
+    let mut t: Vec<String> = cfg.anatomy.levels.clone();
+    if cfg.anatomy.segment && !t.is_empty() {
+        t.push("segment".into());
+    }
+    t.extend(cfg.anatomy.meshes.iter().map(|m| m.name.clone()));
+    t
+}
+
+/// Every unit of the study in a fixed order (the order of the tables).
+pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
+    cfg.validate()?;
+    let mut units = Vec::new();
+    if cfg.runs("projection") || cfg.runs("landmarks") {
+        for target in targets(cfg) {
+            for view in &cfg.geometry.views {
+                for p in projection_perturbations(cfg) {
+                    units.push(Unit::Projection {
+                        target: target.clone(),
+                        view: view.clone(),
+                        p,
+                    });
+                }
+            }
+        }
+    }
+    if cfg.runs("registration") {
+        let r = &cfg.registration;
+        for target in targets(cfg) {
+            for method in &r.methods {
+                for &df_px in &r.df_px {
+                    for &piercing_px in &r.piercing_px {
+                        for first in (0..r.trials).step_by(r.trials_per_unit) {
+                            units.push(Unit::Registration {
+                                target: target.clone(),
+                                method: method.clone(),
+                                df_px,
+                                piercing_px,
+                                first,
+                                count: r.trials_per_unit.min(r.trials - first),
+                            });
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(units)
+}
+
+/// Whole-object silhouette, contour and image-similarity metrics (table `projection.csv`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProjectionRow {
+    pub target: String,
+    pub view: String,
+    pub family: String,
+    pub df_px: f64,
+    pub dcx_px: f64,
+    pub dcy_px: f64,
+    pub skew_px: f64,
+    pub sy: f64,
+    pub dice: f64,
+    pub iou: f64,
+    pub chamfer_mean_px: f64,
+    pub hausdorff_px: f64,
+    pub hd95_px: f64,
+    pub edge_distance_mean_px: f64,
+    pub ncc: f64,
+    pub ssim: f64,
+    pub mutual_information_nats: f64,
+    pub gradient_correlation: f64,
+    pub mean_abs_diff_per_mm: f64,
+}
+
+/// Dice/IoU of one anatomical structure (table `structures.csv`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StructureRow {
+    pub target: String,
+    pub view: String,
+    pub family: String,
+    pub df_px: f64,
+    pub dcx_px: f64,
+    pub dcy_px: f64,
+    pub structure: String,
+    pub dice: f64,
+    pub iou: f64,
+}
+
+/// One landmark measured from marker images, with the homography prediction (table `landmarks.csv`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LandmarkRow {
+    pub target: String,
+    pub view: String,
+    pub family: String,
+    pub df_px: f64,
+    pub dcx_px: f64,
+    pub dcy_px: f64,
+    pub landmark: String,
+    pub ref_u_px: f64,
+    pub ref_v_px: f64,
+    pub meas_u_px: f64,
+    pub meas_v_px: f64,
+    pub shift_px: f64,
+    pub pred_u_px: f64,
+    pub pred_v_px: f64,
+    pub pred_shift_px: f64,
+    /// `‖x_meas − H x_ref‖`.
+    pub pred_error_px: f64,
+}
+
+/// One registration trial (table `registration.csv`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegistrationRow {
+    pub target: String,
+    pub method: String,
+    pub df_px: f64,
+    pub piercing_px: f64,
+    pub trial: usize,
+    pub rot_err_deg: f64,
+    pub trans_err_mm: f64,
+    pub residual_px: f64,
+    pub iterations: usize,
+    pub converged: bool,
+}
+
+/// Everything one unit produced.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct UnitRows {
+    pub projection: Vec<ProjectionRow>,
+    pub structures: Vec<StructureRow>,
+    pub landmarks: Vec<LandmarkRow>,
+    pub registration: Vec<RegistrationRow>,
+}
+
+/// The file `units/<id>.json`: the unit's CSV lines per table plus the config fingerprint they belong
+/// to. Lines, not numbers, so NaN survives and the assembled tables are byte-identical to a fresh run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct UnitFile {
+    pub id: String,
+    pub fingerprint: String,
+    pub tables: std::collections::BTreeMap<String, Vec<String>>,
+}

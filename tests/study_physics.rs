@@ -1,0 +1,238 @@
+//! `spinedrr study --quick` end to end: every table and figure exists, and the CSVs obey the physics of
+//! an intrinsic perturbation (homography law, piercing translation, AP vs LAT, registration at zero
+//! perturbation and growth with Δf).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use spinedrr::study::tables::Table;
+
+fn quick_out() -> &'static Path {
+    static OUT: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &OUT.get_or_init(|| {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let out = dir.path().join("study");
+        let st = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+            .args(["study", "--quick", "--out"])
+            .arg(&out)
+            .status()
+            .expect("run spinedrr");
+        assert!(st.success(), "spinedrr study --quick failed");
+        (dir, out)
+    })
+    .1
+}
+
+fn table(name: &str) -> Table {
+    Table::read(&quick_out().join("tables").join(format!("{name}.csv"))).expect("table")
+}
+
+#[test]
+fn quick_study_writes_every_table_figure_and_report() {
+    let out = quick_out();
+    for t in [
+        "projection",
+        "structures",
+        "landmarks",
+        "registration",
+        "registration_summary",
+    ] {
+        let t = Table::read(&out.join(format!("tables/{t}.csv"))).expect("table");
+        assert!(!t.rows.is_empty());
+    }
+    let mut figures = vec![
+        "dice_vs_perturbation.png".to_string(),
+        "iou_vs_perturbation.png".into(),
+        "chamfer_vs_perturbation.png".into(),
+        "ssim_vs_perturbation.png".into(),
+        "landmark_shift_vs_df.png".into(),
+        "landmark_overlay_L1_ap.png".into(),
+        "landmark_overlay_L1_lat.png".into(),
+        "structures_dice_L1_ap.png".into(),
+        "structures_dice_L1_lat.png".into(),
+    ];
+    for v in ["ap", "lat"] {
+        for df in [100, 500] {
+            figures.push(format!("heatmap_L1_{v}_df{df}.png"));
+        }
+    }
+    for m in [
+        "direct-ap",
+        "direct-lat",
+        "direct-ap_lat",
+        "kabsch",
+        "opencv-ap",
+    ] {
+        figures.push(format!("registration_L1_{m}_rot.png"));
+        figures.push(format!("registration_L1_{m}_trans.png"));
+    }
+    for f in figures {
+        let img = image::open(out.join("figures").join(&f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        assert!(img.width() > 100 && img.height() > 100, "{f}");
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(report.contains("dice_vs_perturbation.png") && report.contains("paper"));
+    let html = std::fs::read_to_string(out.join("report.html")).expect("report.html");
+    let embedded = html.matches("data:image/png;base64,").count();
+    let pngs = report.matches("![").count();
+    assert!(
+        embedded > 0 && embedded == pngs,
+        "report.html embeds {embedded} of {pngs} figures"
+    );
+}
+
+/// Per (view, landmark): Δf → measured shift, focal family.
+fn focal_shifts(t: &Table) -> BTreeMap<(String, String), Vec<(f64, f64)>> {
+    let mut m: BTreeMap<(String, String), Vec<(f64, f64)>> = BTreeMap::new();
+    for r in &t.rows {
+        if t.str(r, "family").unwrap() == "focal" {
+            let key = (
+                t.str(r, "view").unwrap().to_string(),
+                t.str(r, "landmark").unwrap().to_string(),
+            );
+            m.entry(key)
+                .or_default()
+                .push((t.num(r, "df_px").unwrap(), t.num(r, "shift_px").unwrap()));
+        }
+    }
+    m
+}
+
+#[test]
+fn landmark_shifts_grow_with_focal_offset() {
+    let t = table("landmarks");
+    let shifts = focal_shifts(&t);
+    assert!(!shifts.is_empty());
+    for ((view, name), mut v) in shifts {
+        v.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for w in v.windows(2) {
+            // A landmark on the central ray does not move; all others move further for a larger Δf.
+            if w[1].1 > 0.05 {
+                assert!(
+                    w[1].1 > w[0].1,
+                    "{view} {name}: shift {:?} then {:?}",
+                    w[0],
+                    w[1]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn measured_landmark_shifts_equal_the_homography_prediction() {
+    let t = table("landmarks");
+    for r in &t.rows {
+        let e = t.num(r, "pred_error_px").unwrap();
+        assert!(e <= 0.05, "{r:?}: measured − H·x = {e} px");
+    }
+}
+
+#[test]
+fn piercing_shift_moves_every_landmark_by_exactly_the_shift() {
+    let t = table("landmarks");
+    let mut n = 0;
+    for r in t
+        .rows
+        .iter()
+        .filter(|r| t.str(r, "family").unwrap() == "piercing")
+    {
+        let du = t.num(r, "meas_u_px").unwrap() - t.num(r, "ref_u_px").unwrap();
+        let dv = t.num(r, "meas_v_px").unwrap() - t.num(r, "ref_v_px").unwrap();
+        let (cx, cy) = (t.num(r, "dcx_px").unwrap(), t.num(r, "dcy_px").unwrap());
+        assert!(
+            (du - cx).abs() < 1e-6 && (dv - cy).abs() < 1e-6,
+            "{r:?}: moved ({du}, {dv})"
+        );
+        n += 1;
+    }
+    assert!(n > 0, "no piercing rows");
+}
+
+#[test]
+fn lat_is_more_sensitive_than_ap() {
+    let lm = table("landmarks");
+    let proj = table("projection");
+    for df in [100.0, 500.0] {
+        let mean_shift = |view: &str| {
+            let v: Vec<f64> = lm
+                .rows
+                .iter()
+                .filter(|r| {
+                    lm.str(r, "family").unwrap() == "focal" && lm.str(r, "view").unwrap() == view
+                })
+                .filter(|r| lm.num(r, "df_px").unwrap() == df)
+                .map(|r| lm.num(r, "shift_px").unwrap())
+                .collect();
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        assert!(
+            mean_shift("lat") > mean_shift("ap"),
+            "Δf {df}: LAT shifts ≤ AP shifts"
+        );
+        let dice = |view: &str| {
+            let r = proj
+                .rows
+                .iter()
+                .find(|r| {
+                    proj.str(r, "family").unwrap() == "focal"
+                        && proj.str(r, "view").unwrap() == view
+                        && proj.num(r, "df_px").unwrap() == df
+                })
+                .expect("row");
+            proj.num(r, "dice").unwrap()
+        };
+        assert!(dice("lat") < dice("ap"), "Δf {df}: LAT Dice ≥ AP Dice");
+        assert!(
+            dice("ap") < 1.0,
+            "Δf {df}: a focal change must shrink the overlap"
+        );
+    }
+}
+
+#[test]
+fn registration_is_exact_at_zero_perturbation_and_degrades_with_focal_offset() {
+    let t = table("registration_summary");
+    let cell = |method: &str, df: f64| {
+        let r = t
+            .rows
+            .iter()
+            .find(|r| {
+                t.str(r, "method").unwrap() == method
+                    && t.num(r, "df_px").unwrap() == df
+                    && t.num(r, "piercing_px").unwrap() == 0.0
+            })
+            .unwrap_or_else(|| panic!("no {method} Δf {df}"));
+        (
+            t.num(r, "rot_err_deg_mean").unwrap(),
+            t.num(r, "trans_err_mm_mean").unwrap(),
+        )
+    };
+    for m in [
+        "direct-ap",
+        "direct-lat",
+        "direct-ap+lat",
+        "kabsch",
+        "opencv-ap",
+    ] {
+        let (rot, trans) = cell(m, 0.0);
+        assert!(
+            rot < 1e-6 && trans < 1e-6,
+            "{m}: error ({rot} deg, {trans} mm) with the true K"
+        );
+        let (r1, t1) = cell(m, 100.0);
+        let (r5, t5) = cell(m, 500.0);
+        assert!(
+            t5 > t1 && t1 > 1e-3,
+            "{m}: translation error does not grow ({t1} → {t5})"
+        );
+        if m == "kabsch" || m == "direct-ap+lat" {
+            assert!(
+                r5 > r1 && r1 > 1e-4,
+                "{m}: rotation error does not grow ({r1} → {r5})"
+            );
+        }
+    }
+}
