@@ -1,4 +1,4 @@
-# spinedrr — the two commands a newcomer needs are `make demo` and `make test`.
+# spinedrr — the two commands a newcomer needs are `make study` and `make test`.
 # Both install the system packages (Embree, OpenCV, clang) first when they are missing.
 
 SHELL := /bin/bash
@@ -6,13 +6,18 @@ CARGO ?= cargo
 BIN := target/release/spinedrr
 OUT ?= out
 
-.PHONY: deps build demo test bench clean
+.PHONY: deps build study demo test bench clean
 
 deps:
 	@bash scripts/install-deps.sh
 
 build: deps
 	$(CARGO) build --release
+
+# The paper's whole sensitivity study on the built-in L1–L5 phantom, into out/study/.
+study: build
+	$(BIN) study --out $(OUT)/study
+	@echo "report: $(OUT)/study/report.html (and report.md, tables/, figures/)"
 
 # Builds the L3 phantom, renders AP and LAT thickness DRRs (reference and Δf = 500 px) and compares them.
 demo: build
