@@ -182,13 +182,8 @@ pub fn rotation_exp(w: DVec3) -> DMat3 {
 
 /// The axis-angle vector of a rotation (inverse of [`rotation_exp`]), stable near 0 and π.
 pub fn rotation_log(r: DMat3) -> DVec3 {
-    let vee = DVec3::new(
-        r.y_axis.z - r.z_axis.y,
-        r.z_axis.x - r.x_axis.z,
-        r.x_axis.y - r.y_axis.x,
-    );
-    let s = 0.5 * vee.length();
-    let c = 0.5 * (r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0);
+    let vee = vee_of_antisymmetric_part(r);
+    let (s, c) = sin_cos_of_angle(r, vee);
     let theta = s.atan2(c);
     if s > 1e-6 {
         return vee * (theta / (2.0 * s));
@@ -212,14 +207,25 @@ pub fn rotation_log(r: DMat3) -> DVec3 {
 ///
 /// Unlike `acos((tr R − 1) / 2)` this keeps full precision near zero (down to ~1e-14°).
 pub fn rotation_angle_deg(r: DMat3) -> f64 {
-    let vee = DVec3::new(
+    let (s, c) = sin_cos_of_angle(r, vee_of_antisymmetric_part(r));
+    s.atan2(c).to_degrees()
+}
+
+/// `vee(R − Rᵀ) = 2 sin θ · axis`.
+fn vee_of_antisymmetric_part(r: DMat3) -> DVec3 {
+    DVec3::new(
         r.y_axis.z - r.z_axis.y,
         r.z_axis.x - r.x_axis.z,
         r.x_axis.y - r.y_axis.x,
-    );
-    let s = 0.5 * vee.length();
-    let c = 0.5 * (r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0);
-    s.atan2(c).to_degrees()
+    )
+}
+
+/// `(sin θ, cos θ)` of a rotation from its antisymmetric part and its trace.
+fn sin_cos_of_angle(r: DMat3, vee: DVec3) -> (f64, f64) {
+    (
+        0.5 * vee.length(),
+        0.5 * (r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0),
+    )
 }
 
 /// The cross-product matrix `[w]×`.

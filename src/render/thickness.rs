@@ -138,6 +138,14 @@ impl Camera {
     }
 }
 
+/// The pixels `(u, row in band)` of a tile spanning columns `u0..u1` and `rows` rows, row-major: traced in
+/// packets of [`PACKET`] lanes (two 4 × 2 blocks per 4 × 4 tile).
+fn tile_pixels(u0: usize, u1: usize, rows: usize) -> Vec<(usize, usize)> {
+    (0..rows)
+        .flat_map(|r| (u0..u1).map(move |u| (u, r)))
+        .collect()
+}
+
 /// Per-thread buffers.
 struct Scratch {
     hits: [Vec<RawHit>; PACKET],
@@ -175,14 +183,8 @@ impl ThicknessRenderer {
     pub fn render(&self, view: &View, opts: &ThicknessOptions) -> Result<ThicknessDrr> {
         view.intrinsics.validate()?;
         let start = Instant::now();
-        let cam = Camera::new(view);
+        let (cam, tiles_x, coverage) = self.plan(view, opts);
         let (w, h) = (cam.width as usize, cam.height as usize);
-        let tiles_x = w.div_ceil(TILE as usize);
-        let coverage = if opts.cull {
-            self.tile_coverage(view, tiles_x)
-        } else {
-            None
-        };
 
         let mut li = vec![0f32; w * h];
         let mut depth = vec![0f32; w * h];
@@ -208,10 +210,7 @@ impl ThicknessRenderer {
                         stats.rays_culled += ((u1 - u0) * rows) as u64;
                         continue;
                     }
-                    // The tile's pixels, row-major, in packets of PACKET lanes.
-                    let pixels: Vec<(usize, usize)> = (0..rows)
-                        .flat_map(|r| (u0..u1).map(move |u| (u, r)))
-                        .collect();
+                    let pixels = tile_pixels(u0, u1, rows);
                     for chunk in pixels.chunks(PACKET) {
                         let v0 = ty * TILE as usize;
                         let mut packet = RayPacket::default();
@@ -280,14 +279,8 @@ impl ThicknessRenderer {
         opts: &ThicknessOptions,
     ) -> (ImageF32, f64) {
         let start = Instant::now();
-        let cam = Camera::new(view);
+        let (cam, tiles_x, coverage) = self.plan(view, opts);
         let (w, h) = (cam.width as usize, cam.height as usize);
-        let tiles_x = w.div_ceil(TILE as usize);
-        let coverage = if opts.cull {
-            self.tile_coverage(view, tiles_x)
-        } else {
-            None
-        };
         let mut t_img = vec![0f32; w * h];
         t_img
             .par_chunks_mut(w * TILE as usize)
@@ -302,9 +295,7 @@ impl ThicknessRenderer {
                     let u0 = tx * TILE as usize;
                     let u1 = (u0 + TILE as usize).min(w);
                     let v0 = ty * TILE as usize;
-                    let pixels: Vec<(usize, usize)> = (0..rows)
-                        .flat_map(|r| (u0..u1).map(move |u| (u, r)))
-                        .collect();
+                    let pixels = tile_pixels(u0, u1, rows);
                     for chunk in pixels.chunks(PACKET) {
                         let mut packet = RayPacket::default();
                         for &(u, r) in chunk {
@@ -381,6 +372,18 @@ impl ThicknessRenderer {
             line_integral: first.line_integral.clamp(-cap, cap),
             ..first
         }
+    }
+
+    /// Ray generation for `view`, the number of tile columns and the tiles to trace (`None`: all).
+    fn plan(&self, view: &View, opts: &ThicknessOptions) -> (Camera, usize, Option<Vec<bool>>) {
+        let cam = Camera::new(view);
+        let tiles_x = (cam.width as usize).div_ceil(TILE as usize);
+        let coverage = if opts.cull {
+            self.tile_coverage(view, tiles_x)
+        } else {
+            None
+        };
+        (cam, tiles_x, coverage)
     }
 
     /// Marks the tiles touched by the projected bounding box of any triangle. `None` (no culling) when a
