@@ -151,14 +151,25 @@ fn build_target(cfg: &StudyConfig, phantom: &Phantom, name: &str) -> Result<Targ
     }
     let backend = cfg.geometry.backend;
     let renderer = backend.renderer(phantom_scene(sub)?)?;
-    let segment = name == "segment";
+    target_with_landmarks(cfg, name, renderer, sub.landmarks(), name == "segment")
+}
+
+/// A target with its landmarks (prefixed with the level when `prefix_level`) and, when the landmark
+/// experiment runs, one marker sphere per landmark.
+fn target_with_landmarks(
+    cfg: &StudyConfig,
+    name: &str,
+    renderer: ThicknessRenderer,
+    sets: Vec<crate::anatomy::Landmarks>,
+    prefix_level: bool,
+) -> Result<Target> {
     let mut landmarks = Vec::new();
-    for set in sub.landmarks() {
-        for (lname, &p) in &set.points {
-            let full = if segment {
-                format!("{}/{lname}", set.level)
+    for set in sets {
+        for (n, &p) in &set.points {
+            let full = if prefix_level {
+                format!("{}/{n}", set.level)
             } else {
-                lname.clone()
+                n.clone()
             };
             landmarks.push((full, p));
         }
@@ -195,31 +206,7 @@ fn mesh_target(cfg: &StudyConfig, m: &MeshTarget) -> Result<Target> {
     let renderer = cfg.geometry.backend.renderer(RenderScene::new(meshes)?)?;
     let sets = read_landmarks(&m.landmarks)?;
     let several = sets.len() > 1;
-    let mut landmarks = Vec::new();
-    for set in sets {
-        for (n, &p) in &set.points {
-            let full = if several {
-                format!("{}/{n}", set.level)
-            } else {
-                n.clone()
-            };
-            landmarks.push((full, p));
-        }
-    }
-    let markers = if cfg.runs("landmarks") {
-        landmarks
-            .iter()
-            .map(|(n, p)| marker(cfg, n, *p))
-            .collect::<Result<Vec<_>>>()?
-    } else {
-        Vec::new()
-    };
-    Ok(Target {
-        name: m.name.clone(),
-        renderer,
-        landmarks,
-        markers,
-    })
+    target_with_landmarks(cfg, &m.name, renderer, sets, several)
 }
 
 fn marker(cfg: &StudyConfig, name: &str, position: DVec3) -> Result<Marker> {
