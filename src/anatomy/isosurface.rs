@@ -412,25 +412,10 @@ pub fn remove_small_components(mesh: &TriMesh, min_volume_mm3: f64) -> TriMesh {
         let [a, b, c] = mesh.corners(i);
         *volume.entry(find(&mut parent, t[0])).or_default() += a.dot(b.cross(c)) / 6.0;
     }
-    let mut remap = vec![u32::MAX; n];
-    let mut out = TriMesh::new(mesh.name.clone(), Vec::new(), Vec::new());
-    for (i, t) in mesh.triangles.iter().enumerate() {
-        if volume[&find(&mut parent, t[0])] < min_volume_mm3 {
-            continue;
-        }
-        let tri = t.map(|v| {
-            if remap[v as usize] == u32::MAX {
-                remap[v as usize] = out.vertices.len() as u32;
-                out.vertices.push(mesh.vertices[v as usize]);
-            }
-            remap[v as usize]
-        });
-        out.triangles.push(tri);
-        if !mesh.labels.is_empty() {
-            out.labels.push(mesh.labels[i]);
-        }
-    }
-    out
+    let kept: Vec<(usize, [u32; 3])> = (mesh.triangles.iter().copied().enumerate())
+        .filter(|&(_, t)| volume[&find(&mut parent, t[0])] >= min_volume_mm3)
+        .collect();
+    TriMesh::compacted(&mesh.name, &mesh.vertices, kept.into_iter(), &mesh.labels)
 }
 
 #[cfg(test)]

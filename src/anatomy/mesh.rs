@@ -248,6 +248,32 @@ impl TriMesh {
         }
     }
 
+    /// A mesh of the given triangles (with their original index, for the label) over `vertices`, keeping
+    /// only the vertices they use, renumbered in order of first use.
+    pub fn compacted(
+        name: &str,
+        vertices: &[DVec3],
+        triangles: impl Iterator<Item = (usize, [u32; 3])>,
+        labels: &[u8],
+    ) -> TriMesh {
+        let mut remap = vec![u32::MAX; vertices.len()];
+        let mut out = TriMesh::new(name, Vec::new(), Vec::new());
+        for (i, t) in triangles {
+            let tri = t.map(|v| {
+                if remap[v as usize] == u32::MAX {
+                    remap[v as usize] = out.vertices.len() as u32;
+                    out.vertices.push(vertices[v as usize]);
+                }
+                remap[v as usize]
+            });
+            out.triangles.push(tri);
+            if !labels.is_empty() {
+                out.labels.push(labels[i]);
+            }
+        }
+        out
+    }
+
     /// The longest chord any ray can have through this mesh is at most its bounding-box diagonal.
     pub fn max_chord(&self) -> f64 {
         self.bounds()

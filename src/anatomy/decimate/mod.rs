@@ -426,25 +426,13 @@ impl Collapser {
 
     /// Compacts live triangles and their vertices into a new mesh with the input's name and labels.
     fn into_mesh(self, original: &TriMesh) -> TriMesh {
-        let mut remap = vec![u32::MAX; self.pos.len()];
-        let mut out = TriMesh::new(original.name.clone(), Vec::new(), Vec::new());
-        for (i, t) in self.tris.iter().enumerate() {
-            if !self.tri_alive[i] {
-                continue;
-            }
-            let tri = t.map(|v| {
-                if remap[v as usize] == u32::MAX {
-                    remap[v as usize] = out.vertices.len() as u32;
-                    out.vertices.push(self.pos[v as usize]);
-                }
-                remap[v as usize]
-            });
-            out.triangles.push(tri);
-            if !original.labels.is_empty() {
-                out.labels.push(original.labels[i]);
-            }
-        }
-        out
+        let live = self
+            .tris
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| self.tri_alive[i])
+            .map(|(i, t)| (i, *t));
+        TriMesh::compacted(&original.name, &self.pos, live, &original.labels)
     }
 }
 
