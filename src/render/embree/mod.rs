@@ -205,6 +205,40 @@ impl EmbreeScene {
         }
     }
 
+    /// Calls the shim's all-hits query on `n` lanes of `soa`.
+    ///
+    /// # Safety
+    /// `hits` must hold `n × capacity` entries and `counts` `n` counters; the scene must have been built
+    /// with hit recording.
+    unsafe fn record_all_hits(
+        &self,
+        soa: &Soa,
+        n: i32,
+        hits: *mut sys::spd_hit,
+        capacity: u32,
+        counts: *mut u32,
+    ) {
+        // SAFETY: the arrays of `soa` have PACKET ≥ n lanes; the rest is the caller's contract.
+        unsafe {
+            sys::spd_all_hits(
+                self.raw,
+                n,
+                soa.valid.as_ptr(),
+                soa.ox.as_ptr(),
+                soa.oy.as_ptr(),
+                soa.oz.as_ptr(),
+                soa.dx.as_ptr(),
+                soa.dy.as_ptr(),
+                soa.dz.as_ptr(),
+                soa.tnear.as_ptr(),
+                soa.tfar.as_ptr(),
+                hits,
+                capacity,
+                counts,
+            )
+        }
+    }
+
     /// Records all hits of a single ray with an exactly sized buffer (after a lane overflowed).
     fn all_hits_single(
         &self,
@@ -220,18 +254,9 @@ impl EmbreeScene {
         let mut count = [0u32; 1];
         // SAFETY: one lane, `buf` holds `expected` hits, `count` one counter.
         unsafe {
-            sys::spd_all_hits(
-                self.raw,
+            self.record_all_hits(
+                &soa,
                 1,
-                soa.valid.as_ptr(),
-                soa.ox.as_ptr(),
-                soa.oy.as_ptr(),
-                soa.oz.as_ptr(),
-                soa.dx.as_ptr(),
-                soa.dy.as_ptr(),
-                soa.dz.as_ptr(),
-                soa.tnear.as_ptr(),
-                soa.tfar.as_ptr(),
                 buf.as_mut_ptr(),
                 buf.len() as u32,
                 count.as_mut_ptr(),
@@ -340,18 +365,9 @@ impl HitTracer for EmbreeTracer {
         // SAFETY: arrays have PACKET lanes; `buf` holds PACKET × LANE_CAPACITY hits; the scene is committed
         // and was built with the recording filter.
         unsafe {
-            sys::spd_all_hits(
-                self.scene.raw,
+            self.scene.record_all_hits(
+                &soa,
                 soa.width,
-                soa.valid.as_ptr(),
-                soa.ox.as_ptr(),
-                soa.oy.as_ptr(),
-                soa.oz.as_ptr(),
-                soa.dx.as_ptr(),
-                soa.dy.as_ptr(),
-                soa.dz.as_ptr(),
-                soa.tnear.as_ptr(),
-                soa.tfar.as_ptr(),
                 buf.as_mut_ptr().cast::<sys::spd_hit>(),
                 LANE_CAPACITY as u32,
                 counts.as_mut_ptr(),
