@@ -87,7 +87,7 @@ fn volume_drr_of_the_synthetic_ct_matches_the_thickness_drr() {
 }
 
 #[test]
-fn embree_matches_the_reference_backend_on_the_phantom() {
+fn embree_and_raster_match_the_reference_backend_on_the_phantom() {
     let phantom = build_phantom(&PhantomOptions {
         levels: parse_levels("L2-L4").unwrap(),
         ..PhantomOptions::default()
@@ -107,9 +107,10 @@ fn embree_matches_the_reference_backend_on_the_phantom() {
     )
     .unwrap();
     let e = Backend::Embree.renderer(scene.clone()).unwrap();
+    let r = Backend::Raster.renderer(scene.clone()).unwrap();
     let b = Backend::Bvh.renderer(scene).unwrap();
     let carm = coarse_carm(2);
-    for name in ["ap", "lat"] {
+    for (name, e) in [("ap", &e), ("lat", &e), ("ap", &r), ("lat", &r)] {
         let v = view(&carm, name);
         let x = e.render(&v, &ThicknessOptions::default()).unwrap();
         let y = b.render(&v, &ThicknessOptions::default()).unwrap();
@@ -122,7 +123,8 @@ fn embree_matches_the_reference_backend_on_the_phantom() {
             .fold(0f32, f32::max);
         assert!(
             worst <= 1e-4,
-            "{name}: worst per-pixel difference {worst} mm"
+            "{} {name}: worst per-pixel difference {worst} mm",
+            e.backend_name()
         );
         assert!(x.stats.rays_traced > 10_000);
         assert_eq!(x.stats.rays_unrepaired, 0);

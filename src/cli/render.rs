@@ -99,10 +99,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let renderer = a.backend.renderer(scene)?;
     let mut times = Vec::with_capacity(a.repeat as usize);
-    let mut drr = renderer.render(&rendered, &ThicknessOptions::default())?;
+    let opts = ThicknessOptions {
+        masks: a.masks,
+        depth: a.depth,
+        ..ThicknessOptions::default()
+    };
+    let mut drr = renderer.render(&rendered, &opts)?;
     times.push(drr.stats.render_ms);
     for _ in 1..a.repeat {
-        drr = renderer.render(&rendered, &ThicknessOptions::default())?;
+        drr = renderer.render(&rendered, &opts)?;
         times.push(drr.stats.render_ms);
     }
     if drr.stats.rays_unrepaired > 0 {
@@ -159,7 +164,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     if a.depth {
         let p = sibling(&a.out, "depth", "tiff");
-        write_tiff_f32(&p, &drr.depth)?;
+        write_tiff_f32(&p, drr.depth()?)?;
         Sidecar::new(
             "depth",
             "camera z of the first surface, mm (0 = no surface)",
@@ -280,16 +285,17 @@ fn write_masks(
         s.write(&path.with_extension("json"))?;
         Ok(())
     };
-    write("mask".into(), drr.union_mask(), json!("all objects"))?;
+    let masks = drr.masks()?;
+    write("mask".into(), masks.union(), json!("all objects"))?;
     for (i, name) in drr.objects.iter().enumerate() {
         write(
             format!("mask_{name}"),
-            drr.object_mask(i),
+            masks.object(i),
             json!({"object": name}),
         )?;
     }
     for s in Structure::ALL {
-        let mask = drr.structure_mask(s);
+        let mask = masks.structure(s);
         if s != Structure::Unlabelled && mask.iter().any(|&m| m) {
             write(
                 format!("mask_{}", s.name()),

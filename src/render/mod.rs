@@ -8,6 +8,7 @@ pub mod bvh;
 pub mod embree;
 mod pairing;
 mod phantom_scene;
+mod raster;
 mod scene;
 mod thickness;
 mod tracer;
@@ -30,6 +31,9 @@ pub enum Backend {
     Embree,
     /// The pure-Rust f64 BVH with a watertight triangle test (reference).
     Bvh,
+    /// Rasterised primary rays (all rays leave the source): exact edge functions, no acceleration
+    /// structure; the fastest for DRRs.
+    Raster,
 }
 
 impl Backend {
@@ -38,6 +42,7 @@ impl Backend {
         let tracer: Box<dyn HitTracer> = match self {
             Backend::Embree => Box::new(embree::EmbreeTracer::new(&scene)?),
             Backend::Bvh => Box::new(bvh::BvhTracer::new(&scene)),
+            Backend::Raster => return Ok(ThicknessRenderer::raster(scene)),
         };
         Ok(ThicknessRenderer::new(scene, tracer))
     }

@@ -25,7 +25,8 @@ pub(crate) struct Crossing {
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub(crate) struct RayIntegral {
     pub line_integral: f64,
-    /// Distance from the origin to the first surface (`inf` when nothing is hit).
+    /// Distance from the origin to the first surface of a mesh the ray passes through (`inf` when none:
+    /// grazing touches do not count, as for the silhouettes).
     pub first_t: f64,
     pub object_bits: u64,
     pub structure_bits: u32,
@@ -92,8 +93,8 @@ pub(crate) fn integrate(
         let g = geom as usize;
         out.valid &= ok;
         out.line_integral += scene.meshes[g].mu_per_mm * length;
-        out.first_t = out.first_t.min(scratch[start].t);
         if length > MIN_SILHOUETTE_CHORD_MM {
+            out.first_t = out.first_t.min(scratch[start].t);
             out.object_bits |= 1u64 << scene.object_of_mesh[g];
             let mesh = &scene.meshes[g].mesh;
             for c in &scratch[start..end] {

@@ -6,14 +6,17 @@
 //! are retraced with a sub-pixel-small offset; failing that, their value is capped by the mesh's
 //! longest chord. Both counts are reported.
 
+use std::sync::OnceLock;
 use std::time::Instant;
 
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::bvh::BvhTracer;
 use super::embree::EmbreeScene;
 use super::pairing::{Crossing, RayIntegral, integrate};
+use super::raster::{BandScratch, RasterView};
 use super::scene::RenderScene;
 use super::tracer::{HitTracer, PACKET, RawHit, RayPacket};
 use crate::Result;
@@ -59,20 +62,28 @@ impl RenderStats {
 pub struct ThicknessDrr {
     /// Line integral `Σ μ L` (μ in mm⁻¹, so unitless; with μ = 1 it is thickness in mm).
     pub line_integral: ImageF32,
-    /// Camera-frame depth (mm) of the first surface; 0 where the ray hits nothing.
-    pub depth: ImageF32,
-    /// Per pixel, bit `i` set when the ray passes through object `i` (see `objects`).
-    pub object_bits: Vec<u64>,
-    /// Per pixel, bit `s` set when the ray crosses a triangle labelled with [`Structure`] `s` of a mesh it
-    /// passes through.
-    pub structure_bits: Vec<u32>,
+    /// Camera-frame depth (mm) of the first surface the ray enters, 0 outside the silhouette (when asked
+    /// for).
+    pub depth: Option<ImageF32>,
+    /// Silhouettes per object and per structure (when asked for).
+    pub masks: Option<Masks>,
     pub objects: Vec<String>,
     pub stats: RenderStats,
 }
 
-impl ThicknessDrr {
+/// Per-pixel silhouette bits of a render.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Masks {
+    /// Per pixel, bit `i` set when the ray passes through object `i` (see [`ThicknessDrr::objects`]).
+    pub object_bits: Vec<u64>,
+    /// Per pixel, bit `s` set when the ray crosses a triangle labelled with [`Structure`] `s` of a mesh it
+    /// passes through.
+    pub structure_bits: Vec<u32>,
+}
+
+impl Masks {
     /// Silhouette of one object.
-    pub fn object_mask(&self, object: usize) -> Vec<bool> {
+    pub fn object(&self, object: usize) -> Vec<bool> {
         self.object_bits
             .iter()
             .map(|b| b >> object & 1 == 1)
@@ -80,12 +91,12 @@ impl ThicknessDrr {
     }
 
     /// Silhouette of every object together.
-    pub fn union_mask(&self) -> Vec<bool> {
+    pub fn union(&self) -> Vec<bool> {
         self.object_bits.iter().map(|&b| b != 0).collect()
     }
 
     /// Silhouette of one structure over all objects.
-    pub fn structure_mask(&self, s: Structure) -> Vec<bool> {
+    pub fn structure(&self, s: Structure) -> Vec<bool> {
         self.structure_bits
             .iter()
             .map(|b| b >> s as u32 & 1 == 1)
@@ -93,23 +104,103 @@ impl ThicknessDrr {
     }
 }
 
-/// Options of a thickness render.
+impl ThicknessDrr {
+    /// The silhouettes, or an error when the render was not asked for them.
+    pub fn masks(&self) -> Result<&Masks> {
+        self.masks.as_ref().ok_or_else(|| {
+            crate::Error::invalid("render options", "silhouette masks were not requested")
+        })
+    }
+
+    /// The depth map, or an error when the render was not asked for it.
+    pub fn depth(&self) -> Result<&ImageF32> {
+        self.depth.as_ref().ok_or_else(|| {
+            crate::Error::invalid("render options", "the depth map was not requested")
+        })
+    }
+}
+
+/// Options of a thickness render: which outputs beside the line integral, and culling.
 #[derive(Debug, Clone, Copy)]
 pub struct ThicknessOptions {
     /// Skip tiles no triangle projects into (no effect on the result, only on speed).
     pub cull: bool,
+    /// Compute silhouette masks (object and structure bits per pixel).
+    pub masks: bool,
+    /// Compute the first-hit depth map.
+    pub depth: bool,
 }
 
 impl Default for ThicknessOptions {
+    /// Every output, with culling.
     fn default() -> Self {
-        ThicknessOptions { cull: true }
+        ThicknessOptions {
+            cull: true,
+            masks: true,
+            depth: true,
+        }
+    }
+}
+
+impl ThicknessOptions {
+    /// The line integral alone (the DRR), with culling.
+    pub fn image_only() -> Self {
+        ThicknessOptions {
+            masks: false,
+            depth: false,
+            ..Self::default()
+        }
+    }
+
+    /// The line integral and silhouette masks, no depth map.
+    pub fn with_masks() -> Self {
+        ThicknessOptions {
+            depth: false,
+            ..Self::default()
+        }
+    }
+}
+
+/// Splits `v` into `n` bands of `band` elements, or `n` `None`s when `v` is empty (an output not asked for).
+fn bands<T>(v: &mut [T], band: usize, n: usize) -> Vec<Option<&mut [T]>> {
+    if v.is_empty() {
+        (0..n).map(|_| None).collect()
+    } else {
+        v.chunks_mut(band).map(Some).collect()
     }
 }
 
 /// A scene plus a backend, built once and rendered from any number of views.
 pub struct ThicknessRenderer {
     scene: RenderScene,
-    tracer: Box<dyn HitTracer>,
+    gather: Gather,
+}
+
+/// How a renderer finds the triangles each ray crosses.
+enum Gather {
+    /// Rays traced in packets through a backend.
+    Trace(Box<dyn HitTracer>),
+    /// Pixels rasterised per view (see [`super::raster`]); single rays (repairs, [`ThicknessRenderer::trace_ray`])
+    /// go through the reference BVH, built on first use.
+    Raster(OnceLock<BvhTracer>),
+}
+
+/// One view's way of finding hits, shared by the band workers.
+enum BandSource<'a> {
+    Trace {
+        tracer: &'a dyn HitTracer,
+        tiles_x: usize,
+        coverage: Option<Vec<bool>>,
+    },
+    Raster(RasterView<'a>),
+}
+
+/// Rows per band of the raster backend: a triangle spanning two bands is set up twice.
+const RASTER_BAND_ROWS: usize = 8;
+
+thread_local! {
+    /// Per-thread buffers of the raster bands.
+    static RASTER_SCRATCH: std::cell::RefCell<(BandScratch, Vec<Crossing>)> = std::cell::RefCell::default();
 }
 
 /// Per-view constants of ray generation.
@@ -163,7 +254,26 @@ impl Scratch {
 
 impl ThicknessRenderer {
     pub fn new(scene: RenderScene, tracer: Box<dyn HitTracer>) -> Self {
-        ThicknessRenderer { scene, tracer }
+        ThicknessRenderer {
+            scene,
+            gather: Gather::Trace(tracer),
+        }
+    }
+
+    /// A renderer that rasterises each view instead of tracing rays (nothing to build up front).
+    pub fn raster(scene: RenderScene) -> Self {
+        ThicknessRenderer {
+            scene,
+            gather: Gather::Raster(OnceLock::new()),
+        }
+    }
+
+    /// The backend that traces single rays (for repairs and [`Self::trace_ray`]).
+    fn ray_tracer(&self) -> &dyn HitTracer {
+        match &self.gather {
+            Gather::Trace(t) => t.as_ref(),
+            Gather::Raster(bvh) => bvh.get_or_init(|| BvhTracer::new(&self.scene)),
+        }
     }
 
     pub fn scene(&self) -> &RenderScene {
@@ -171,78 +281,139 @@ impl ThicknessRenderer {
     }
 
     pub fn backend_name(&self) -> &'static str {
-        self.tracer.name()
+        match &self.gather {
+            Gather::Trace(t) => t.name(),
+            Gather::Raster(_) => "raster",
+        }
     }
 
     /// BVH build time of the backend (ms).
     pub fn build_ms(&self) -> f64 {
-        self.tracer.build_ms()
+        match &self.gather {
+            Gather::Trace(t) => t.build_ms(),
+            Gather::Raster(_) => 0.0,
+        }
     }
 
     /// Renders the scene from `view` (its intrinsics may be perturbed; rays follow them).
     pub fn render(&self, view: &View, opts: &ThicknessOptions) -> Result<ThicknessDrr> {
         view.intrinsics.validate()?;
         let start = Instant::now();
-        let (cam, tiles_x, coverage) = self.plan(view, opts);
+        let cam = Camera::new(view);
         let (w, h) = (cam.width as usize, cam.height as usize);
+        // How each band of rows finds its rays' hits.
+        let source = match &self.gather {
+            Gather::Trace(tracer) => {
+                let (tiles_x, coverage) = self.plan(view, opts);
+                BandSource::Trace {
+                    tracer: tracer.as_ref(),
+                    tiles_x,
+                    coverage,
+                }
+            }
+            Gather::Raster(_) => {
+                BandSource::Raster(RasterView::new(&self.scene, view, RASTER_BAND_ROWS)?)
+            }
+        };
+        let band_rows = match &source {
+            BandSource::Trace { .. } => TILE as usize,
+            BandSource::Raster(r) => r.band_rows(),
+        };
 
-        let mut li = vec![0f32; w * h];
-        let mut depth = vec![0f32; w * h];
-        let mut obj = vec![0u64; w * h];
-        let mut st = vec![0u32; w * h];
-        let band = w * TILE as usize;
+        // Zeroed by the allocator: fresh pages cost nothing until a traced pixel touches them.
+        let n = w * h;
+        let mut li = vec![0f32; n];
+        let mut depth = if opts.depth {
+            vec![0f32; n]
+        } else {
+            Vec::new()
+        };
+        let mut obj = if opts.masks {
+            vec![0u64; n]
+        } else {
+            Vec::new()
+        };
+        let mut st = if opts.masks {
+            vec![0u32; n]
+        } else {
+            Vec::new()
+        };
+        let band = w * band_rows;
+        let n_bands = h.div_ceil(band_rows);
         let stats = li
             .par_chunks_mut(band)
-            .zip(depth.par_chunks_mut(band))
-            .zip(obj.par_chunks_mut(band))
-            .zip(st.par_chunks_mut(band))
+            .zip(bands(&mut depth, band, n_bands))
+            .zip(bands(&mut obj, band, n_bands))
+            .zip(bands(&mut st, band, n_bands))
             .enumerate()
-            .map(|(ty, (((li, depth), obj), st))| {
-                let mut scratch = Scratch::new();
-                let mut stats = RenderStats::default();
+            .map(|(b, (((li, mut depth), mut obj), mut st))| {
+                let v0 = b * band_rows;
                 let rows = li.len() / w;
-                for tx in 0..tiles_x {
-                    let u0 = tx * TILE as usize;
-                    let u1 = (u0 + TILE as usize).min(w);
-                    if let Some(cov) = &coverage
-                        && !cov[ty * tiles_x + tx]
-                    {
-                        stats.rays_culled += ((u1 - u0) * rows) as u64;
-                        continue;
+                let mut stats = RenderStats::default();
+                let mut culled = 0u64;
+                // Integrates pixel (u, row r of the band) from its raw hits and writes its outputs.
+                let mut emit =
+                    |u: usize, r: usize, hits: &[RawHit], crossings: &mut Vec<Crossing>| {
+                        let dir = cam.dir(u as f64, (v0 + r) as f64);
+                        let mut ray = integrate(&self.scene, cam.source, dir, hits, crossings);
+                        if !ray.valid {
+                            ray = self.repair(&cam, u as f64, (v0 + r) as f64, ray, &mut stats);
+                        }
+                        stats.rays_traced += 1;
+                        stats.hits += u64::from(ray.hits);
+                        let i = r * w + u;
+                        li[i] = ray.line_integral as f32;
+                        if let Some(d) = depth.as_deref_mut()
+                            && ray.first_t.is_finite()
+                        {
+                            d[i] = (ray.first_t * dir.dot(cam.axis_z)) as f32;
+                        }
+                        if let (Some(o), Some(s)) = (obj.as_deref_mut(), st.as_deref_mut()) {
+                            o[i] = ray.object_bits;
+                            s[i] = ray.structure_bits;
+                        }
+                    };
+                match &source {
+                    BandSource::Trace {
+                        tracer,
+                        tiles_x,
+                        coverage,
+                    } => {
+                        let mut scratch = Scratch::new();
+                        for tx in 0..*tiles_x {
+                            let u0 = tx * TILE as usize;
+                            let u1 = (u0 + TILE as usize).min(w);
+                            if let Some(cov) = coverage
+                                && !cov[b * tiles_x + tx]
+                            {
+                                culled += ((u1 - u0) * rows) as u64;
+                                continue;
+                            }
+                            let pixels = tile_pixels(u0, u1, rows);
+                            for chunk in pixels.chunks(PACKET) {
+                                let mut packet = RayPacket::default();
+                                for &(u, r) in chunk {
+                                    packet.push(cam.source, cam.dir(u as f64, (v0 + r) as f64));
+                                }
+                                tracer.trace_all(&packet, &mut scratch.hits);
+                                for (lane, &(u, r)) in chunk.iter().enumerate() {
+                                    emit(u, r, &scratch.hits[lane], &mut scratch.crossings);
+                                }
+                            }
+                        }
                     }
-                    let pixels = tile_pixels(u0, u1, rows);
-                    for chunk in pixels.chunks(PACKET) {
-                        let v0 = ty * TILE as usize;
-                        let mut packet = RayPacket::default();
-                        for &(u, r) in chunk {
-                            packet.push(cam.source, cam.dir(u as f64, (v0 + r) as f64));
-                        }
-                        self.tracer.trace_all(&packet, &mut scratch.hits);
-                        for (lane, &(u, r)) in chunk.iter().enumerate() {
-                            let dir = packet.dir[lane];
-                            let mut ray = integrate(
-                                &self.scene,
-                                packet.origin[lane],
-                                dir,
-                                &scratch.hits[lane],
-                                &mut scratch.crossings,
-                            );
-                            if !ray.valid {
-                                let v = (v0 + r) as f64;
-                                ray = self.repair(&cam, u as f64, v, ray, &mut scratch, &mut stats);
-                            }
-                            stats.rays_traced += 1;
-                            stats.hits += u64::from(ray.hits);
-                            let i = r * w + u;
-                            li[i] = ray.line_integral as f32;
-                            if ray.first_t.is_finite() {
-                                depth[i] = (ray.first_t * dir.dot(cam.axis_z)) as f32;
-                            }
-                            obj[i] = ray.object_bits;
-                            st[i] = ray.structure_bits;
-                        }
+                    BandSource::Raster(raster) => {
+                        RASTER_SCRATCH.with_borrow_mut(|(band_scratch, crossings)| {
+                            let mut traced = 0;
+                            raster.band_hits(b, band_scratch, |u, r, hits| {
+                                traced += 1;
+                                emit(u, r, hits, crossings);
+                            });
+                            culled += (rows * w - traced) as u64;
+                        });
                     }
                 }
+                stats.rays_culled += culled;
                 stats
             })
             .reduce(RenderStats::default, RenderStats::add);
@@ -257,13 +428,15 @@ impl ThicknessRenderer {
                 height: cam.height,
                 data: li,
             },
-            depth: ImageF32 {
+            depth: opts.depth.then_some(ImageF32 {
                 width: cam.width,
                 height: cam.height,
                 data: depth,
-            },
-            object_bits: obj,
-            structure_bits: st,
+            }),
+            masks: opts.masks.then_some(Masks {
+                object_bits: obj,
+                structure_bits: st,
+            }),
             objects: self.scene.objects.clone(),
             stats,
         })
@@ -279,7 +452,8 @@ impl ThicknessRenderer {
         opts: &ThicknessOptions,
     ) -> (ImageF32, f64) {
         let start = Instant::now();
-        let (cam, tiles_x, coverage) = self.plan(view, opts);
+        let cam = Camera::new(view);
+        let (tiles_x, coverage) = self.plan(view, opts);
         let (w, h) = (cam.width as usize, cam.height as usize);
         let mut t_img = vec![0f32; w * h];
         t_img
@@ -322,7 +496,7 @@ impl ThicknessRenderer {
         let mut scratch = Scratch::new();
         let mut p = RayPacket::default();
         p.push(origin, dir.normalize());
-        self.tracer.trace_all(&p, &mut scratch.hits);
+        self.ray_tracer().trace_all(&p, &mut scratch.hits);
         let ray = integrate(
             &self.scene,
             p.origin[0],
@@ -341,13 +515,13 @@ impl ThicknessRenderer {
         u: f64,
         v: f64,
         first: RayIntegral,
-        scratch: &mut Scratch,
         stats: &mut RenderStats,
     ) -> RayIntegral {
+        let mut scratch = Scratch::new();
         for (du, dv) in REPAIR_OFFSETS {
             let mut p = RayPacket::default();
             p.push(cam.source, cam.dir(u + du, v + dv));
-            self.tracer.trace_all(&p, &mut scratch.hits);
+            self.ray_tracer().trace_all(&p, &mut scratch.hits);
             let ray = integrate(
                 &self.scene,
                 p.origin[0],
@@ -374,53 +548,85 @@ impl ThicknessRenderer {
         }
     }
 
-    /// Ray generation for `view`, the number of tile columns and the tiles to trace (`None`: all).
-    fn plan(&self, view: &View, opts: &ThicknessOptions) -> (Camera, usize, Option<Vec<bool>>) {
-        let cam = Camera::new(view);
-        let tiles_x = (cam.width as usize).div_ceil(TILE as usize);
+    /// The number of tile columns of `view` and the tiles to trace (`None`: all).
+    fn plan(&self, view: &View, opts: &ThicknessOptions) -> (usize, Option<Vec<bool>>) {
+        let tiles_x = (view.intrinsics.width as usize).div_ceil(TILE as usize);
         let coverage = if opts.cull {
             self.tile_coverage(view, tiles_x)
         } else {
             None
         };
-        (cam, tiles_x, coverage)
+        (tiles_x, coverage)
     }
 
-    /// Marks the tiles touched by the projected bounding box of any triangle. `None` (no culling) when a
-    /// vertex lies at or behind the source plane, where projection is not a bound.
+    /// Marks the tiles touched by the projected bounding box of any triangle (plus one pixel of margin:
+    /// the ray through a pixel centre next to the box may still graze it). `None` (no culling) when a
+    /// vertex lies at or behind the source plane, where projection is not a bound. Vertices and triangles
+    /// are processed in parallel; each worker marks its own map and the maps are OR-ed.
     fn tile_coverage(&self, view: &View, tiles_x: usize) -> Option<Vec<bool>> {
         let k = &view.intrinsics;
         let tiles_y = (k.height as usize).div_ceil(TILE as usize);
-        let mut cov = vec![false; tiles_x * tiles_y];
-        let t = TILE as f64;
+        let inv_t = 1.0 / TILE as f64;
+        let n_tiles = tiles_x * tiles_y;
+        let mut cov = vec![false; n_tiles];
         for m in &self.scene.meshes {
             let mesh = &m.mesh;
-            let cam: Vec<DVec3> = mesh
+            // Per vertex, the (unclamped) tile range of its one-pixel neighbourhood.
+            let ranges: Option<Vec<[i32; 4]>> = mesh
                 .vertices
-                .iter()
-                .map(|&p| view.world_to_camera.apply(p))
+                .par_iter()
+                .with_min_len(4096)
+                .map(|&p| {
+                    let c = view.world_to_camera.apply(p);
+                    if c.z.is_nan() || c.z <= 1e-6 {
+                        return None;
+                    }
+                    let q = k.project_camera(c);
+                    Some([
+                        floor_i32((q.x - 1.0) * inv_t),
+                        floor_i32((q.y - 1.0) * inv_t),
+                        floor_i32((q.x + 1.0) * inv_t),
+                        floor_i32((q.y + 1.0) * inv_t),
+                    ])
+                })
                 .collect();
-            if cam.iter().any(|p| p.z <= 1e-6) {
-                return None;
-            }
-            let px: Vec<glam::DVec2> = cam.iter().map(|&p| k.project_camera(p)).collect();
-            for tri in &mesh.triangles {
-                let [a, b, c] = tri.map(|i| px[i as usize]);
-                let lo = a.min(b).min(c);
-                let hi = a.max(b).max(c);
-                // One pixel of margin: the ray through a pixel centre next to the box may still graze it.
-                let x0 = ((lo.x - 1.0) / t).floor().max(0.0);
-                let y0 = ((lo.y - 1.0) / t).floor().max(0.0);
-                let x1 = ((hi.x + 1.0) / t).floor().min(tiles_x as f64 - 1.0);
-                let y1 = ((hi.y + 1.0) / t).floor().min(tiles_y as f64 - 1.0);
-                if x1 < x0 || y1 < y0 {
-                    continue;
+            let ranges = ranges?;
+            let (tx_max, ty_max) = (tiles_x as i32 - 1, tiles_y as i32 - 1);
+            let mark = |mut map: Vec<bool>, tris: &[[u32; 3]]| {
+                for tri in tris {
+                    let [a, b, c] = tri.map(|i| ranges[i as usize]);
+                    let x0 = a[0].min(b[0]).min(c[0]).max(0);
+                    let y0 = a[1].min(b[1]).min(c[1]).max(0);
+                    let x1 = a[2].max(b[2]).max(c[2]).min(tx_max);
+                    let y1 = a[3].max(b[3]).max(c[3]).min(ty_max);
+                    for ty in y0..=y1 {
+                        let row = ty as usize * tiles_x;
+                        if x0 <= x1 {
+                            map[row + x0 as usize..=row + x1 as usize].fill(true);
+                        }
+                    }
                 }
-                for ty in y0 as usize..=y1 as usize {
-                    cov[ty * tiles_x + x0 as usize..=ty * tiles_x + x1 as usize].fill(true);
-                }
+                map
+            };
+            let mesh_cov = mesh
+                .triangles
+                .par_chunks(8192)
+                .fold(|| vec![false; n_tiles], mark)
+                .reduce_with(|mut a, b| {
+                    a.iter_mut().zip(&b).for_each(|(x, &y)| *x |= y);
+                    a
+                });
+            if let Some(mc) = mesh_cov {
+                cov.iter_mut().zip(&mc).for_each(|(x, &y)| *x |= y);
             }
         }
         Some(cov)
     }
+}
+
+/// `floor(x)` as an integer, saturating (avoids a libm call on targets without SSE4.1 rounding).
+#[inline]
+fn floor_i32(x: f64) -> i32 {
+    let i = x as i32;
+    if (i as f64) > x { i - 1 } else { i }
 }

@@ -31,7 +31,7 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
     let mut rows = UnitRows::default();
     let reference = ctx.reference(t, view)?;
     if let Some(a) = &reference.drr {
-        let b = t.renderer.render(&pv, &ThicknessOptions::default())?;
+        let b = t.renderer.render(&pv, &ThicknessOptions::with_masks())?;
         rows.projection.push(whole_object(ctx, t, view, np, a, &b)?);
         rows.structures = structures(t, view, np, a, &b)?;
         let q = &np.perturbation;
@@ -54,7 +54,7 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
 /// The reference render (when the projection experiment runs) and reference marker centroids.
 pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
     let drr = if ctx.cfg.runs("projection") {
-        Some(t.renderer.render(view, &ThicknessOptions::default())?)
+        Some(t.renderer.render(view, &ThicknessOptions::with_masks())?)
     } else {
         None
     };
@@ -82,8 +82,8 @@ fn whole_object(
         name: t.name.clone(),
         width: k.width,
         height: k.height,
-        reference: a.union_mask(),
-        perturbed: b.union_mask(),
+        reference: a.masks()?.union(),
+        perturbed: b.masks()?.union(),
     };
     let s = silhouette_metrics(&pair)?;
     let im = ctx
@@ -123,7 +123,7 @@ fn structures(
     let q = &np.perturbation;
     let mut rows = Vec::new();
     for s in STRUCTURES {
-        let (ma, mb) = (a.structure_mask(s), b.structure_mask(s));
+        let (ma, mb) = (a.masks()?.structure(s), b.masks()?.structure(s));
         if !ma.iter().any(|x| *x) {
             continue;
         }
@@ -158,7 +158,7 @@ fn measure(ctx: &Context, m: &super::Marker, view: &View) -> Result<Option<DVec2
     if !(inside && view.depth(m.position) > 0.0) {
         return Ok(None);
     }
-    let img = m.renderer.render(view, &ThicknessOptions::default())?;
+    let img = m.renderer.render(view, &ThicknessOptions::image_only())?;
     Ok(blob_centroid(&img.line_integral, c, radius_px))
 }
 
