@@ -73,7 +73,14 @@ pub(crate) fn integrate(
             prim: h.prim,
         });
     }
-    scratch.sort_unstable_by(|a, b| a.geom.cmp(&b.geom).then(a.t.total_cmp(&b.t)));
+    // Few crossings per ray: an insertion sort by (mesh, distance) beats the general sort.
+    for i in 1..scratch.len() {
+        let mut j = i;
+        while j > 0 && before(&scratch[j], &scratch[j - 1]) {
+            scratch.swap(j, j - 1);
+            j -= 1;
+        }
+    }
 
     let mut out = RayIntegral {
         first_t: f64::INFINITY,
@@ -84,11 +91,10 @@ pub(crate) fn integrate(
     let mut start = 0;
     while start < scratch.len() {
         let geom = scratch[start].geom;
-        let end = start
-            + scratch[start..]
-                .iter()
-                .take_while(|c| c.geom == geom)
-                .count();
+        let mut end = start + 1;
+        while end < scratch.len() && scratch[end].geom == geom {
+            end += 1;
+        }
         let (length, ok) = pair_mesh(&scratch[start..end]);
         let g = geom as usize;
         out.valid &= ok;
@@ -106,7 +112,14 @@ pub(crate) fn integrate(
     out
 }
 
+/// Order of crossings: by mesh, then by distance.
+#[inline]
+fn before(a: &Crossing, b: &Crossing) -> bool {
+    a.geom < b.geom || (a.geom == b.geom && a.t.total_cmp(&b.t).is_lt())
+}
+
 /// Two crossings of one mesh closer than this (mm, plus a relative part) are one crossing.
+#[inline]
 fn same_point(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-7 + 1e-10 * a.abs().max(b.abs())
 }
@@ -115,7 +128,9 @@ fn same_point(a: f64, b: f64) -> bool {
 ///
 /// Inside is a positive winding number: entries raise it, exits lower it, so overlapping closed pieces of one
 /// surface (or a self-intersecting surface) count their union once. The crossings pair up when the winding
-/// never goes negative and returns to zero.
+/// never goes negative and returns to zero. Crossings at the same point (a ray through a shared edge or
+/// vertex reports it once per triangle) form one cluster: an entry when all face the ray, an exit when all
+/// face away, a tangential touch otherwise.
 fn pair_mesh(crossings: &[Crossing]) -> (f64, bool) {
     let mut winding: i32 = 0;
     let mut inside_since = 0.0;
@@ -123,20 +138,15 @@ fn pair_mesh(crossings: &[Crossing]) -> (f64, bool) {
     let mut ok = true;
     let mut i = 0;
     while i < crossings.len() {
-        // Cluster crossings at the same point (shared edges and vertices).
+        let t = crossings[i].t;
+        let (mut all_in, mut all_out) = (crossings[i].facing < 0.0, crossings[i].facing > 0.0);
         let mut j = i + 1;
         while j < crossings.len() && same_point(crossings[j - 1].t, crossings[j].t) {
+            all_in &= crossings[j].facing < 0.0;
+            all_out &= crossings[j].facing > 0.0;
             j += 1;
         }
-        let cluster = &crossings[i..j];
-        let t = cluster[0].t;
-        let step = if cluster.iter().all(|c| c.facing < 0.0) {
-            1
-        } else if cluster.iter().all(|c| c.facing > 0.0) {
-            -1
-        } else {
-            0 // tangential touch: no change of state
-        };
+        let step = i32::from(all_in) - i32::from(all_out);
         if winding == 0 && step > 0 {
             inside_since = t;
         }
