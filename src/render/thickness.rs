@@ -196,7 +196,7 @@ enum BandSource<'a> {
 }
 
 /// Rows per band of the raster backend: a triangle spanning two bands is set up twice.
-const RASTER_BAND_ROWS: usize = 8;
+const RASTER_BAND_ROWS: usize = 16;
 
 thread_local! {
     /// Per-thread buffers of the raster bands.
