@@ -191,8 +191,23 @@ fn measure(ctx: &Context, m: &super::Marker, view: &View) -> Result<Option<DVec2
     if !(inside && view.depth(m.position) > 0.0) {
         return Ok(None);
     }
-    let img = m.renderer.render(view, &ThicknessOptions::default())?;
-    Ok(blob_centroid(&img.line_integral, c, radius_px))
+    // Only the search disc's bounding box is rendered (the same rays as the full detector's pixels).
+    let (u0, v0) = ((c.x - radius_px).floor(), (c.y - radius_px).floor());
+    let (u1, v1) = (
+        (c.x + radius_px).ceil().min(w),
+        (c.y + radius_px).ceil().min(h),
+    );
+    let window = view.window(
+        u0 as u32,
+        v0 as u32,
+        (u1 - u0) as u32 + 1,
+        (v1 - v0) as u32 + 1,
+    )?;
+    let img = ctx.timings.time(Phase::RenderMarkers, 1, || {
+        m.renderer.render(&window, &ThicknessOptions::default())
+    })?;
+    let origin = DVec2::new(u0, v0);
+    Ok(blob_centroid(&img.line_integral, c - origin, radius_px).map(|x| x + origin))
 }
 
 fn landmarks(
