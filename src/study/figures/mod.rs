@@ -47,13 +47,14 @@ fn register_font() -> Result<()> {
 struct ChartStyle {
     caption: u32,
     labels: u32,
-    legend: u32,
+    /// Legend font size; `None`: no legend in the chart (a figure-wide one is drawn instead).
+    legend: Option<u32>,
 }
 
 const SINGLE: ChartStyle = ChartStyle {
     caption: 24,
     labels: 16,
-    legend: 16,
+    legend: Some(16),
 };
 
 /// The padded (x, y) ranges of the finite points (and of their error bars).
@@ -200,14 +201,48 @@ fn draw_lines<DB: DrawingBackend>(
             });
         chart.draw_series(whiskers).map_err(plot_err)?;
     }
-    chart
-        .configure_series_labels()
-        .position(legend)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", style.legend))
-        .draw()
+    if let Some(size) = style.legend {
+        chart
+            .configure_series_labels()
+            .position(legend)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", size))
+            .draw()
+            .map_err(plot_err)?;
+    }
+    Ok(())
+}
+
+/// A one-line legend across `area`: a coloured line and the label of each series (colours as in
+/// [`draw_lines`]).
+fn legend_strip<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    labels: &[String],
+    font: u32,
+) -> Result<()> {
+    let (w, h) = area.dim_in_pixel();
+    let n = labels.len().max(1) as i32;
+    let step = (w as i32 / n).min(320);
+    let x0 = (w as i32 - step * n) / 2;
+    let y = h as i32 / 2;
+    for (i, label) in labels.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        let x = x0 + step * i as i32 + 10;
+        area.draw(&PathElement::new(
+            vec![(x, y), (x + 36, y)],
+            colour.stroke_width(3),
+        ))
         .map_err(plot_err)?;
+        let style = ("sans-serif", font).into_font().color(&BLACK).pos(
+            plotters::style::text_anchor::Pos::new(
+                plotters::style::text_anchor::HPos::Left,
+                plotters::style::text_anchor::VPos::Center,
+            ),
+        );
+        area.draw(&Text::new(label.clone(), (x + 44, y), style))
+            .map_err(plot_err)?;
+    }
     Ok(())
 }
 
@@ -236,8 +271,9 @@ pub struct Panel {
     pub series: Vec<Series>,
 }
 
-/// Panels in a grid of `cols` columns sharing axis labels, under one title, written to `path` (PNG).
-/// Fonts are larger than a single chart's so the figure stays readable when scaled to a page width.
+/// Panels in a grid of `cols` columns sharing axis labels and one legend (the series of every panel are
+/// the same lines, in the same order), under one title, written to `path` (PNG). Fonts are larger than
+/// a single chart's so the figure stays readable when scaled to a page width.
 pub fn panel_chart(
     path: &Path,
     title: &str,
@@ -249,17 +285,24 @@ pub fn panel_chart(
     register_font()?;
     let cols = cols.clamp(1, panels.len().max(1));
     let rows = panels.len().div_ceil(cols).max(1);
-    let size = (600 * cols as u32, 60 + 500 * rows as u32);
+    let size = (600 * cols as u32, 110 + 500 * rows as u32);
     let style = ChartStyle {
         caption: 26,
         labels: 20,
-        legend: 18,
+        legend: None,
     };
+    let labels: Vec<String> = panels
+        .iter()
+        .max_by_key(|p| p.series.len())
+        .map(|p| p.series.iter().map(|s| s.label.clone()).collect())
+        .unwrap_or_default();
     let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
         root.fill(&WHITE).map_err(plot_err)?;
         let root = root.titled(title, ("sans-serif", 32)).map_err(plot_err)?;
+        let (strip, root) = root.split_vertically(50);
+        legend_strip(&strip, &labels, 22)?;
         for (area, p) in root.split_evenly((rows, cols)).iter().zip(panels) {
             draw_lines(area, &p.title, x_label, y_label, &p.series, style)?;
         }
