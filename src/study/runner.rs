@@ -105,10 +105,11 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     if !todo.is_empty() {
         let t0 = Instant::now();
         let figures_dir = opts.out.join("figures");
-        let ctx = Context::build(cfg, ct_inputs, figures_dir, timings.clone(), &pool)?;
+        let mut ctx = Context::build(cfg, ct_inputs, figures_dir, timings.clone(), &pool)?;
         build_wall += t0.elapsed();
         timings.add(Phase::Build, build_wall, ctx.targets.len() as u64);
         let t0 = Instant::now();
+        ctx.prepare_references(&todo, &pool)?;
         run_units(&ctx, &pool, opts, &fp, &todo)?;
         timings.add(Phase::Units, t0.elapsed(), todo.len() as u64);
     }
@@ -170,23 +171,28 @@ fn run_units(
 ) -> Result<()> {
     let bar = progress_bar(opts.progress, todo.len());
     pool.install(|| {
-        todo.par_iter().try_for_each(|u| -> Result<()> {
-            let t0 = Instant::now();
-            let rows = ctx.run(u)?;
-            let file = UnitFile {
-                id: u.id(),
-                fingerprint: fp.to_string(),
-                tables: unit_lines(&rows),
-            };
-            let text = serde_json::to_string(&file)
-                .map_err(|e| Error::Numerical(format!("serialising unit {}: {e}", u.id())))?;
-            write_atomic_bytes(&unit_path(&opts.out, &u.id()), text.as_bytes())?;
-            ctx.timings.add(Phase::UnitThreads, t0.elapsed(), 1);
-            if let Some(b) = &bar {
-                b.inc(1);
-            }
-            Ok(())
-        })
+        // One job per unit: rayon's default splitting runs long stretches of units on one thread, and
+        // units differ in cost by 100× (renders vs registration trials), which left a core idle.
+        todo.par_iter()
+            .with_max_len(1)
+            .try_for_each(|u| -> Result<()> {
+                ctx.timings.time(Phase::UnitThreads, 1, || -> Result<()> {
+                    let rows = ctx.run(u)?;
+                    let file = UnitFile {
+                        id: u.id(),
+                        fingerprint: fp.to_string(),
+                        tables: unit_lines(&rows),
+                    };
+                    let text = serde_json::to_string(&file).map_err(|e| {
+                        Error::Numerical(format!("serialising unit {}: {e}", u.id()))
+                    })?;
+                    write_atomic_bytes(&unit_path(&opts.out, &u.id()), text.as_bytes())
+                })?;
+                if let Some(b) = &bar {
+                    b.inc(1);
+                }
+                Ok(())
+            })
     })?;
     if let Some(b) = bar {
         b.finish_and_clear();

@@ -1,7 +1,11 @@
 //! Where a study's time goes: the wall-clock phases of one invocation (inputs and targets, the parallel
 //! work units, tables, figures, report) and, inside the parallel phases, the time worker threads spend
 //! per kind of work (anatomy and scene building; rendering, metrics, registration). Those are summed
-//! over threads, so with T threads they add up to about T × their phase's wall time. Written to `timings.csv` beside the report (not under `tables/`: timings are a
+//! over threads, so with T threads they add up to about T × their phase's wall time.
+//!
+//! Thread time is *exclusive*: each thread keeps a stack of the phases it is in, and only the innermost
+//! one is charged. A rayon worker waiting inside a render for its stolen tiles runs other units
+//! meanwhile; their time goes to their own phases, not to the render that was waiting. Written to `timings.csv` beside the report (not under `tables/`: timings are a
 //! property of the run, not of the data, and differ from run to run).
 
 use std::fmt::Write as _;
@@ -31,7 +35,7 @@ pub enum Phase {
     Metrics,
     /// Registration trials (unit threads).
     Registration,
-    /// Everything a unit does, summed over threads (the phases above plus result files).
+    /// Unit time not in a phase above (result files, bookkeeping), summed over threads.
     UnitThreads,
     Tables,
     Figures,
@@ -67,7 +71,11 @@ impl Phase {
             Phase::RenderVolume => ("  rendering: CT volume DRRs", "threads", "renders"),
             Phase::Metrics => ("  metrics and heatmaps", "threads", "image pairs"),
             Phase::Registration => ("  registration", "threads", "trials"),
-            Phase::UnitThreads => ("  all unit work", "threads", "units"),
+            Phase::UnitThreads => (
+                "  other unit work (result files, bookkeeping)",
+                "threads",
+                "units",
+            ),
             Phase::Tables => ("tables", "wall", "tables"),
             Phase::Figures => ("figures", "wall", "figures"),
             Phase::Report => ("report (md + html)", "wall", "files"),
@@ -77,6 +85,17 @@ impl Phase {
     fn index(self) -> usize {
         PHASES.iter().position(|p| *p == self).unwrap_or(0)
     }
+}
+
+/// One phase a thread is in: its [`Timings`] (by address), the phase, and since when it is charged.
+struct Frame {
+    owner: usize,
+    phase: Phase,
+    since: Instant,
+}
+
+thread_local! {
+    static STACK: std::cell::RefCell<Vec<Frame>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Accumulated time and counts per phase; shared by the worker threads.
@@ -105,11 +124,36 @@ impl Timings {
         self.counts[i].fetch_add(count, Ordering::Relaxed);
     }
 
-    /// Runs `f`, adding its duration and `count` to `phase`.
+    /// Runs `f`, adding its duration and `count` to `phase`; while a nested `time` runs on this
+    /// thread, `phase` is paused (exclusive time).
     pub fn time<T>(&self, phase: Phase, count: u64, f: impl FnOnce() -> T) -> T {
-        let t0 = Instant::now();
+        let id = self as *const Timings as usize;
+        let start = Instant::now();
+        STACK.with(|s| {
+            let mut s = s.borrow_mut();
+            if let Some(outer) = s.last_mut()
+                && outer.owner == id
+            {
+                self.add(outer.phase, start - outer.since, 0);
+                outer.since = start;
+            }
+            s.push(Frame {
+                owner: id,
+                phase,
+                since: start,
+            });
+        });
         let r = f();
-        self.add(phase, t0.elapsed(), count);
+        let end = Instant::now();
+        STACK.with(|s| {
+            let mut s = s.borrow_mut();
+            if let Some(me) = s.pop() {
+                self.add(me.phase, end - me.since, count);
+            }
+            if let Some(outer) = s.last_mut() {
+                outer.since = end;
+            }
+        });
         r
     }
 
@@ -118,8 +162,8 @@ impl Timings {
         self.nanos[phase.index()].load(Ordering::Relaxed) as f64 * 1e-9
     }
 
-    /// The table: every phase in order, then "other unit work" (unit thread time not in a named
-    /// phase: result files, marker search) and the invocation's total wall time.
+    /// The table: every phase in order, then "all unit work" (the unit phases together) and the
+    /// invocation's total wall time.
     pub fn rows(&self, total: Duration) -> Vec<TimingRow> {
         let mut rows: Vec<TimingRow> = PHASES
             .iter()
@@ -134,24 +178,22 @@ impl Timings {
                 }
             })
             .collect();
-        let named: f64 = [
+        let unit_phases = [
             Phase::RenderTarget,
             Phase::RenderMarkers,
             Phase::RenderVolume,
             Phase::Metrics,
             Phase::Registration,
-        ]
-        .iter()
-        .map(|&p| self.seconds(p))
-        .sum();
-        let other = TimingRow {
-            phase: "  other unit work (result files, bookkeeping)",
+            Phase::UnitThreads,
+        ];
+        let all = TimingRow {
+            phase: "  all unit work",
             clock: "threads",
-            seconds: (self.seconds(Phase::UnitThreads) - named).max(0.0),
-            count: 0,
-            unit: "",
+            seconds: unit_phases.iter().map(|&p| self.seconds(p)).sum(),
+            count: self.counts[Phase::UnitThreads.index()].load(Ordering::Relaxed),
+            unit: "units",
         };
-        rows.insert(Phase::UnitThreads.index(), other);
+        rows.insert(Phase::UnitThreads.index() + 1, all);
         rows.push(TimingRow {
             phase: "total",
             clock: "wall",
@@ -205,21 +247,41 @@ mod tests {
     use super::*;
 
     #[test]
-    fn other_unit_work_is_unit_time_minus_named_phases() {
+    fn nested_phases_are_charged_exclusively() {
         let t = Timings::default();
-        t.add(Phase::UnitThreads, Duration::from_millis(1000), 4);
-        t.add(Phase::RenderTarget, Duration::from_millis(300), 4);
-        t.add(Phase::Metrics, Duration::from_millis(200), 4);
-        t.add(Phase::Registration, Duration::from_millis(100), 10);
+        let sleep = |ms| std::thread::sleep(Duration::from_millis(ms));
+        t.time(Phase::UnitThreads, 1, || {
+            sleep(5);
+            t.time(Phase::RenderTarget, 1, || {
+                sleep(5);
+                // A unit run while the render waits: its 150 ms are its own, not the render's.
+                t.time(Phase::Registration, 5, || sleep(150));
+            });
+            sleep(5);
+        });
+        let s = |p| t.seconds(p);
+        assert!(
+            s(Phase::Registration) >= 0.150,
+            "{}",
+            s(Phase::Registration)
+        );
+        for p in [Phase::RenderTarget, Phase::UnitThreads] {
+            assert!((0.005..0.150).contains(&s(p)), "{p:?}: {}", s(p));
+        }
         let rows = t.rows(Duration::from_secs(2));
-        let other = rows
+        let all = rows
             .iter()
-            .find(|r| r.phase.contains("other unit work"))
+            .find(|r| r.phase.contains("all unit work"))
             .unwrap();
-        assert!((other.seconds - 0.4).abs() < 1e-9, "{other:?}");
+        let total = s(Phase::Registration) + s(Phase::RenderTarget) + s(Phase::UnitThreads);
+        assert!((all.seconds - total).abs() < 1e-12 && all.count == 1);
         assert_eq!(rows.last().unwrap().seconds, 2.0);
         let csv = to_csv(&rows);
         assert_eq!(csv.lines().count(), rows.len() + 1);
-        assert!(csv.contains("registration,threads,0.100,10,trials"));
+        assert!(
+            csv.contains("\nregistration,threads,0.1")
+                || csv.contains("\nregistration,threads,0.2")
+        );
+        assert!(csv.contains(",5,trials\n"));
     }
 }

@@ -7,7 +7,7 @@ mod registration;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
@@ -50,18 +50,15 @@ pub struct Context {
     pub targets: Vec<Target>,
     /// Where heatmap figures go.
     pub figures_dir: PathBuf,
-    /// A one-thread pool for image metrics whose parallel reductions would otherwise depend on the
-    /// thread count (determinism).
-    pub metrics_pool: rayon::ThreadPool,
-    /// Reference renders per (target, view), computed once on first use (they are deterministic, so
-    /// which unit computes one does not matter).
-    references: BTreeMap<(String, String), ReferenceCell>,
+    /// One-thread pools for image metrics, whose parallel reductions would otherwise depend on the
+    /// thread count (determinism): one per worker, so workers do not queue behind each other.
+    metrics_pools: Vec<rayon::ThreadPool>,
+    /// Reference renders per (target, view), computed by [`Context::prepare_references`] before the
+    /// units run (so no unit waits on another for one).
+    references: BTreeMap<(String, String), Arc<Reference>>,
     /// Where the time goes (shared with the runner).
     pub timings: Arc<Timings>,
 }
-
-/// A lazily computed reference (the error kept as text so the cell can be shared).
-type ReferenceCell = OnceLock<std::result::Result<Arc<Reference>, String>>;
 
 /// The unperturbed render of a target in a view and its marker centroids.
 pub struct Reference {
@@ -134,23 +131,21 @@ impl Context {
         // The order of `targets(cfg)`, whatever the build order.
         let order = targets(cfg);
         built.sort_by_key(|b| order.iter().position(|n| *n == b.name));
-        let metrics_pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .map_err(|e| Error::Numerical(format!("building the metrics thread pool: {e}")))?;
-        let mut references = BTreeMap::new();
-        for t in &built {
-            for v in &cfg.geometry.views {
-                references.insert((t.name.clone(), v.clone()), OnceLock::new());
-            }
-        }
+        let metrics_pools = (0..pool.current_num_threads())
+            .map(|_| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(1)
+                    .build()
+                    .map_err(|e| Error::Numerical(format!("building a metrics thread pool: {e}")))
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(Context {
             cfg: cfg.clone(),
             carm,
             targets: built,
             figures_dir,
-            metrics_pool,
-            references,
+            metrics_pools,
+            references: BTreeMap::new(),
             timings,
         })
     }
@@ -163,19 +158,54 @@ impl Context {
             .ok_or_else(|| Error::invalid("target", format!("unknown target '{name}'")))
     }
 
-    /// The reference render of `t` in `view` (cached).
+    /// Renders, in parallel on `pool`, the references the projection units of `units` need.
+    pub fn prepare_references(&mut self, units: &[&Unit], pool: &rayon::ThreadPool) -> Result<()> {
+        let mut pairs: Vec<(String, String)> = Vec::new();
+        for u in units {
+            if let Unit::Projection { target, view, .. } = u {
+                let key = (target.clone(), view.clone());
+                if !pairs.contains(&key) && !self.references.contains_key(&key) {
+                    pairs.push(key);
+                }
+            }
+        }
+        let this = &*self;
+        let refs = pool.install(|| {
+            pairs
+                .par_iter()
+                .map(|(t, v)| projection::reference(this, this.target(t)?, this.carm.view(v)?))
+                .collect::<Result<Vec<_>>>()
+        })?;
+        for (key, r) in pairs.into_iter().zip(refs) {
+            self.references.insert(key, Arc::new(r));
+        }
+        Ok(())
+    }
+
+    /// The reference render of `t` in `view` (see [`Context::prepare_references`]).
     pub fn reference(&self, t: &Target, view: &View) -> Result<Arc<Reference>> {
-        let cell = self
-            .references
+        self.references
             .get(&(t.name.clone(), view.name.clone()))
-            .ok_or_else(|| Error::invalid("view", format!("no reference for '{}'", view.name)))?;
-        cell.get_or_init(|| {
-            projection::reference(self, t, view)
-                .map(Arc::new)
-                .map_err(|e| e.to_string())
+            .cloned()
+            .ok_or_else(|| {
+                Error::Numerical(format!(
+                    "no reference render of '{}' in view '{}' was prepared",
+                    t.name, view.name
+                ))
+            })
+    }
+
+    /// Runs `f` (image metrics with parallel reductions) on the calling worker's one-thread pool, from
+    /// a plain thread: a rayon worker waiting in `install` would run other units meanwhile (nesting
+    /// them inside this one); a blocked plain thread just waits. One thread means one reduction order,
+    /// so the result does not depend on the run's thread count.
+    pub fn isolated_metrics<T: Send>(&self, f: impl FnOnce() -> T + Send) -> T {
+        let i = rayon::current_thread_index().unwrap_or(0);
+        let pool = &self.metrics_pools[i % self.metrics_pools.len()];
+        std::thread::scope(|s| match s.spawn(|| pool.install(f)).join() {
+            Ok(v) => v,
+            Err(panic) => std::panic::resume_unwind(panic),
         })
-        .clone()
-        .map_err(Error::Numerical)
     }
 
     /// Runs one unit.

@@ -119,9 +119,7 @@ fn whole_object(
         perturbed: b.union_mask(),
     };
     let s = silhouette_metrics(&pair)?;
-    let im = ctx
-        .metrics_pool
-        .install(|| image_metrics(images.0, images.1))?;
+    let im = ctx.isolated_metrics(|| image_metrics(images.0, images.1))?;
     let q = &np.perturbation;
     Ok(ProjectionRow {
         target: t.name.clone(),
