@@ -95,11 +95,12 @@ fn tick(v: f64) -> String {
     if s == "-0" { "0".into() } else { s.to_string() }
 }
 
-/// The plot corner whose quarter-box (40 % × 35 % of the axes) the lines cross least, for the legend.
+/// The plot corner whose legend box (`box_w × box_h`, fractions of the plot) the lines cross least.
 fn legend_corner(
     series: &[Series],
     xr: &std::ops::Range<f64>,
     yr: &std::ops::Range<f64>,
+    (box_w, box_h): (f64, f64),
 ) -> SeriesLabelPosition {
     let (w, h) = (xr.end - xr.start, yr.end - yr.start);
     let mut samples = Vec::new();
@@ -110,8 +111,8 @@ fn legend_corner(
             .filter(|p| p.0.is_finite() && p.1.is_finite())
             .collect();
         for pair in pts.windows(2) {
-            for k in 0..=16 {
-                let a = f64::from(k) / 16.0;
+            for k in 0..=32 {
+                let a = f64::from(k) / 32.0;
                 samples.push((
                     (pair[0].0 + a * (pair[1].0 - pair[0].0) - xr.start) / w,
                     (pair[0].1 + a * (pair[1].1 - pair[0].1) - yr.start) / h,
@@ -133,8 +134,15 @@ fn legend_corner(
         samples
             .iter()
             .filter(|(x, y)| {
-                (if right { *x >= 0.6 } else { *x <= 0.4 })
-                    && (if upper { *y >= 0.65 } else { *y <= 0.35 })
+                (if right {
+                    *x >= 1.0 - box_w
+                } else {
+                    *x <= box_w
+                }) && (if upper {
+                    *y >= 1.0 - box_h
+                } else {
+                    *y <= box_h
+                })
             })
             .count()
     };
@@ -148,6 +156,20 @@ fn legend_corner(
     best.0
 }
 
+/// The legend box of `series` in `font`-px text as fractions of a plot `plot_px` big (estimated from
+/// the label lengths: DejaVu Sans averages ~0.6 em per character).
+fn legend_box(series: &[Series], font: u32, plot_px: (f64, f64)) -> (f64, f64) {
+    let chars = series
+        .iter()
+        .map(|s| s.label.chars().count())
+        .max()
+        .unwrap_or(0);
+    let f = f64::from(font);
+    let w = chars as f64 * 0.6 * f + 50.0;
+    let h = series.len() as f64 * (f + 6.0) + 16.0;
+    ((w / plot_px.0).min(1.0), (h / plot_px.1).min(1.0))
+}
+
 /// Draws `series` (lines, point markers, ± spread whiskers when given) with axes and a legend on `area`.
 fn draw_lines<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
@@ -158,7 +180,13 @@ fn draw_lines<DB: DrawingBackend>(
     style: ChartStyle,
 ) -> Result<()> {
     let (xr, yr) = ranges(series);
-    let legend = legend_corner(series, &xr, &yr);
+    let (aw, ah) = area.dim_in_pixel();
+    let plot_px = (
+        f64::from(aw) - f64::from(4 * style.labels + 50),
+        f64::from(ah) - f64::from(2 * style.labels + style.caption + 60),
+    );
+    let legend_size = legend_box(series, style.legend.unwrap_or(0), plot_px);
+    let legend = legend_corner(series, &xr, &yr, legend_size);
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", style.caption))
         .margin(15)
@@ -214,37 +242,43 @@ fn draw_lines<DB: DrawingBackend>(
     Ok(())
 }
 
-/// A one-line legend across `area`: a coloured line and the label of each series (colours as in
-/// [`draw_lines`]).
-fn legend_strip<DB: DrawingBackend>(
+/// A legend of `labels` laid out in `cols` columns (row by row, centred in `area`): a coloured line and
+/// the label of each series (colours as in [`draw_lines`]).
+fn legend_grid<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
     labels: &[String],
     font: u32,
+    cols: usize,
 ) -> Result<()> {
     let (w, h) = area.dim_in_pixel();
-    let n = labels.len().max(1) as i32;
-    let step = (w as i32 / n).min(320);
-    let x0 = (w as i32 - step * n) / 2;
-    let y = h as i32 / 2;
+    let cols = cols.clamp(1, labels.len().max(1));
+    let rows = labels.len().div_ceil(cols).max(1) as i32;
+    let step_x = (w as i32 / cols as i32).min(320);
+    let step_y = font as i32 + 8;
+    let x0 = (w as i32 - step_x * cols as i32) / 2;
+    let y0 = (h as i32 - step_y * rows) / 2 + step_y / 2;
+    let anchor = plotters::style::text_anchor::Pos::new(
+        plotters::style::text_anchor::HPos::Left,
+        plotters::style::text_anchor::VPos::Center,
+    );
     for (i, label) in labels.iter().enumerate() {
         let colour = Palette99::pick(i).to_rgba();
-        let x = x0 + step * i as i32 + 10;
+        let x = x0 + step_x * (i % cols) as i32 + 10;
+        let y = y0 + step_y * (i / cols) as i32;
         area.draw(&PathElement::new(
             vec![(x, y), (x + 36, y)],
             colour.stroke_width(3),
         ))
         .map_err(plot_err)?;
-        let style = ("sans-serif", font).into_font().color(&BLACK).pos(
-            plotters::style::text_anchor::Pos::new(
-                plotters::style::text_anchor::HPos::Left,
-                plotters::style::text_anchor::VPos::Center,
-            ),
-        );
+        let style = ("sans-serif", font).into_font().color(&BLACK).pos(anchor);
         area.draw(&Text::new(label.clone(), (x + 44, y), style))
             .map_err(plot_err)?;
     }
     Ok(())
 }
+
+/// Series above which a single chart gets its legend in a column beside the plot instead of inside it.
+const LEGEND_INSIDE_MAX: usize = 10;
 
 /// Draws `series` as a line chart and writes it to `path` (PNG).
 pub fn line_chart(
@@ -255,14 +289,27 @@ pub fn line_chart(
     series: &[Series],
 ) -> Result<()> {
     register_font()?;
-    let mut buf = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
+    let beside = series.len() > LEGEND_INSIDE_MAX;
+    let size = if beside { (SIZE.0 + 300, SIZE.1) } else { SIZE };
+    let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
     {
-        let root = BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area();
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
         root.fill(&WHITE).map_err(plot_err)?;
-        draw_lines(&root, title, x_label, y_label, series, SINGLE)?;
+        if beside {
+            let (plot, legend) = root.split_horizontally(SIZE.0);
+            let style = ChartStyle {
+                legend: None,
+                ..SINGLE
+            };
+            draw_lines(&plot, title, x_label, y_label, series, style)?;
+            let labels: Vec<String> = series.iter().map(|s| s.label.clone()).collect();
+            legend_grid(&legend, &labels, 15, 1)?;
+        } else {
+            draw_lines(&root, title, x_label, y_label, series, SINGLE)?;
+        }
         root.present().map_err(plot_err)?;
     }
-    encode_png_sized(path, buf, SIZE)
+    encode_png_sized(path, buf, size)
 }
 
 /// One panel of a multi-panel figure.
@@ -302,7 +349,7 @@ pub fn panel_chart(
         root.fill(&WHITE).map_err(plot_err)?;
         let root = root.titled(title, ("sans-serif", 32)).map_err(plot_err)?;
         let (strip, root) = root.split_vertically(50);
-        legend_strip(&strip, &labels, 22)?;
+        legend_grid(&strip, &labels, 22, labels.len())?;
         for (area, p) in root.split_evenly((rows, cols)).iter().zip(panels) {
             draw_lines(area, &p.title, x_label, y_label, &p.series, style)?;
         }
