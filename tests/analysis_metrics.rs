@@ -261,6 +261,31 @@ fn ssim_matches_the_windowed_definition() {
     }
 }
 
+/// `img` with rows `rows` set to zero (DRR background), for the blank-row shortcuts.
+fn with_blank_rows(img: &ImageF32, rows: impl Iterator<Item = usize>) -> ImageF32 {
+    let mut out = img.clone();
+    let w = img.width as usize;
+    for v in rows {
+        out.data[v * w..(v + 1) * w].fill(0.0);
+    }
+    out
+}
+
+#[test]
+fn blank_background_rows_give_the_windowed_definition() {
+    // Zero bands in both images (top, a 14-row middle band, bottom), and one band zero in `a` only.
+    let bands = || (0..12).chain(20..34).chain(50..61);
+    let a = with_blank_rows(&random_image(40, 61, 5), bands().chain(40..44));
+    let b = with_blank_rows(&random_image(40, 61, 6), bands());
+    let (fast, brute) = (ssim(&a, &b).unwrap(), ssim_brute(&a, &b));
+    assert!((fast - brute).abs() < 1e-9, "SSIM {fast} vs {brute}");
+    let (fast, brute) = (
+        gradient_correlation(&a, &b).unwrap(),
+        gradient_correlation_brute(&a, &b),
+    );
+    assert!((fast - brute).abs() < 1e-10, "GC {fast} vs {brute}");
+}
+
 #[test]
 fn landmark_shifts_follow_the_homography_law() {
     let carm = CArm::default_paper();

@@ -58,15 +58,9 @@ fn quick_study_writes_every_table_figure_and_report() {
             figures.push(format!("heatmap_L1_{v}_df{df}.png"));
         }
     }
-    for m in [
-        "direct-ap",
-        "direct-lat",
-        "direct-ap_lat",
-        "kabsch",
-        "opencv-ap",
-    ] {
-        figures.push(format!("registration_L1_{m}_rot.png"));
-        figures.push(format!("registration_L1_{m}_trans.png"));
+    // Registration: one multi-panel figure (a panel per method) per target and error quantity.
+    for q in ["rot", "trans", "residual"] {
+        figures.push(format!("registration_L1_{q}.png"));
     }
     for f in figures {
         let img = image::open(out.join("figures").join(&f)).unwrap_or_else(|e| panic!("{f}: {e}"));
@@ -74,6 +68,11 @@ fn quick_study_writes_every_table_figure_and_report() {
     }
     let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
     assert!(report.contains("dice_vs_perturbation.png") && report.contains("paper"));
+    assert!(report.contains("registration_L1_trans.png"));
+    assert!(report.contains("## Where the time goes"));
+    let timings = std::fs::read_to_string(out.join("timings.csv")).expect("timings.csv");
+    assert!(timings.starts_with("phase,clock,seconds,count,count_of\n"));
+    assert!(timings.contains("registration,threads,") && timings.contains("\ntotal,wall,"));
     let html = std::fs::read_to_string(out.join("report.html")).expect("report.html");
     let embedded = html.matches("data:image/png;base64,").count();
     let pngs = report.matches("![").count();

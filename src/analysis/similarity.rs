@@ -21,6 +21,18 @@ fn check_pair(a: &ImageF32, b: &ImageF32) -> Result<()> {
     Ok(())
 }
 
+/// Per row: true when the row is exactly zero in both images (DRR background). A filter window over
+/// such rows only sees zeros, so its result is known without filtering (see [`ssim`],
+/// [`gradient_correlation`]); skipping them is exact, not an approximation.
+fn blank_rows(a: &ImageF32, b: &ImageF32) -> Vec<bool> {
+    let w = a.width as usize;
+    a.data
+        .chunks(w)
+        .zip(b.data.chunks(w))
+        .map(|(ra, rb)| ra.iter().chain(rb).all(|&v| v == 0.0))
+        .collect()
+}
+
 /// Pearson correlation of two equally long sequences (accumulated in f64).
 fn pearson(
     a: impl Iterator<Item = f64> + Clone,
@@ -68,6 +80,8 @@ fn gaussian_window() -> [f64; 11] {
 /// `((2 μa μb + C1)(2 σab + C2)) / ((μa² + μb² + C1)(σa² + σb² + C2))` with an 11×11 Gaussian window
 /// (σ = 1.5), `C1 = (0.01 L)²`, `C2 = (0.03 L)²`, `L` the reference's data range (max − min; 1 if the
 /// reference is constant). Averaged over the pixels where the whole window fits inside the image.
+/// A window over zeros in both images has every moment exactly 0, so its SSIM is exactly
+/// `C1·C2 / (C1·C2) = 1`: output rows whose 11 input rows are all zero contribute exactly their width.
 pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
     check_pair(reference, other)?;
     let (w, h) = (reference.width as usize, reference.height as usize);
@@ -87,11 +101,15 @@ pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
     let (c1, c2) = ((0.01 * range).powi(2), (0.03 * range).powi(2));
     let g = gaussian_window();
     let (wo, ho) = (w - 10, h - 10);
+    let blank = blank_rows(reference, other);
     // Per output row: a vertical pass over the 11 input rows into five moment rows (a, b, a², b², ab),
     // then a horizontal pass; tap-outer loops over contiguous rows vectorise and stay in cache.
     let total: f64 = (0..ho)
         .into_par_iter()
         .map(|v| {
+            if blank[v..v + 11].iter().all(|&z| z) {
+                return wo as f64;
+            }
             let mut cols: [Vec<f64>; 5] = std::array::from_fn(|_| vec![0.0; w]);
             for (j, gj) in g.iter().enumerate() {
                 let r = (v + j) * w;
@@ -230,12 +248,20 @@ pub fn gradient_correlation(a: &ImageF32, b: &ImageF32) -> Result<f64> {
         ));
     }
     // One pass over the rows: the Sobel responses of both images feed the correlation moments
-    // directly (gradients have near-zero mean, so the one-pass variance loses nothing in f64).
+    // directly (gradients have near-zero mean, so the one-pass variance loses nothing in f64). Three
+    // rows of zeros in both images give zero responses: they only count pixels (adding +0 to the
+    // other moments changes nothing), so they are counted without being filtered.
     let w = a.width as usize;
+    let blank = blank_rows(a, b);
     let zero = || ([0.0; 6], [0.0; 6]);
     let (mx, my) = (0..a.height as usize - 2)
         .into_par_iter()
         .fold(zero, |(mut mx, mut my), v| {
+            if blank[v..v + 3].iter().all(|&z| z) {
+                mx[0] += (w - 2) as f64;
+                my[0] += (w - 2) as f64;
+                return (mx, my);
+            }
             let ((a0, a1, a2), (b0, b1, b2)) = (three_rows(a, v, w), three_rows(b, v, w));
             for u in 0..w - 2 {
                 let (ax, ay) = sobel_at(a0, a1, a2, u);

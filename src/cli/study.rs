@@ -24,6 +24,9 @@ pub struct Args {
     /// Stop after running this many work units (the rest run on the next invocation).
     #[arg(long)]
     max_units: Option<usize>,
+    /// Print where the time went (also written to OUT/timings.csv and the report).
+    #[arg(long)]
+    timings: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -43,6 +46,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         progress: true,
     };
     let s = run_study(&cfg, &opts).context("running the study")?;
+    if a.timings {
+        eprintln!("{:<48} {:>7} {:>9}  count", "phase", "clock", "seconds");
+        for r in &s.timings {
+            eprintln!(
+                "{:<48} {:>7} {:>9.2}  {}",
+                r.phase,
+                r.clock,
+                r.seconds,
+                if r.unit.is_empty() {
+                    String::new()
+                } else {
+                    format!("{} {}", r.count, r.unit)
+                }
+            );
+        }
+    }
     if s.complete {
         eprintln!(
             "study complete: {} units ({} reused, {} run); see {}",

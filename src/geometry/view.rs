@@ -79,6 +79,36 @@ impl View {
         })
     }
 
+    /// The detector window of `width × height` pixels whose first pixel is pixel `(u0, v0)` of this
+    /// view: the same source, orientation and rays, with the principal point moved to
+    /// `(cx − u0, cy − v0)`, so window pixel `(i, j)` sees what pixel `(u0 + i, v0 + j)` sees. Rendering
+    /// a window costs its pixels only (a small object's image without a full-detector buffer).
+    pub fn window(&self, u0: u32, v0: u32, width: u32, height: u32) -> crate::Result<View> {
+        let k = self.intrinsics;
+        let fits =
+            |o: u32, n: u32, total: u32| n > 0 && o.checked_add(n).is_some_and(|e| e <= total);
+        if !(fits(u0, width, k.width) && fits(v0, height, k.height)) {
+            return Err(crate::Error::invalid(
+                "window",
+                format!(
+                    "{width}×{height} px at ({u0}, {v0}) is not inside the {}×{} detector",
+                    k.width, k.height
+                ),
+            ));
+        }
+        Ok(View {
+            name: self.name.clone(),
+            intrinsics: super::Intrinsics {
+                cx: k.cx - f64::from(u0),
+                cy: k.cy - f64::from(v0),
+                width,
+                height,
+                ..k
+            },
+            world_to_camera: self.world_to_camera,
+        })
+    }
+
     /// The homography `H = K' K⁻¹` that maps this view's pixels to those of `other` when both share
     /// source and orientation (the analytic law of an intrinsic perturbation).
     pub fn homography_to(&self, other: &View) -> DMat3 {
@@ -125,6 +155,21 @@ mod tests {
             let q = v.pixel_to_world_dir() * DVec3::new(u, w, 1.0);
             assert!((q.normalize() - r.dir).length() < 1e-12);
         }
+    }
+
+    #[test]
+    fn a_window_sees_the_rays_of_its_pixels_in_the_full_view() {
+        let v = view();
+        let w = v.window(300, 410, 40, 25).unwrap();
+        assert_eq!((w.intrinsics.width, w.intrinsics.height), (40, 25));
+        for (i, j) in [(0.0, 0.0), (39.0, 24.0), (17.5, 3.25)] {
+            let (a, b) = (w.pixel_ray(i, j), v.pixel_ray(300.0 + i, 410.0 + j));
+            assert!((a.origin - b.origin).length() < 1e-9 && (a.dir - b.dir).length() < 1e-12);
+        }
+        let x = DVec3::new(-40.0, 30.0, 12.0);
+        assert!((w.project(x) + DVec2::new(300.0, 410.0) - v.project(x)).length() < 1e-9);
+        assert!(v.window(1000, 0, 25, 10).is_err());
+        assert!(v.window(0, 0, 0, 10).is_err());
     }
 
     #[test]

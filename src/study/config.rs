@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::{Level, parse_levels};
 use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig};
 use crate::registration::Method;
@@ -56,6 +57,8 @@ pub struct AnatomyConfig {
     pub marker_radius_mm: f64,
     /// The user's own anatomy: closed meshes with landmarks, each studied as one target.
     pub meshes: Vec<MeshTarget>,
+    /// CT volumes with a vertebra segmentation: each listed level studied as one target.
+    pub ct: Vec<CtTarget>,
 }
 
 /// `[[anatomy.meshes]]`: one target made of closed surface files (STL/OBJ/PLY, world mm) and a landmarks
@@ -69,6 +72,73 @@ pub struct MeshTarget {
     /// Attenuation of every surface (mm⁻¹); default: cortical bone.
     #[serde(default = "default_mu")]
     pub mu_per_mm: f64,
+}
+
+/// `[[anatomy.ct]]`: a CT (NIfTI, HU) with a label map on its grid. Each level becomes target
+/// `<name>-<level>` (and `<name>-segment` when `segment`): silhouettes and markers from the label's surface,
+/// image metrics and heatmaps from the CT volume DRR (Siddon) masked to the label.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CtTarget {
+    pub name: String,
+    pub ct: PathBuf,
+    pub seg: PathBuf,
+    /// Label convention of `seg`: `totalseg` or `verse`.
+    #[serde(default = "default_labels")]
+    pub labels: String,
+    /// Levels (`L1`, `T12`, `vertebrae_L3`) or raw label ids (`"31"`).
+    pub levels: Vec<String>,
+    /// Landmarks JSON (one set per level, CT world mm); default: automatic landmarks of each label surface.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub landmarks: Option<PathBuf>,
+    /// Also study the levels together as target `<name>-segment`.
+    #[serde(default)]
+    pub segment: bool,
+}
+
+fn default_labels() -> String {
+    "totalseg".into()
+}
+
+impl CtTarget {
+    /// Each level's target name (`<name>-L1`, or `<name>-id31` for a raw id) and its label id.
+    pub fn level_targets(&self) -> Result<Vec<(String, u16)>> {
+        let conv: LabelConvention = self
+            .labels
+            .parse()
+            .map_err(|e: Error| Error::invalid("anatomy.ct.labels", e.to_string()))?;
+        let mut out: Vec<(String, u16)> = Vec::new();
+        for spec in &self.levels {
+            let id = conv.resolve(spec).map_err(|e| {
+                Error::invalid(
+                    "anatomy.ct.levels",
+                    format!("target '{}': {spec:?}: {e}", self.name),
+                )
+            })?;
+            let tag = match spec.trim().parse::<u16>() {
+                Ok(_) => format!("id{id}"),
+                Err(_) => conv
+                    .level(id)
+                    .map_or_else(|| format!("id{id}"), |l| l.to_string()),
+            };
+            if out.iter().any(|(_, i)| *i == id) {
+                return Err(Error::invalid(
+                    "anatomy.ct.levels",
+                    format!(
+                        "target '{}': {spec:?} (label {id}) is listed twice",
+                        self.name
+                    ),
+                ));
+            }
+            out.push((format!("{}-{tag}", self.name), id));
+        }
+        Ok(out)
+    }
+
+    /// The segment's target name.
+    pub fn segment_target(&self) -> String {
+        format!("{}-segment", self.name)
+    }
 }
 
 fn default_mu() -> f64 {
@@ -143,6 +213,7 @@ impl Default for AnatomyConfig {
             voxel_mm: 0.8,
             marker_radius_mm: 2.0,
             meshes: Vec::new(),
+            ct: Vec::new(),
         }
     }
 }
@@ -195,6 +266,7 @@ impl StudyConfig {
                 voxel_mm: 1.0,
                 marker_radius_mm: 4.0,
                 meshes: Vec::new(),
+                ct: Vec::new(),
             },
             geometry: GeometrySection {
                 binning: 2,
@@ -250,14 +322,18 @@ impl StudyConfig {
                 ));
             }
         }
-        if self.anatomy.levels.is_empty() && self.anatomy.meshes.is_empty() {
+        let a = &self.anatomy;
+        if a.levels.is_empty() && a.meshes.is_empty() && a.ct.is_empty() {
             return Err(Error::invalid(
                 "anatomy.levels",
-                "must list at least one level (or give [[anatomy.meshes]])",
+                "must list at least one level (or give [[anatomy.meshes]] or [[anatomy.ct]])",
             ));
         }
         self.levels()?;
-        self.validate_meshes()?;
+        let mut names: Vec<String> = a.levels.clone();
+        names.push("segment".into());
+        self.validate_meshes(&mut names)?;
+        self.validate_ct(&mut names)?;
         positive("anatomy.voxel_mm", self.anatomy.voxel_mm)?;
         positive("anatomy.marker_radius_mm", self.anatomy.marker_radius_mm)?;
         if self.geometry.binning == 0 {
@@ -289,24 +365,9 @@ impl StudyConfig {
         self.validate_registration()
     }
 
-    fn validate_meshes(&self) -> Result<()> {
-        let mut names: Vec<&str> = self.anatomy.levels.iter().map(String::as_str).collect();
-        names.push("segment");
+    fn validate_meshes(&self, names: &mut Vec<String>) -> Result<()> {
         for m in &self.anatomy.meshes {
-            let ok = !m.name.is_empty()
-                && m.name
-                    .chars()
-                    .all(|c| c.is_ascii_alphanumeric() || c == '-');
-            if !ok || names.contains(&m.name.as_str()) {
-                return Err(Error::invalid(
-                    "anatomy.meshes.name",
-                    format!(
-                        "'{}' must be unique, non-empty, letters/digits/'-' only",
-                        m.name
-                    ),
-                ));
-            }
-            names.push(&m.name);
+            target_name("anatomy.meshes.name", &m.name, names)?;
             if m.files.is_empty() {
                 return Err(Error::invalid(
                     "anatomy.meshes.files",
@@ -326,6 +387,48 @@ impl StudyConfig {
                     "anatomy.meshes.mu_per_mm",
                     format!("{} is not finite", m.mu_per_mm),
                 ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Static checks of `[[anatomy.ct]]` (names, files exist, convention, level names). Whether each
+    /// label is present in its file is checked when the anatomy is loaded, still before any output.
+    fn validate_ct(&self, names: &mut Vec<String>) -> Result<()> {
+        for c in &self.anatomy.ct {
+            target_name("anatomy.ct.name", &c.name, names)?;
+            for (key, f) in [
+                ("anatomy.ct.ct", Some(&c.ct)),
+                ("anatomy.ct.seg", Some(&c.seg)),
+                ("anatomy.ct.landmarks", c.landmarks.as_ref()),
+            ] {
+                if let Some(f) = f
+                    && !f.is_file()
+                {
+                    return Err(Error::invalid(
+                        key,
+                        format!("target '{}': no such file {}", c.name, f.display()),
+                    ));
+                }
+            }
+            if c.levels.is_empty() {
+                return Err(Error::invalid(
+                    "anatomy.ct.levels",
+                    format!("target '{}' lists no levels", c.name),
+                ));
+            }
+            let mut sub: Vec<String> = c.level_targets()?.into_iter().map(|(n, _)| n).collect();
+            if c.segment {
+                sub.push(c.segment_target());
+            }
+            for n in sub {
+                if names.contains(&n) {
+                    return Err(Error::invalid(
+                        "anatomy.ct.name",
+                        format!("target '{n}' of '{}' clashes with another target", c.name),
+                    ));
+                }
+                names.push(n);
             }
         }
         Ok(())
@@ -422,6 +525,19 @@ pub fn method_spec(name: &str) -> Result<(Method, Vec<String>)> {
     ))
 }
 
+/// A user target name: non-empty, letters/digits/'-' (it goes into file names), not yet taken.
+fn target_name(key: &str, name: &str, names: &mut Vec<String>) -> Result<()> {
+    let ok = !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-');
+    if !ok || names.iter().any(|n| n == name) {
+        return Err(Error::invalid(
+            key,
+            format!("'{name}' must be unique, non-empty, letters/digits/'-' only"),
+        ));
+    }
+    names.push(name.to_string());
+    Ok(())
+}
+
 fn positive(key: &str, v: f64) -> Result<()> {
     if v.is_finite() && v > 0.0 {
         Ok(())
@@ -457,6 +573,38 @@ mod tests {
         assert_eq!((k.width, k.height), (512, 512));
         assert!((k.fx - 2250.0).abs() < 1e-9 && (k.fy - 2250.0).abs() < 1e-9);
         assert!((k.cx - 255.5).abs() < 1e-9 && (k.cy - 255.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn ct_levels_name_their_targets_and_reject_duplicates() {
+        let mut c = CtTarget {
+            name: "p".into(),
+            ct: "ct.nii".into(),
+            seg: "seg.nii".into(),
+            labels: "totalseg".into(),
+            levels: vec!["L1".into(), "vertebrae_l3".into(), "27".into()],
+            landmarks: None,
+            segment: true,
+        };
+        let t = c.level_targets().unwrap();
+        assert_eq!(
+            t,
+            vec![
+                ("p-L1".into(), 31),
+                ("p-L3".into(), 29),
+                ("p-id27".into(), 27)
+            ]
+        );
+        assert_eq!(c.segment_target(), "p-segment");
+        c.levels = vec!["L1".into(), "31".into()];
+        let e = c.level_targets().unwrap_err().to_string();
+        assert!(
+            e.contains("anatomy.ct.levels") && e.contains("twice"),
+            "{e}"
+        );
+        c.labels = "verse".into();
+        c.levels = vec!["L1".into()];
+        assert_eq!(c.level_targets().unwrap()[0].1, 20, "VerSe L1 = 20");
     }
 
     #[test]

@@ -12,6 +12,7 @@ pub mod report;
 pub mod report_html;
 pub mod runner;
 pub mod tables;
+pub mod timings;
 pub mod units;
 
 pub use config::StudyConfig;

@@ -5,7 +5,9 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::config::StudyConfig;
+use super::runner::RunFacts;
 use super::tables::Table;
+use super::timings::{TimingRow, to_markdown};
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
 
@@ -41,22 +43,25 @@ fn show(v: Option<f64>) -> String {
     v.map_or("n/a".into(), |x| format!("{x:.4}"))
 }
 
-/// Writes `out/report.md`.
-pub fn write(out: &Path, cfg: &StudyConfig) -> Result<()> {
+/// Writes `out/report.md`; everything above the timing section depends only on the config and the
+/// tables, the timing section (`rows`, `run`) on this invocation.
+pub fn write(out: &Path, cfg: &StudyConfig, rows: &[TimingRow], run: &RunFacts) -> Result<()> {
     let paper: toml::Value = toml::from_str(PAPER_RESULTS_TOML)
         .map_err(|e| Error::format("reference/paper-results.toml", e.to_string()))?;
     let mut md = String::new();
     writeln!(md, "# spinedrr sensitivity study\n").map_err(fmt_err)?;
     writeln!(
         md,
-        "Levels: {}{}; views: {}; seed {}; detector binning {}. The full configuration is `study.toml`.\n",
-        cfg.anatomy.levels.join(", "),
-        if cfg.anatomy.segment { " and the segment" } else { "" },
+        "spinedrr {}. Targets: {}; views: {}; seed {}; detector binning {}. The full configuration is \
+`study.toml`.\n",
+        env!("CARGO_PKG_VERSION"),
+        super::units::targets(cfg).join(", "),
         cfg.geometry.views.join(", "),
         cfg.seed,
         cfg.geometry.binning
     )
     .map_err(fmt_err)?;
+    renderers_section(&mut md, cfg)?;
     list_dir(&mut md, out, "tables", "Tables")?;
     list_dir(&mut md, out, "figures", "Figures")?;
     let first = super::units::targets(cfg)
@@ -117,7 +122,69 @@ what the model gives rather than tuning to the paper.\n").map_err(fmt_err)?;
     if p.exists() {
         registration_section(&mut md, &Table::read(&p)?, &paper, &first)?;
     }
+    timings_section(&mut md, rows, run)?;
     write_atomic_bytes(&out.join("report.md"), md.as_bytes())
+}
+
+/// Which renderer feeds which measurement, per kind of target.
+fn renderers_section(md: &mut String, cfg: &StudyConfig) -> Result<()> {
+    writeln!(md, "## How each measurement is made\n").map_err(fmt_err)?;
+    writeln!(
+        md,
+        "- Landmark shifts: a small marker sphere at each 3-D landmark is rendered alone and its blob \
+centroid measured, in the reference and the perturbed view; the homography prediction H·x is beside it."
+    )
+    .map_err(fmt_err)?;
+    writeln!(
+        md,
+        "- Phantom levels and mesh targets: silhouettes, contours and image metrics (NCC, SSIM, MI, GC, \
+heatmaps) all come from the thickness DRR (Σ μ·L through the closed surfaces, Embree or BVH)."
+    )
+    .map_err(fmt_err)?;
+    if !cfg.anatomy.ct.is_empty() {
+        writeln!(
+            md,
+            "- CT targets ({}): image metrics and heatmaps come from the CT volume DRR (Siddon's exact \
+line integral of μ(HU) through the CT, masked to the level's label), as the paper renders DRRs; \
+silhouettes and contours from a thickness render of the label's closed surface (its ray-hit mask); \
+landmarks are automatic landmarks of that surface unless a landmarks file is given. Each CT target is \
+translated so its body centre sits where the views aim. The label surface carries no structure labels, so \
+structures.csv has no rows for CT targets.",
+            cfg.anatomy
+                .ct
+                .iter()
+                .map(|c| c.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+        .map_err(fmt_err)?;
+    }
+    writeln!(md).map_err(fmt_err)
+}
+
+/// Where this invocation's time went.
+fn timings_section(md: &mut String, rows: &[TimingRow], run: &RunFacts) -> Result<()> {
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    writeln!(md, "## Where the time goes (this invocation)\n").map_err(fmt_err)?;
+    writeln!(
+        md,
+        "{} of {} work units ran in this invocation ({} reused from an earlier one), on {} worker \
+threads ({cores} cores available). Wall-clock phases are elapsed time; the indented unit phases are summed \
+over worker threads, so together they are about threads × the units' wall time. Report writing itself is \
+in timings.csv.\n",
+        run.ran_units,
+        run.total_units,
+        run.total_units - run.ran_units,
+        run.threads
+    )
+    .map_err(fmt_err)?;
+    // The report's own writing time is not known yet: it is in timings.csv.
+    let rows: Vec<TimingRow> = rows
+        .iter()
+        .filter(|r| !r.phase.starts_with("report"))
+        .cloned()
+        .collect();
+    writeln!(md, "{}", to_markdown(&rows)?).map_err(fmt_err)
 }
 
 fn list_dir(md: &mut String, out: &Path, dir: &str, title: &str) -> Result<()> {

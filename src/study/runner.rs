@@ -8,12 +8,15 @@
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
 
 use rayon::prelude::*;
 
 use super::config::StudyConfig;
-use super::experiments::Context;
+use super::experiments::{Context, ct};
 use super::tables::{TABLES, summarize_registration, unit_lines, write_table};
+use super::timings::{Phase, TimingRow, Timings, to_csv};
 use super::units::{Unit, UnitFile, derive_seed, enumerate_units};
 use super::{figures, report, report_html};
 use crate::io::write_atomic_bytes;
@@ -32,13 +35,15 @@ pub struct RunOptions {
 }
 
 /// What a run did.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct RunSummary {
     pub total_units: usize,
     pub skipped_units: usize,
     pub ran_units: usize,
     /// All units present and the tables, figures and report written.
     pub complete: bool,
+    /// Where this invocation's time went (also in `timings.csv` and the report).
+    pub timings: Vec<TimingRow>,
 }
 
 /// The fingerprint of a config: FNV-1a over its canonical TOML.
@@ -64,16 +69,16 @@ fn create_dir(p: &Path) -> Result<()> {
 }
 
 /// Runs (or resumes) the study.
+///
+/// Order: validate the config; read and check the CT inputs (labels present, grids) when there is work
+/// to do — so a bad input fails before the output folder is touched; create the output folder; build
+/// the anatomy and scenes; run the pending units; assemble tables, figures, report.
 pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
+    let start = Instant::now();
+    let timings = Arc::new(Timings::default());
     cfg.validate()?;
     let fp = fingerprint(cfg)?;
     let units = enumerate_units(cfg)?;
-    for d in ["units", "tables", "figures"] {
-        create_dir(&opts.out.join(d))?;
-    }
-    let config_text = toml::to_string(cfg)
-        .map_err(|e| Error::Numerical(format!("serialising the study config: {e}")))?;
-    write_atomic_bytes(&opts.out.join("study.toml"), config_text.as_bytes())?;
     let pending: Vec<&Unit> = units
         .iter()
         .filter(|u| load_unit(&unit_path(&opts.out, &u.id()), &fp).is_none())
@@ -83,50 +88,111 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         Some(n) => pending.iter().take(n).copied().collect(),
         None => pending.clone(),
     };
+    let pool = thread_pool(opts.threads)?;
+    let build_start = Instant::now();
+    let ct_inputs = if todo.is_empty() {
+        Vec::new()
+    } else {
+        timings.time(Phase::Anatomy, 0, || ct::load_inputs(cfg))?
+    };
+    let mut build_wall = build_start.elapsed();
+    for d in ["units", "tables", "figures"] {
+        create_dir(&opts.out.join(d))?;
+    }
+    let config_text = toml::to_string(cfg)
+        .map_err(|e| Error::Numerical(format!("serialising the study config: {e}")))?;
+    write_atomic_bytes(&opts.out.join("study.toml"), config_text.as_bytes())?;
     if !todo.is_empty() {
-        run_units(cfg, opts, &fp, &todo)?;
+        let t0 = Instant::now();
+        let figures_dir = opts.out.join("figures");
+        let mut ctx = Context::build(cfg, ct_inputs, figures_dir, timings.clone(), &pool)?;
+        build_wall += t0.elapsed();
+        timings.add(Phase::Build, build_wall, ctx.targets.len() as u64);
+        let t0 = Instant::now();
+        ctx.prepare_references(&todo, &pool)?;
+        run_units(&ctx, &pool, opts, &fp, &todo)?;
+        timings.add(Phase::Units, t0.elapsed(), todo.len() as u64);
     }
     let complete = todo.len() == pending.len();
+    let threads = pool.current_num_threads();
+    let run = RunFacts {
+        threads,
+        total_units: units.len(),
+        ran_units: todo.len(),
+    };
     if complete {
-        assemble(&opts.out, &units, &fp)?;
-        figures::write_all(&opts.out)?;
-        report::write(&opts.out, cfg)?;
-        report_html::write(&opts.out)?;
+        timings.time(Phase::Tables, super::tables::TABLES.len() as u64, || {
+            assemble(&opts.out, &units, &fp)
+        })?;
+        let n_figures = timings.time(Phase::Figures, 0, || figures::write_all(&opts.out))?;
+        timings.add(Phase::Figures, std::time::Duration::ZERO, n_figures as u64);
+        let rows = timings.rows(start.elapsed());
+        timings.time(Phase::Report, 2, || -> Result<()> {
+            report::write(&opts.out, cfg, &rows, &run)?;
+            report_html::write(&opts.out)
+        })?;
     }
+    let rows = timings.rows(start.elapsed());
+    write_atomic_bytes(&opts.out.join("timings.csv"), to_csv(&rows).as_bytes())?;
     Ok(RunSummary {
         total_units: units.len(),
         skipped_units: skipped,
         ran_units: todo.len(),
         complete,
+        timings: rows,
     })
 }
 
-fn run_units(cfg: &StudyConfig, opts: &RunOptions, fp: &str, todo: &[&Unit]) -> Result<()> {
+/// Facts about one invocation that the report states beside its timings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RunFacts {
+    pub threads: usize,
+    pub total_units: usize,
+    pub ran_units: usize,
+}
+
+/// The worker pool of a run (`threads` workers, or rayon's default).
+fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     let mut builder = rayon::ThreadPoolBuilder::new();
-    if let Some(n) = opts.threads {
+    if let Some(n) = threads {
         builder = builder.num_threads(n);
     }
-    let pool = builder
+    builder
         .build()
-        .map_err(|e| Error::invalid("threads", e.to_string()))?;
-    let ctx = Context::build(cfg, opts.out.join("figures"))?;
+        .map_err(|e| Error::invalid("threads", e.to_string()))
+}
+
+fn run_units(
+    ctx: &Context,
+    pool: &rayon::ThreadPool,
+    opts: &RunOptions,
+    fp: &str,
+    todo: &[&Unit],
+) -> Result<()> {
     let bar = progress_bar(opts.progress, todo.len());
     pool.install(|| {
-        todo.par_iter().try_for_each(|u| -> Result<()> {
-            let rows = ctx.run(u)?;
-            let file = UnitFile {
-                id: u.id(),
-                fingerprint: fp.to_string(),
-                tables: unit_lines(&rows),
-            };
-            let text = serde_json::to_string(&file)
-                .map_err(|e| Error::Numerical(format!("serialising unit {}: {e}", u.id())))?;
-            write_atomic_bytes(&unit_path(&opts.out, &u.id()), text.as_bytes())?;
-            if let Some(b) = &bar {
-                b.inc(1);
-            }
-            Ok(())
-        })
+        // One job per unit: rayon's default splitting runs long stretches of units on one thread, and
+        // units differ in cost by 100× (renders vs registration trials), which left a core idle.
+        todo.par_iter()
+            .with_max_len(1)
+            .try_for_each(|u| -> Result<()> {
+                ctx.timings.time(Phase::UnitThreads, 1, || -> Result<()> {
+                    let rows = ctx.run(u)?;
+                    let file = UnitFile {
+                        id: u.id(),
+                        fingerprint: fp.to_string(),
+                        tables: unit_lines(&rows),
+                    };
+                    let text = serde_json::to_string(&file).map_err(|e| {
+                        Error::Numerical(format!("serialising unit {}: {e}", u.id()))
+                    })?;
+                    write_atomic_bytes(&unit_path(&opts.out, &u.id()), text.as_bytes())
+                })?;
+                if let Some(b) = &bar {
+                    b.inc(1);
+                }
+                Ok(())
+            })
     })?;
     if let Some(b) = bar {
         b.finish_and_clear();

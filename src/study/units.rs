@@ -137,13 +137,26 @@ pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
     out
 }
 
-/// The targets: each level, then `segment` when enabled, then the mesh targets.
+/// The targets: each phantom level, then `segment` when enabled, then the mesh targets, then per
+/// `[[anatomy.ct]]` entry its levels (`<name>-L1`, …) and `<name>-segment` when enabled. Call on a
+/// validated config (CT level names that do not resolve are skipped here).
 pub fn targets(cfg: &StudyConfig) -> Vec<String> {
     let mut t: Vec<String> = cfg.anatomy.levels.clone();
     if cfg.anatomy.segment && !t.is_empty() {
         t.push("segment".into());
     }
     t.extend(cfg.anatomy.meshes.iter().map(|m| m.name.clone()));
+    for c in &cfg.anatomy.ct {
+        t.extend(
+            c.level_targets()
+                .unwrap_or_default()
+                .into_iter()
+                .map(|(n, _)| n),
+        );
+        if c.segment {
+            t.push(c.segment_target());
+        }
+    }
     t
 }
 

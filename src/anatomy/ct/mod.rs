@@ -119,6 +119,31 @@ impl<T: Copy> Volume<T> {
         self.dims == other.dims && a.iter().zip(b.iter()).all(|(x, y)| (x - y).abs() <= 1e-6)
     }
 
+    /// The sub-volume of voxels `lo..=hi` (inclusive index bounds) at the same world positions: voxel
+    /// `(i, j, k)` of the crop is voxel `lo + (i, j, k)` of `self` (affine `A · T(lo)`).
+    pub fn crop(&self, lo: [usize; 3], hi: [usize; 3]) -> Result<Volume<T>> {
+        if (0..3).any(|a| lo[a] > hi[a] || hi[a] >= self.dims[a]) {
+            return Err(Error::invalid(
+                "crop",
+                format!("{lo:?}..={hi:?} is not inside dims {:?}", self.dims),
+            ));
+        }
+        let dims = [0, 1, 2].map(|a| hi[a] - lo[a] + 1);
+        let mut values = Vec::with_capacity(dims.iter().product());
+        for k in lo[2]..=hi[2] {
+            for j in lo[1]..=hi[1] {
+                let row = self.linear(lo[0], j, k);
+                values.extend_from_slice(&self.values[row..row + dims[0]]);
+            }
+        }
+        let shift = DVec3::new(lo[0] as f64, lo[1] as f64, lo[2] as f64);
+        Volume::new(
+            dims,
+            values,
+            self.index_to_world * DMat4::from_translation(shift),
+        )
+    }
+
     /// The same grid with other values.
     pub fn map<U, F: Fn(T) -> U + Sync>(&self, f: F) -> Volume<U> {
         Volume {
@@ -167,4 +192,34 @@ pub fn check_affine(m: &DMat4) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crop_keeps_every_voxel_at_its_world_position() {
+        let a = DMat4::from_cols_array(&[
+            0.0, 0.9, 0.0, 0.0, -0.8, 0.0, 0.0, 0.0, 0.0, 0.0, 1.25, 0.0, 5.0, -3.0, 100.0, 1.0,
+        ]);
+        let dims = [7, 6, 5];
+        let n: usize = dims.iter().product();
+        let vol = Volume::new(dims, (0..n as u32).collect(), a).unwrap();
+        let (lo, hi) = ([2, 1, 0], [5, 4, 3]);
+        let c = vol.crop(lo, hi).unwrap();
+        assert_eq!(c.dims, [4, 4, 4]);
+        for k in 0..4 {
+            for j in 0..4 {
+                for i in 0..4 {
+                    let (oi, oj, ok) = (i + lo[0], j + lo[1], k + lo[2]);
+                    assert_eq!(c.get(i, j, k), vol.get(oi, oj, ok));
+                    let d = c.voxel_centre(i, j, k) - vol.voxel_centre(oi, oj, ok);
+                    assert!(d.length() < 1e-12);
+                }
+            }
+        }
+        assert!(vol.crop([0, 0, 0], [7, 0, 0]).is_err());
+        assert!(vol.crop([3, 0, 0], [2, 0, 0]).is_err());
+    }
 }

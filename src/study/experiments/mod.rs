@@ -1,23 +1,29 @@
 //! The experiments of a study: what one work unit computes. `Context` holds what the units share
 //! (C-arm, per-target renderers, marker renderers, landmarks), built once before the parallel loop.
 
+pub mod ct;
 mod projection;
 mod registration;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 use glam::{DVec2, DVec3};
+use rayon::prelude::*;
 
 use super::config::{MeshTarget, StudyConfig};
+use super::timings::{Phase, Timings};
 use super::units::{Unit, UnitRows, targets};
 use crate::anatomy::{
     Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels, read_landmarks, read_mesh,
 };
 use crate::geometry::{CArm, View};
+use crate::io::ImageF32;
+use crate::render::volume::VolumeRenderer;
 use crate::render::{RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, phantom_scene};
 use crate::{Error, Result};
+use ct::CtInput;
 
 /// A landmark marker: a small sphere rendered alone, so its blob centroid measures the landmark.
 pub struct Marker {
@@ -26,10 +32,13 @@ pub struct Marker {
     pub renderer: ThicknessRenderer,
 }
 
-/// One studied object (a level or the segment).
+/// One studied object (a level, a segment, a mesh target).
 pub struct Target {
     pub name: String,
+    /// Thickness renderer: silhouettes and contours, and image metrics when there is no `volume`.
     pub renderer: ThicknessRenderer,
+    /// CT volume DRR masked to the target's labels (CT targets): image metrics and heatmaps.
+    pub volume: Option<VolumeRenderer>,
     pub landmarks: Vec<(String, DVec3)>,
     pub markers: Vec<Marker>,
 }
@@ -41,26 +50,34 @@ pub struct Context {
     pub targets: Vec<Target>,
     /// Where heatmap figures go.
     pub figures_dir: PathBuf,
-    /// A one-thread pool for image metrics whose parallel reductions would otherwise depend on the
-    /// thread count (determinism).
-    pub metrics_pool: rayon::ThreadPool,
-    /// Reference renders per (target, view), computed once on first use (they are deterministic, so
-    /// which unit computes one does not matter).
-    references: BTreeMap<(String, String), ReferenceCell>,
+    /// One-thread pools for image metrics, whose parallel reductions would otherwise depend on the
+    /// thread count (determinism): one per worker, so workers do not queue behind each other.
+    metrics_pools: Vec<rayon::ThreadPool>,
+    /// Reference renders per (target, view), computed by [`Context::prepare_references`] before the
+    /// units run (so no unit waits on another for one).
+    references: BTreeMap<(String, String), Arc<Reference>>,
+    /// Where the time goes (shared with the runner).
+    pub timings: Arc<Timings>,
 }
-
-/// A lazily computed reference (the error kept as text so the cell can be shared).
-type ReferenceCell = OnceLock<std::result::Result<Arc<Reference>, String>>;
 
 /// The unperturbed render of a target in a view and its marker centroids.
 pub struct Reference {
     pub drr: Option<ThicknessDrr>,
+    /// The CT volume DRR, for targets with a volume.
+    pub volume_drr: Option<ImageF32>,
     pub markers: Vec<Option<DVec2>>,
 }
 
 impl Context {
-    /// Builds the phantom, the scenes and the marker renderers.
-    pub fn build(cfg: &StudyConfig, figures_dir: PathBuf) -> Result<Context> {
+    /// Builds the phantom, the mesh and CT targets (from inputs read by [`ct::load_inputs`]), the scenes
+    /// and the marker renderers; anatomy in parallel over targets on `pool`.
+    pub fn build(
+        cfg: &StudyConfig,
+        ct_inputs: Vec<CtInput>,
+        figures_dir: PathBuf,
+        timings: Arc<Timings>,
+        pool: &rayon::ThreadPool,
+    ) -> Result<Context> {
         let carm = cfg.carm()?;
         // Each level alone is built on its own, so it sits where the views aim (the world origin), as in
         // the paper's single-vertebra experiments; the segment is the whole stack.
@@ -73,36 +90,63 @@ impl Context {
                 ..PhantomOptions::default()
             })
         };
+        let t = &timings;
+        // Anatomy is built in parallel over targets (each build is deterministic).
+        let phantom_targets: Vec<String> = cfg
+            .anatomy
+            .levels
+            .iter()
+            .cloned()
+            .chain(
+                (cfg.anatomy.segment && !cfg.anatomy.levels.is_empty())
+                    .then(|| "segment".to_string()),
+            )
+            .collect();
+        let phantoms = pool.install(|| {
+            phantom_targets
+                .par_iter()
+                .map(|name| {
+                    let levels = if name == "segment" {
+                        cfg.levels()?
+                    } else {
+                        parse_levels(name)?
+                    };
+                    t.time(Phase::Anatomy, 1, || phantom_of(levels))
+                })
+                .collect::<Result<Vec<Phantom>>>()
+        })?;
+        // Renderers are built one target at a time (they are not `Send`; Embree parallelises its own
+        // BVH builds).
         let mut built = Vec::new();
-        for name in targets(cfg) {
-            if let Some(m) = cfg.anatomy.meshes.iter().find(|m| m.name == name) {
-                built.push(mesh_target(cfg, m)?);
-                continue;
-            }
-            let levels = if name == "segment" {
-                cfg.levels()?
-            } else {
-                parse_levels(&name)?
-            };
-            built.push(build_target(cfg, &phantom_of(levels)?, &name)?);
+        for (name, phantom) in phantom_targets.iter().zip(&phantoms) {
+            built.push(build_target(cfg, phantom, name, t)?);
         }
-        let metrics_pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .map_err(|e| Error::Numerical(format!("building the metrics thread pool: {e}")))?;
-        let mut references = BTreeMap::new();
-        for t in &built {
-            for v in &cfg.geometry.views {
-                references.insert((t.name.clone(), v.clone()), OnceLock::new());
-            }
+        drop(phantoms);
+        for m in &cfg.anatomy.meshes {
+            built.push(mesh_target(cfg, m, t)?);
         }
+        for input in ct_inputs {
+            built.extend(ct::build_targets(cfg, input, t, pool)?);
+        }
+        // The order of `targets(cfg)`, whatever the build order.
+        let order = targets(cfg);
+        built.sort_by_key(|b| order.iter().position(|n| *n == b.name));
+        let metrics_pools = (0..pool.current_num_threads())
+            .map(|_| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(1)
+                    .build()
+                    .map_err(|e| Error::Numerical(format!("building a metrics thread pool: {e}")))
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(Context {
             cfg: cfg.clone(),
             carm,
             targets: built,
             figures_dir,
-            metrics_pool,
-            references,
+            metrics_pools,
+            references: BTreeMap::new(),
+            timings,
         })
     }
 
@@ -114,19 +158,54 @@ impl Context {
             .ok_or_else(|| Error::invalid("target", format!("unknown target '{name}'")))
     }
 
-    /// The reference render of `t` in `view` (cached).
+    /// Renders, in parallel on `pool`, the references the projection units of `units` need.
+    pub fn prepare_references(&mut self, units: &[&Unit], pool: &rayon::ThreadPool) -> Result<()> {
+        let mut pairs: Vec<(String, String)> = Vec::new();
+        for u in units {
+            if let Unit::Projection { target, view, .. } = u {
+                let key = (target.clone(), view.clone());
+                if !pairs.contains(&key) && !self.references.contains_key(&key) {
+                    pairs.push(key);
+                }
+            }
+        }
+        let this = &*self;
+        let refs = pool.install(|| {
+            pairs
+                .par_iter()
+                .map(|(t, v)| projection::reference(this, this.target(t)?, this.carm.view(v)?))
+                .collect::<Result<Vec<_>>>()
+        })?;
+        for (key, r) in pairs.into_iter().zip(refs) {
+            self.references.insert(key, Arc::new(r));
+        }
+        Ok(())
+    }
+
+    /// The reference render of `t` in `view` (see [`Context::prepare_references`]).
     pub fn reference(&self, t: &Target, view: &View) -> Result<Arc<Reference>> {
-        let cell = self
-            .references
+        self.references
             .get(&(t.name.clone(), view.name.clone()))
-            .ok_or_else(|| Error::invalid("view", format!("no reference for '{}'", view.name)))?;
-        cell.get_or_init(|| {
-            projection::reference(self, t, view)
-                .map(Arc::new)
-                .map_err(|e| e.to_string())
+            .cloned()
+            .ok_or_else(|| {
+                Error::Numerical(format!(
+                    "no reference render of '{}' in view '{}' was prepared",
+                    t.name, view.name
+                ))
+            })
+    }
+
+    /// Runs `f` (image metrics with parallel reductions) on the calling worker's one-thread pool, from
+    /// a plain thread: a rayon worker waiting in `install` would run other units meanwhile (nesting
+    /// them inside this one); a blocked plain thread just waits. One thread means one reduction order,
+    /// so the result does not depend on the run's thread count.
+    pub fn isolated_metrics<T: Send>(&self, f: impl FnOnce() -> T + Send) -> T {
+        let i = rayon::current_thread_index().unwrap_or(0);
+        let pool = &self.metrics_pools[i % self.metrics_pools.len()];
+        std::thread::scope(|s| match s.spawn(|| pool.install(f)).join() {
+            Ok(v) => v,
+            Err(panic) => std::panic::resume_unwind(panic),
         })
-        .clone()
-        .map_err(Error::Numerical)
     }
 
     /// Runs one unit.
@@ -141,7 +220,12 @@ impl Context {
 }
 
 /// The scene of one level (or all levels for `segment`), its landmarks and markers.
-fn build_target(cfg: &StudyConfig, phantom: &Phantom, name: &str) -> Result<Target> {
+fn build_target(
+    cfg: &StudyConfig,
+    phantom: &Phantom,
+    name: &str,
+    timings: &Timings,
+) -> Result<Target> {
     let sub = phantom;
     if sub.vertebrae.is_empty() {
         return Err(Error::invalid(
@@ -150,8 +234,15 @@ fn build_target(cfg: &StudyConfig, phantom: &Phantom, name: &str) -> Result<Targ
         ));
     }
     let backend = cfg.geometry.backend;
-    let renderer = backend.renderer(phantom_scene(sub)?)?;
-    target_with_landmarks(cfg, name, renderer, sub.landmarks(), name == "segment")
+    let renderer = timings.time(Phase::Scene, 1, || backend.renderer(phantom_scene(sub)?))?;
+    target_with_landmarks(
+        cfg,
+        name,
+        renderer,
+        sub.landmarks(),
+        name == "segment",
+        timings,
+    )
 }
 
 /// A target with its landmarks (prefixed with the level when `prefix_level`) and, when the landmark
@@ -162,6 +253,7 @@ fn target_with_landmarks(
     renderer: ThicknessRenderer,
     sets: Vec<crate::anatomy::Landmarks>,
     prefix_level: bool,
+    timings: &Timings,
 ) -> Result<Target> {
     let mut landmarks = Vec::new();
     for set in sets {
@@ -175,38 +267,45 @@ fn target_with_landmarks(
         }
     }
     let markers = if cfg.runs("landmarks") {
-        landmarks
-            .iter()
-            .map(|(n, p)| marker(cfg, n, *p))
-            .collect::<Result<Vec<_>>>()?
+        timings.time(Phase::Scene, landmarks.len() as u64, || {
+            landmarks
+                .iter()
+                .map(|(n, p)| marker(cfg, n, *p))
+                .collect::<Result<Vec<_>>>()
+        })?
     } else {
         Vec::new()
     };
     Ok(Target {
         name: name.to_string(),
         renderer,
+        volume: None,
         landmarks,
         markers,
     })
 }
 
 /// A target from the user's mesh files and landmarks JSON.
-fn mesh_target(cfg: &StudyConfig, m: &MeshTarget) -> Result<Target> {
-    let meshes = m
-        .files
-        .iter()
-        .map(|f| {
-            Ok(SceneMesh {
-                mesh: Arc::new(read_mesh(f)?),
-                mu_per_mm: m.mu_per_mm,
-                object: m.name.clone(),
+fn mesh_target(cfg: &StudyConfig, m: &MeshTarget, timings: &Timings) -> Result<Target> {
+    let (meshes, sets) = timings.time(Phase::Anatomy, 1, || -> Result<_> {
+        let meshes = m
+            .files
+            .iter()
+            .map(|f| {
+                Ok(SceneMesh {
+                    mesh: Arc::new(read_mesh(f)?),
+                    mu_per_mm: m.mu_per_mm,
+                    object: m.name.clone(),
+                })
             })
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let renderer = cfg.geometry.backend.renderer(RenderScene::new(meshes)?)?;
-    let sets = read_landmarks(&m.landmarks)?;
+            .collect::<Result<Vec<_>>>()?;
+        Ok((meshes, read_landmarks(&m.landmarks)?))
+    })?;
+    let renderer = timings.time(Phase::Scene, 1, || {
+        cfg.geometry.backend.renderer(RenderScene::new(meshes)?)
+    })?;
     let several = sets.len() > 1;
-    target_with_landmarks(cfg, &m.name, renderer, sets, several)
+    target_with_landmarks(cfg, &m.name, renderer, sets, several, timings)
 }
 
 fn marker(cfg: &StudyConfig, name: &str, position: DVec3) -> Result<Marker> {

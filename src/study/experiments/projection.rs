@@ -1,6 +1,9 @@
 //! Projection experiments of one (target, view, perturbation): whole-object silhouette + contour +
 //! image-similarity metrics, per-structure Dice, difference heatmaps, and landmark shifts measured from
 //! marker images beside the homography prediction `x' = H x`, `H = K' K⁻¹`.
+//!
+//! Silhouettes come from the thickness render's ray-hit masks; image metrics and heatmaps from the CT
+//! volume DRR when the target has one (CT targets), else from the thickness DRR's line integral.
 
 use super::{Context, Reference, Target};
 use crate::Result;
@@ -9,7 +12,9 @@ use crate::analysis::{
 };
 use crate::anatomy::Structure;
 use crate::geometry::{View, apply_homography};
+use crate::io::ImageF32;
 use crate::render::{ThicknessDrr, ThicknessOptions};
+use crate::study::timings::Phase;
 use crate::study::units::{LandmarkRow, NamedPerturbation, ProjectionRow, StructureRow, UnitRows};
 use glam::DVec2;
 
@@ -30,20 +35,36 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
     let pv = view.perturbed(&np.perturbation)?;
     let mut rows = UnitRows::default();
     let reference = ctx.reference(t, view)?;
+    let tm = &ctx.timings;
     if let Some(a) = &reference.drr {
-        let b = t.renderer.render(&pv, &ThicknessOptions::with_masks())?;
-        rows.projection.push(whole_object(ctx, t, view, np, a, &b)?);
-        rows.structures = structures(t, view, np, a, &b)?;
-        let q = &np.perturbation;
-        let is_heatmap_df = ctx.cfg.heatmaps_df_px.contains(&q.df_px);
-        if np.family == "focal" && is_heatmap_df {
-            let diff = abs_difference(&a.line_integral, &b.line_integral)?;
-            let path = ctx.figures_dir.join(format!(
-                "heatmap_{}_{}_df{}.png",
-                t.name, view.name, q.df_px
-            ));
-            write_heatmap_png(&path, &diff)?;
-        }
+        let b = tm.time(Phase::RenderTarget, 1, || {
+            t.renderer.render(&pv, &ThicknessOptions::with_masks())
+        })?;
+        let b_volume = t
+            .volume
+            .as_ref()
+            .map(|v| tm.time(Phase::RenderVolume, 1, || v.render(&pv)));
+        let images = match (&reference.volume_drr, &b_volume) {
+            (Some(ia), Some(ib)) => (ia, ib),
+            _ => (&a.line_integral, &b.line_integral),
+        };
+        tm.time(Phase::Metrics, 1, || -> Result<()> {
+            let silhouettes = (a, &b);
+            rows.projection
+                .push(whole_object(ctx, t, view, np, silhouettes, images)?);
+            rows.structures = structures(t, view, np, a, &b)?;
+            let q = &np.perturbation;
+            let is_heatmap_df = ctx.cfg.heatmaps_df_px.contains(&q.df_px);
+            if np.family == "focal" && is_heatmap_df {
+                let diff = abs_difference(images.0, images.1)?;
+                let path = ctx.figures_dir.join(format!(
+                    "heatmap_{}_{}_df{}.png",
+                    t.name, view.name, q.df_px
+                ));
+                write_heatmap_png(&path, &diff)?;
+            }
+            Ok(())
+        })?;
     }
     if ctx.cfg.runs("landmarks") {
         rows.landmarks = landmarks(ctx, t, view, &pv, np, &reference.markers)?;
@@ -53,10 +74,17 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
 
 /// The reference render (when the projection experiment runs) and reference marker centroids.
 pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
+    let tm = &ctx.timings;
     let drr = if ctx.cfg.runs("projection") {
-        Some(t.renderer.render(view, &ThicknessOptions::with_masks())?)
+        Some(tm.time(Phase::RenderTarget, 1, || {
+            t.renderer.render(view, &ThicknessOptions::with_masks())
+        })?)
     } else {
         None
+    };
+    let volume_drr = match &t.volume {
+        Some(v) if drr.is_some() => Some(tm.time(Phase::RenderVolume, 1, || v.render(view))),
+        _ => None,
     };
     let markers = if ctx.cfg.runs("landmarks") {
         t.markers
@@ -66,16 +94,21 @@ pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
     } else {
         Vec::new()
     };
-    Ok(Reference { drr, markers })
+    Ok(Reference {
+        drr,
+        volume_drr,
+        markers,
+    })
 }
 
+/// Silhouette and contour metrics of the thickness renders' masks, image metrics of `images`.
 fn whole_object(
     ctx: &Context,
     t: &Target,
     view: &View,
     np: &NamedPerturbation,
-    a: &ThicknessDrr,
-    b: &ThicknessDrr,
+    (a, b): (&ThicknessDrr, &ThicknessDrr),
+    images: (&ImageF32, &ImageF32),
 ) -> Result<ProjectionRow> {
     let k = view.intrinsics;
     let pair = MaskPair {
@@ -86,9 +119,7 @@ fn whole_object(
         perturbed: b.masks()?.union(),
     };
     let s = silhouette_metrics(&pair)?;
-    let im = ctx
-        .metrics_pool
-        .install(|| image_metrics(&a.line_integral, &b.line_integral))?;
+    let im = ctx.isolated_metrics(|| image_metrics(images.0, images.1))?;
     let q = &np.perturbation;
     Ok(ProjectionRow {
         target: t.name.clone(),
@@ -158,8 +189,23 @@ fn measure(ctx: &Context, m: &super::Marker, view: &View) -> Result<Option<DVec2
     if !(inside && view.depth(m.position) > 0.0) {
         return Ok(None);
     }
-    let img = m.renderer.render(view, &ThicknessOptions::image_only())?;
-    Ok(blob_centroid(&img.line_integral, c, radius_px))
+    // Only the search disc's bounding box is rendered (the same rays as the full detector's pixels).
+    let (u0, v0) = ((c.x - radius_px).floor(), (c.y - radius_px).floor());
+    let (u1, v1) = (
+        (c.x + radius_px).ceil().min(w),
+        (c.y + radius_px).ceil().min(h),
+    );
+    let window = view.window(
+        u0 as u32,
+        v0 as u32,
+        (u1 - u0) as u32 + 1,
+        (v1 - v0) as u32 + 1,
+    )?;
+    let img = ctx.timings.time(Phase::RenderMarkers, 1, || {
+        m.renderer.render(&window, &ThicknessOptions::image_only())
+    })?;
+    let origin = DVec2::new(u0, v0);
+    Ok(blob_centroid(&img.line_integral, c - origin, radius_px).map(|x| x + origin))
 }
 
 fn landmarks(

@@ -10,6 +10,7 @@ use crate::registration::{
     pose_errors, register,
 };
 use crate::study::config::method_spec;
+use crate::study::timings::Phase;
 use crate::study::units::{RegistrationRow, Unit, UnitRows, derive_seed};
 
 /// Runs trials `first..first + count` of one registration cell.
@@ -62,7 +63,10 @@ pub fn run(ctx: &Context, unit: &Unit) -> Result<UnitRows> {
             init: Some(init),
             ..RegistrationOptions::default()
         };
-        let row = match register(&assumed, solver, &opts) {
+        let solved = ctx
+            .timings
+            .time(Phase::Registration, 1, || register(&assumed, solver, &opts));
+        let row = match solved {
             Ok(res) => {
                 let e = pose_errors(&res.pose, &truth);
                 (

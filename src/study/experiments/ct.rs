@@ -1,0 +1,294 @@
+//! CT targets (`[[anatomy.ct]]`): a CT with a vertebra label map, one target per listed level (and the
+//! levels together as `<name>-segment`).
+//!
+//! Which renderer feeds which measurement:
+//! * **image metrics and heatmaps** (NCC, SSIM, MI, GC, |ΔDRR|) come from the CT volume DRR — Siddon's
+//!   exact ray-driven line integral `∫ μ(HU) dl` through the CT, masked to the level's label — as the
+//!   paper renders its DRRs;
+//! * **silhouettes and contours** (Dice, IoU, Chamfer, Hausdorff, HD95) come from a thickness render of
+//!   the label's closed surface (the 0.5-isosurface of the label mask, as `spinedrr mesh` extracts it),
+//!   whose ray-hit masks are exact where a thresholded volume DRR would depend on a threshold;
+//! * **landmarks** are marker spheres at the level's landmarks (automatic landmarks of the label surface,
+//!   or the given JSON), rendered alone and measured by blob centroid, as for every target.
+//!
+//! The views aim at the world origin, so each target is moved rigidly (a translation, no rotation: the
+//! NIfTI world is RAS+ like the phantom's) to put its body centre there: the `center` landmark of the
+//! level, or for the segment that of its middle listed level (the phantom's placement rule). Inputs are
+//! read and checked by [`load_inputs`] before the output folder is touched; [`build_targets`] meshes
+//! them.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use glam::{DMat3, DMat4, DVec3};
+use rayon::prelude::*;
+
+use super::{Target, target_with_landmarks};
+use crate::anatomy::ct::{
+    CtVolume, LabelMap, SurfaceOptions, VoxelMask, label_surface, read_ct, read_labels,
+};
+use crate::anatomy::labels::LabelConvention;
+use crate::anatomy::{Landmarks, Tissue, TriMesh, auto_landmarks, read_landmarks};
+use crate::geometry::RigidTransform;
+use crate::render::volume::{VolumeRenderOptions, VolumeRenderer};
+use crate::render::{RenderScene, SceneMesh, tissue_mu};
+use crate::study::config::{CtTarget, StudyConfig};
+use crate::study::timings::{Phase, Timings};
+use crate::{Error, Result};
+
+/// One level of a CT entry: its target name, tag (`L1`, `id31`) and label id.
+#[derive(Debug, Clone)]
+struct LevelSpec {
+    target: String,
+    tag: String,
+    id: u16,
+}
+
+/// A `[[anatomy.ct]]` entry read and checked: volumes on one grid, every label present, landmark sets
+/// (when a file is given) matched to the levels.
+pub struct CtInput {
+    entry: CtTarget,
+    ct: CtVolume,
+    seg: LabelMap,
+    levels: Vec<LevelSpec>,
+    landmarks: Option<Vec<Landmarks>>,
+}
+
+/// Reads every CT entry's files and checks them (labels present, same grid, landmark sets per level).
+/// The label map and landmarks are checked before the (large) CT is read.
+pub fn load_inputs(cfg: &StudyConfig) -> Result<Vec<CtInput>> {
+    cfg.anatomy.ct.iter().map(load_input).collect()
+}
+
+fn load_input(c: &CtTarget) -> Result<CtInput> {
+    let conv: LabelConvention = c
+        .labels
+        .parse()
+        .map_err(|e: Error| Error::invalid("anatomy.ct.labels", e.to_string()))?;
+    let levels: Vec<LevelSpec> = c
+        .level_targets()?
+        .into_iter()
+        .map(|(target, id)| LevelSpec {
+            tag: target[c.name.len() + 1..].to_string(),
+            target,
+            id,
+        })
+        .collect();
+    let seg = read_labels(&c.seg)?;
+    let present = seg.labels_present();
+    for (l, spec) in levels.iter().zip(&c.levels) {
+        if !present.contains(&l.id) {
+            return Err(Error::invalid(
+                "anatomy.ct.levels",
+                format!(
+                    "target '{}': level {spec:?} (label {} in the {conv} convention) is not in {} \
+                     (labels present: {present:?})",
+                    c.name,
+                    l.id,
+                    c.seg.display()
+                ),
+            ));
+        }
+    }
+    let landmarks = match &c.landmarks {
+        Some(path) => Some(match_landmarks(path, conv, &levels)?),
+        None => None,
+    };
+    let ct = read_ct(&c.ct)?;
+    if !ct.same_grid(&seg) {
+        return Err(Error::invalid(
+            "anatomy.ct.seg",
+            format!(
+                "{} is not on the grid of {} (dims {:?} vs {:?}, or a different affine): resample \
+                 the segmentation onto the CT",
+                c.seg.display(),
+                c.ct.display(),
+                seg.dims,
+                ct.dims
+            ),
+        ));
+    }
+    Ok(CtInput {
+        entry: c.clone(),
+        ct,
+        seg,
+        levels,
+        landmarks,
+    })
+}
+
+/// The landmark set of each level from `path`, matched by level name or id in the entry's convention.
+fn match_landmarks(
+    path: &Path,
+    conv: LabelConvention,
+    levels: &[LevelSpec],
+) -> Result<Vec<Landmarks>> {
+    let sets = read_landmarks(path)?;
+    levels
+        .iter()
+        .map(|l| {
+            sets.iter()
+                .find(|s| conv.resolve(&s.level).ok() == Some(l.id))
+                .map(|s| Landmarks {
+                    level: l.tag.clone(),
+                    points: s.points.clone(),
+                })
+                .ok_or_else(|| {
+                    let names: Vec<&str> = sets.iter().map(|s| s.level.as_str()).collect();
+                    Error::invalid(
+                        "anatomy.ct.landmarks",
+                        format!(
+                            "{} has no set for level {} (label {}; sets: {names:?})",
+                            path.display(),
+                            l.tag,
+                            l.id
+                        ),
+                    )
+                })
+        })
+        .collect()
+}
+
+/// One level meshed, in CT world coordinates.
+struct LevelSurface {
+    mesh: TriMesh,
+    landmarks: Landmarks,
+}
+
+/// Builds the targets of one CT entry: per level, then the segment when asked.
+pub fn build_targets(
+    cfg: &StudyConfig,
+    input: CtInput,
+    timings: &Timings,
+    pool: &rayon::ThreadPool,
+) -> Result<Vec<Target>> {
+    let CtInput {
+        entry,
+        ct,
+        seg,
+        levels,
+        landmarks,
+    } = input;
+    let n_targets = levels.len() + usize::from(entry.segment);
+    let surfaces = timings.time(Phase::Anatomy, n_targets as u64, || {
+        pool.install(|| {
+            levels
+                .par_iter()
+                .enumerate()
+                .map(|(i, l)| level_surface(&seg, l, landmarks.as_ref().map(|s| &s[i])))
+                .collect::<Result<Vec<_>>>()
+        })
+    })?;
+    let mut out = Vec::new();
+    for (l, s) in levels.iter().zip(&surfaces) {
+        let centre = body_centre(s);
+        out.push(assemble(
+            cfg,
+            &l.target,
+            &ct,
+            &seg,
+            &[l.id],
+            std::slice::from_ref(s),
+            centre,
+            timings,
+        )?);
+    }
+    if entry.segment {
+        let ids: Vec<u16> = levels.iter().map(|l| l.id).collect();
+        let centre = body_centre(&surfaces[(surfaces.len() - 1) / 2]);
+        out.push(assemble(
+            cfg,
+            &entry.segment_target(),
+            &ct,
+            &seg,
+            &ids,
+            &surfaces,
+            centre,
+            timings,
+        )?);
+    }
+    Ok(out)
+}
+
+/// The label's closed surface (largest component, unsmoothed: `spinedrr mesh`'s defaults) and its
+/// landmarks (the given set, or automatic ones of the surface).
+fn level_surface(seg: &LabelMap, l: &LevelSpec, given: Option<&Landmarks>) -> Result<LevelSurface> {
+    let context = |e: Error| {
+        Error::invalid(
+            "anatomy.ct.levels",
+            format!("target '{}' (label {}): {e}", l.target, l.id),
+        )
+    };
+    let mut mesh = label_surface(seg, l.id, &SurfaceOptions::default()).map_err(context)?;
+    mesh.name = l.tag.clone();
+    let landmarks = match given {
+        Some(s) => s.clone(),
+        None => auto_landmarks(&mesh, &l.tag).map_err(context)?,
+    };
+    Ok(LevelSurface { mesh, landmarks })
+}
+
+/// Where a level's body is: its `center` landmark, else the centroid of its surface's vertices.
+fn body_centre(s: &LevelSurface) -> DVec3 {
+    s.landmarks.get("center").unwrap_or_else(|| {
+        s.mesh.vertices.iter().sum::<DVec3>() / s.mesh.vertices.len().max(1) as f64
+    })
+}
+
+/// One target from the levels `ids` with their `surfaces`, moved by `−centre`: the label surfaces as
+/// the thickness scene, the CT cropped to the labels' bounding box and masked to them as the volume.
+#[allow(clippy::too_many_arguments)]
+fn assemble(
+    cfg: &StudyConfig,
+    name: &str,
+    ct: &CtVolume,
+    seg: &LabelMap,
+    ids: &[u16],
+    surfaces: &[LevelSurface],
+    centre: DVec3,
+    timings: &Timings,
+) -> Result<Target> {
+    let shift = RigidTransform::new(DMat3::IDENTITY, -centre);
+    let volume = timings.time(Phase::Scene, 1, || -> Result<VolumeRenderer> {
+        let mask = VoxelMask::from_labels(seg, ids)?;
+        // One voxel of margin keeps the crop's box strictly around the label.
+        let (lo, hi) = mask.bbox;
+        let lo = lo.map(|v| v.saturating_sub(1));
+        let hi = [0, 1, 2].map(|a| (hi[a] + 1).min(ct.dims[a] - 1));
+        let mut ct_crop = ct.crop(lo, hi)?;
+        let seg_crop = seg.crop(lo, hi)?;
+        ct_crop.index_to_world = DMat4::from_translation(-centre) * ct_crop.index_to_world;
+        let mask = VoxelMask::from_labels(&seg_crop, ids)?;
+        VolumeRenderer::new(&ct_crop, &VolumeRenderOptions::default(), Some(&mask))
+    })?;
+    let meshes = surfaces
+        .iter()
+        .map(|s| {
+            let mut m = s.mesh.clone();
+            m.transform(&shift);
+            SceneMesh {
+                mesh: Arc::new(m),
+                mu_per_mm: tissue_mu(Tissue::Cortical),
+                object: s.landmarks.level.clone(),
+            }
+        })
+        .collect();
+    let renderer = timings.time(Phase::Scene, 1, || {
+        cfg.geometry.backend.renderer(RenderScene::new(meshes)?)
+    })?;
+    let sets = surfaces
+        .iter()
+        .map(|s| Landmarks {
+            level: s.landmarks.level.clone(),
+            points: s
+                .landmarks
+                .points
+                .iter()
+                .map(|(k, p)| (k.clone(), *p - centre))
+                .collect(),
+        })
+        .collect();
+    let mut t = target_with_landmarks(cfg, name, renderer, sets, surfaces.len() > 1, timings)?;
+    t.volume = Some(volume);
+    Ok(t)
+}
