@@ -53,6 +53,7 @@ pub(crate) fn integrate(
     scratch: &mut Vec<Crossing>,
 ) -> RayIntegral {
     scratch.clear();
+    scratch.reserve(raw.len());
     for h in raw {
         let Some(plane) = scene
             .planes
@@ -62,7 +63,7 @@ pub(crate) fn integrate(
             continue;
         };
         let facing = plane.n.dot(dir);
-        if facing.abs() < MIN_COS {
+        if facing.is_nan() || facing.abs() < MIN_COS {
             continue;
         }
         let t = (plane.d - plane.n.dot(origin)) / facing;
@@ -75,11 +76,13 @@ pub(crate) fn integrate(
     }
     // Few crossings per ray: an insertion sort by (mesh, distance) beats the general sort.
     for i in 1..scratch.len() {
+        let c = scratch[i];
         let mut j = i;
-        while j > 0 && before(&scratch[j], &scratch[j - 1]) {
-            scratch.swap(j, j - 1);
+        while j > 0 && before(&c, &scratch[j - 1]) {
+            scratch[j] = scratch[j - 1];
             j -= 1;
         }
+        scratch[j] = c;
     }
 
     let mut out = RayIntegral {
@@ -112,10 +115,10 @@ pub(crate) fn integrate(
     out
 }
 
-/// Order of crossings: by mesh, then by distance.
+/// Order of crossings: by mesh, then by distance (finite: crossings at grazing angles were dropped).
 #[inline]
 fn before(a: &Crossing, b: &Crossing) -> bool {
-    a.geom < b.geom || (a.geom == b.geom && a.t.total_cmp(&b.t).is_lt())
+    a.geom < b.geom || (a.geom == b.geom && a.t < b.t)
 }
 
 /// Two crossings of one mesh closer than this (mm, plus a relative part) are one crossing.

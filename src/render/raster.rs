@@ -112,7 +112,7 @@ impl<'a> RasterView<'a> {
             .collect();
         let mut bin_start = vec![0usize; bands + 1];
         for r in ranges.iter().flatten().flatten() {
-            for b in r.0..=r.1 {
+            for b in r.0..r.1 + 1 {
                 bin_start[b + 1] += 1;
             }
         }
@@ -124,7 +124,7 @@ impl<'a> RasterView<'a> {
         for (g, mesh_ranges) in ranges.iter().enumerate() {
             for (t, r) in mesh_ranges.iter().enumerate() {
                 if let Some((b0, b1)) = *r {
-                    for b in b0..=b1 {
+                    for b in b0..b1 + 1 {
                         bin_tris[fill[b]] = (g as u32, t as u32);
                         fill[b] += 1;
                     }
@@ -178,20 +178,24 @@ impl<'a> RasterView<'a> {
             else {
                 continue;
             };
-            for v in v0..=v1 {
+            let before = frags.len();
+            for v in v0..v1 + 1 {
                 let row = edges.row(v as f64);
-                for u in u0..=u1 {
-                    if row.covers(u as f64) {
+                let r = (v - row0) as u32;
+                for u in (u0 as u32)..(u1 as u32 + 1) {
+                    if row.covers(f64::from(u)) {
                         frags.push(Fragment {
-                            u: u as u32,
-                            row: (v - row0) as u32,
+                            u,
+                            row: r,
                             geom: g,
                             prim: t,
                         });
-                        umin = umin.min(u);
-                        umax = umax.max(u);
                     }
                 }
+            }
+            if frags.len() > before {
+                umin = umin.min(u0);
+                umax = umax.max(u1);
             }
         }
         if frags.is_empty() {
