@@ -1,8 +1,9 @@
-//! Rendering: thickness DRRs of triangle meshes (Embree or the pure-Rust BVH) and CT volume DRRs.
+//! Rendering: thickness DRRs of triangle meshes (Embree, the raster or the pure-Rust BVH) and CT volume
+//! DRRs.
 //!
-//! `scene` owns what is rendered (meshes, μ, objects), `tracer` the backend interface, `embree` and `bvh`
-//! the two backends, `pairing` how a ray's hits become a path length, `thickness` the image loop,
-//! `volume` the CT renderer (Siddon and trilinear).
+//! `scene` owns what is rendered (meshes, μ, objects), `tracer` the ray-tracing backend interface, `embree`
+//! and `bvh` the two ray tracers, `raster` the rasteriser of primary rays, `pairing` how a ray's hits become
+//! a path length, `thickness` the image loop, `volume` the CT renderer (Siddon and trilinear).
 
 pub mod bvh;
 pub mod embree;

@@ -1,10 +1,12 @@
 //! Thickness DRRs: per pixel, `Σ_m μ_m · L_m` with `L_m` the path length of the pixel's ray inside mesh m.
 //!
-//! Rays start at the source and pass through pixel centres (`dir ∝ Rᵀ K⁻¹ [u, v, 1]ᵀ`). Pixels are traced in
-//! 4 × 4 tiles (two 4 × 2 packets each), in parallel over rows of tiles; a tile that no projected
-//! triangle's bounding box touches cannot see the mesh and is skipped. Rays whose crossings do not pair up (a hit lost at an edge or vertex)
-//! are retraced with a sub-pixel-small offset; failing that, their value is capped by the mesh's
-//! longest chord. Both counts are reported.
+//! Rays start at the source and pass through pixel centres (`dir ∝ Rᵀ K⁻¹ [u, v, 1]ᵀ`). With a ray-tracing
+//! backend, pixels are traced in 4 × 4 tiles (two 4 × 2 packets each), in parallel over rows of tiles; a
+//! tile that no projected triangle's bounding box touches cannot see the mesh and is skipped. The raster
+//! backend instead finds each band of rows' hits by rasterising the triangles binned to it. Either way a
+//! pixel's hits go through the same f64 pairing. Rays whose crossings do not pair up (a hit lost at an
+//! edge or vertex) are retraced with a sub-pixel-small offset; failing that, their value is capped by the
+//! mesh's longest chord. Both counts are reported.
 
 use std::sync::OnceLock;
 use std::time::Instant;
@@ -123,7 +125,8 @@ impl ThicknessDrr {
 /// Options of a thickness render: which outputs beside the line integral, and culling.
 #[derive(Debug, Clone, Copy)]
 pub struct ThicknessOptions {
-    /// Skip tiles no triangle projects into (no effect on the result, only on speed).
+    /// Skip tiles no triangle projects into (no effect on the result, only on speed; the raster visits
+    /// only covered pixels anyway).
     pub cull: bool,
     /// Compute silhouette masks (object and structure bits per pixel).
     pub masks: bool,
