@@ -1,12 +1,26 @@
 //! A study of the user's own anatomy: a box mesh file plus a landmarks JSON through `[[anatomy.meshes]]`.
 //! The homography law and the exact piercing translation must hold for it too.
 
-use std::process::Command;
+use std::path::Path;
+use std::process::{Command, Output};
 
 use glam::DVec3;
 use spinedrr::anatomy::{TriMesh, write_mesh};
 use spinedrr::study::tables::Table;
 
+/// Runs `spinedrr study --config CFG --out OUT`.
+fn run_study(cfg: &Path, out: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+        .args([
+            "study",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .expect("run spinedrr")
+}
 #[test]
 fn mesh_target_study_obeys_the_homography_law() {
     let dir = tempfile::tempdir().expect("temp dir");
@@ -45,16 +59,7 @@ fn mesh_target_study_obeys_the_homography_law() {
     let cfg_path = dir.path().join("study.toml");
     std::fs::write(&cfg_path, cfg).unwrap();
     let out = dir.path().join("out");
-    let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
-        .args([
-            "study",
-            "--config",
-            cfg_path.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .output()
-        .expect("run spinedrr");
+    let o = run_study(&cfg_path, &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let t = Table::read(&out.join("tables/landmarks.csv")).expect("landmarks.csv");
     assert_eq!(
@@ -91,16 +96,7 @@ fn missing_mesh_file_is_named_before_work() {
     )
     .unwrap();
     let out = dir.path().join("out");
-    let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
-        .args([
-            "study",
-            "--config",
-            cfg_path.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .output()
-        .expect("run spinedrr");
+    let o = run_study(&cfg_path, &out);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(

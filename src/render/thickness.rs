@@ -354,28 +354,31 @@ impl ThicknessRenderer {
                 let rows = li.len() / w;
                 let mut stats = RenderStats::default();
                 let mut culled = 0u64;
-                // Integrates pixel (u, row r of the band) from its raw hits and writes its outputs.
-                let mut emit =
-                    |u: usize, r: usize, hits: &[RawHit], crossings: &mut Vec<Crossing>| {
-                        let dir = cam.dir(u as f64, (v0 + r) as f64);
-                        let mut ray = integrate(&self.scene, cam.source, dir, hits, crossings);
-                        if !ray.valid {
-                            ray = self.repair(&cam, u as f64, (v0 + r) as f64, ray, &mut stats);
-                        }
-                        stats.rays_traced += 1;
-                        stats.hits += u64::from(ray.hits);
-                        let i = r * w + u;
-                        li[i] = ray.line_integral as f32;
-                        if let Some(d) = depth.as_deref_mut()
-                            && ray.first_t.is_finite()
-                        {
-                            d[i] = (ray.first_t * dir.dot(cam.axis_z)) as f32;
-                        }
-                        if let (Some(o), Some(s)) = (obj.as_deref_mut(), st.as_deref_mut()) {
-                            o[i] = ray.object_bits;
-                            s[i] = ray.structure_bits;
-                        }
-                    };
+                // Integrates pixel (u, row r of the band), whose ray has direction `dir`, from its raw hits
+                // and writes its outputs.
+                let mut emit = |u: usize,
+                                r: usize,
+                                dir: DVec3,
+                                hits: &[RawHit],
+                                crossings: &mut Vec<Crossing>| {
+                    let mut ray = integrate(&self.scene, cam.source, dir, hits, crossings);
+                    if !ray.valid {
+                        ray = self.repair(&cam, u as f64, (v0 + r) as f64, ray, &mut stats);
+                    }
+                    stats.rays_traced += 1;
+                    stats.hits += u64::from(ray.hits);
+                    let i = r * w + u;
+                    li[i] = ray.line_integral as f32;
+                    if let Some(d) = depth.as_deref_mut()
+                        && ray.first_t.is_finite()
+                    {
+                        d[i] = (ray.first_t * dir.dot(cam.axis_z)) as f32;
+                    }
+                    if let (Some(o), Some(s)) = (obj.as_deref_mut(), st.as_deref_mut()) {
+                        o[i] = ray.object_bits;
+                        s[i] = ray.structure_bits;
+                    }
+                };
                 match &source {
                     BandSource::Trace {
                         tracer,
@@ -400,7 +403,13 @@ impl ThicknessRenderer {
                                 }
                                 tracer.trace_all(&packet, &mut scratch.hits);
                                 for (lane, &(u, r)) in chunk.iter().enumerate() {
-                                    emit(u, r, &scratch.hits[lane], &mut scratch.crossings);
+                                    emit(
+                                        u,
+                                        r,
+                                        packet.dir[lane],
+                                        &scratch.hits[lane],
+                                        &mut scratch.crossings,
+                                    );
                                 }
                             }
                         }
@@ -410,7 +419,8 @@ impl ThicknessRenderer {
                             let mut traced = 0;
                             raster.band_hits(b, band_scratch, |u, r, hits| {
                                 traced += 1;
-                                emit(u, r, hits, crossings);
+                                let dir = cam.dir(u as f64, (v0 + r) as f64);
+                                emit(u, r, dir, hits, crossings);
                             });
                             culled += (rows * w - traced) as u64;
                         });
