@@ -12,15 +12,23 @@
 //! (the hits coincide and are clustered) or to none (the ray's crossings do not pair up, and the renderer
 //! repairs it like any other).
 //!
-//! The raster finds *which* triangles a ray crosses; distances, pairing and masks come from the same f64
-//! code as the ray tracers (`pairing`), so the backends differ only on rays through edges and vertices,
-//! where all of them agree on the path length.
+//! Depth comes with the coverage test: with the source at the origin, the plane of a triangle with normal
+//! `n` is `n · x = n · A`, so the ray through pixel (u, v) meets it at camera depth `(n · A) / (n · d)`,
+//! whose denominator is linear in (u, v) like the edge functions and whose numerator's sign says whether
+//! the triangle faces the source (an entry) or not (an exit). No per-hit plane lookup is needed; the
+//! crossings then go through the same pairing as the ray tracers' (`pairing`), so the backends differ
+//! only in the last bits of the distances and on rays through edges and vertices, where all of them agree
+//! on the path length.
+//!
+//! Per band, every bounding-box pixel of a triangle is written as a fragment and kept or dropped by its
+//! coverage without a branch (a small triangle's box pixels are a coin toss for the branch predictor),
+//! and a counting sort gathers each pixel's crossings.
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
+use super::pairing::Crossing;
 use super::scene::RenderScene;
-use super::tracer::RawHit;
 use crate::geometry::View;
 use crate::{Error, Result};
 
@@ -28,14 +36,24 @@ use crate::{Error, Result};
 /// functions, not the box, decide coverage).
 const BOX_MARGIN_PX: f64 = 1e-2;
 
-/// A band's hit on a pixel: column, row within the band, and the triangle.
+/// A band's hit on a pixel: column, row within the band, and the crossing (`t`: camera-frame depth, mm).
 #[derive(Debug, Clone, Copy)]
 struct Fragment {
     u: u32,
     row: u32,
-    geom: u32,
-    prim: u32,
+    crossing: Crossing,
 }
+
+const EMPTY_FRAGMENT: Fragment = Fragment {
+    u: 0,
+    row: 0,
+    crossing: Crossing {
+        t: 0.0,
+        prim: 0,
+        geom: 0,
+        entry: false,
+    },
+};
 
 /// One view's projected scene, binned into bands of `band_rows` rows.
 pub(crate) struct RasterView<'a> {
@@ -47,28 +65,33 @@ pub(crate) struct RasterView<'a> {
     /// Projected vertices per mesh (pixels).
     px: Vec<Vec<DVec2>>,
     band_rows: usize,
-    /// Triangles of band `b`: `bin_tris[bin_start[b]..bin_start[b + 1]]`, as (mesh, triangle).
-    bin_start: Vec<usize>,
-    bin_tris: Vec<(u32, u32)>,
+    /// The triangles binned by band, per chunk of one mesh's triangles.
+    bins: Vec<Bins>,
 }
 
 impl<'a> RasterView<'a> {
     /// Projects every vertex and bins every triangle by the rows its bounding box spans. Fails when a
     /// vertex lies at or behind the source plane (a triangle there has no finite projection).
     pub(crate) fn new(scene: &'a RenderScene, view: &View, band_rows: usize) -> Result<Self> {
+        assert!(
+            band_rows.is_power_of_two(),
+            "band rows must be a power of two"
+        );
         let intr = view.intrinsics;
         let height = intr.height as usize;
-        let bands = height.div_ceil(band_rows);
         let mut cam = Vec::with_capacity(scene.meshes.len());
         let mut px = Vec::with_capacity(scene.meshes.len());
         for m in &scene.meshes {
-            let c: Vec<DVec3> = m
+            let (c, p): (Vec<DVec3>, Vec<DVec2>) = m
                 .mesh
                 .vertices
                 .par_iter()
-                .with_min_len(4096)
-                .map(|&p| view.world_to_camera.apply(p))
-                .collect();
+                .with_min_len(8192)
+                .map(|&p| {
+                    let c = view.world_to_camera.apply(p);
+                    (c, intr.project_camera(c))
+                })
+                .unzip();
             if let Some(bad) = c.iter().find(|p| p.z.is_nan() || p.z <= 1e-6) {
                 return Err(Error::invalid(
                     format!("mesh '{}'", m.mesh.name),
@@ -79,58 +102,34 @@ impl<'a> RasterView<'a> {
                     ),
                 ));
             }
-            px.push(
-                c.par_iter()
-                    .with_min_len(4096)
-                    .map(|&p| intr.project_camera(p))
-                    .collect::<Vec<_>>(),
-            );
             cam.push(c);
+            px.push(p);
         }
 
-        // Band range of every triangle, then a counting sort into bins.
-        let row_range = |lo: f64, hi: f64| -> Option<(usize, usize)> {
-            let r0 = (lo - BOX_MARGIN_PX).ceil().max(0.0);
-            let r1 = (hi + BOX_MARGIN_PX).floor().min(height as f64 - 1.0);
-            (r0 <= r1).then(|| (r0 as usize / band_rows, r1 as usize / band_rows))
-        };
-        let ranges: Vec<Vec<Option<(usize, usize)>>> = scene
+        // Chunks of each mesh's triangles, binned in parallel.
+        let chunks: Vec<(usize, std::ops::Range<usize>)> = scene
             .meshes
             .iter()
-            .zip(&px)
-            .map(|(m, p)| {
-                m.mesh
-                    .triangles
-                    .par_iter()
-                    .with_min_len(4096)
-                    .map(|t| {
-                        let [a, b, c] = t.map(|i| p[i as usize].y);
-                        row_range(a.min(b).min(c), a.max(b).max(c))
-                    })
-                    .collect()
+            .enumerate()
+            .flat_map(|(g, m)| {
+                let n = m.mesh.triangles.len();
+                (0..n.div_ceil(BIN_CHUNK))
+                    .map(move |k| (g, k * BIN_CHUNK..((k + 1) * BIN_CHUNK).min(n)))
             })
             .collect();
-        let mut bin_start = vec![0usize; bands + 1];
-        for r in ranges.iter().flatten().flatten() {
-            for b in r.0..r.1 + 1 {
-                bin_start[b + 1] += 1;
-            }
-        }
-        for b in 0..bands {
-            bin_start[b + 1] += bin_start[b];
-        }
-        let mut fill = bin_start.clone();
-        let mut bin_tris = vec![(0u32, 0u32); bin_start[bands]];
-        for (g, mesh_ranges) in ranges.iter().enumerate() {
-            for (t, r) in mesh_ranges.iter().enumerate() {
-                if let Some((b0, b1)) = *r {
-                    for b in b0..b1 + 1 {
-                        bin_tris[fill[b]] = (g as u32, t as u32);
-                        fill[b] += 1;
-                    }
-                }
-            }
-        }
+        let bins: Vec<Bins> = chunks
+            .into_par_iter()
+            .map(|(g, tris)| {
+                Bins::new(
+                    &scene.meshes[g].mesh.triangles[tris.clone()],
+                    &px[g],
+                    g,
+                    tris.start,
+                    height,
+                    band_rows,
+                )
+            })
+            .collect();
         Ok(RasterView {
             scene,
             intr,
@@ -138,8 +137,7 @@ impl<'a> RasterView<'a> {
             cam,
             px,
             band_rows,
-            bin_start,
-            bin_tris,
+            bins,
         })
     }
 
@@ -147,69 +145,105 @@ impl<'a> RasterView<'a> {
         self.band_rows
     }
 
-    /// Calls `visit(u, row in band, hits)` for every pixel of band `band` (rows `band · band_rows ..`)
-    /// whose ray crosses at least one triangle, in row-major order. `scratch` is reused between bands.
+    /// Length of the camera-frame direction `K⁻¹ [u, v, 1]ᵀ` of pixel (u, v): the ray's path length per mm
+    /// of depth.
+    pub(crate) fn path_per_depth(&self, u: f64, v: f64) -> f64 {
+        self.dirs.camera_dir(u, v).length()
+    }
+
+    /// Calls `visit(u, row in band, crossings)` for every pixel of band `band` (rows `band · band_rows ..`)
+    /// whose ray crosses at least one triangle, in row-major order. A crossing's `t` is the camera-frame
+    /// depth of the point where the ray crosses the triangle's plane (mm), grouped by mesh (not sorted by
+    /// depth). `scratch` is reused between bands.
     pub(crate) fn band_hits(
         &self,
         band: usize,
         scratch: &mut BandScratch,
-        mut visit: impl FnMut(usize, usize, &[RawHit]),
+        mut visit: impl FnMut(usize, usize, &mut [Crossing]),
     ) {
         let w = self.intr.width as usize;
         let h = self.intr.height as usize;
         let row0 = band * self.band_rows;
         let row1 = (row0 + self.band_rows).min(h) - 1;
         let frags = &mut scratch.fragments;
-        frags.clear();
+        let len = &mut 0usize;
         let (mut umin, mut umax) = (usize::MAX, 0);
-        for &(g, t) in &self.bin_tris[self.bin_start[band]..self.bin_start[band + 1]] {
-            let tri = self.scene.meshes[g as usize].mesh.triangles[t as usize];
-            let [a, b, c] = tri.map(|i| self.px[g as usize][i as usize]);
-            let lo = a.min(b).min(c) - BOX_MARGIN_PX;
-            let hi = a.max(b).max(c) + BOX_MARGIN_PX;
-            let (Some(u1), Some(v1)) = (floor_index(hi.x, w - 1), floor_index(hi.y, row1)) else {
-                continue;
-            };
-            let (u0, v0) = (ceil_index(lo.x), ceil_index(lo.y).max(row0));
-            if u0 > u1 || v0 > v1 {
-                continue;
-            }
-            let Some(edges) = Edges::new(tri.map(|i| self.cam[g as usize][i as usize]), &self.dirs)
-            else {
-                continue;
-            };
-            let before = frags.len();
-            for v in v0..v1 + 1 {
-                let row = edges.row(v as f64);
-                let r = (v - row0) as u32;
-                for u in (u0 as u32)..(u1 as u32 + 1) {
-                    if row.covers(f64::from(u)) {
-                        frags.push(Fragment {
+        // Pixel centres a triangle of the band may cover.
+        let box_lo = DVec2::new(0.0, row0 as f64);
+        let box_hi = DVec2::new((w - 1) as f64, row1 as f64);
+        for bins in &self.bins {
+            let g = bins.mesh as usize;
+            let (triangles, px, cam) = (
+                &self.scene.meshes[g].mesh.triangles,
+                &self.px[g],
+                &self.cam[g],
+            );
+            let band_tris = &bins.tris[bins.start[band] as usize..bins.start[band + 1] as usize];
+            for &t in band_tris {
+                let tri = triangles[t as usize];
+                let [a, b, c] = tri.map(|i| px[i as usize]);
+                // The pixel box, clamped to the band (and empty when it holds no pixel centre).
+                let lo = (a.min(b).min(c) - BOX_MARGIN_PX).max(box_lo);
+                let hi = (a.max(b).max(c) + BOX_MARGIN_PX).min(box_hi);
+                let (u0, v0) = (ceil_small(lo.x), ceil_small(lo.y));
+                let (u1, v1) = (floor_small(hi.x), floor_small(hi.y));
+                if u0 > u1 || v0 > v1 {
+                    continue;
+                }
+                let (u0, u1, v0, v1) = (u0 as usize, u1 as usize, v0 as usize, v1 as usize);
+                let Some(edges) = Edges::new(tri.map(|i| cam[i as usize]), &self.dirs) else {
+                    continue;
+                };
+                // Every bounding-box pixel is written and the length advances by its coverage (no
+                // branch: for a small triangle, whether a box pixel is covered is a coin toss).
+                let before = *len;
+                let need = before + (v1 - v0 + 1) * (u1 - u0 + 1);
+                if frags.len() < need {
+                    frags.resize(need.next_power_of_two(), EMPTY_FRAGMENT);
+                }
+                for v in v0..v1 + 1 {
+                    let row = edges.row(v as f64);
+                    let r = (v - row0) as u32;
+                    for u in (u0 as u32)..(u1 as u32 + 1) {
+                        let uf = f64::from(u);
+                        frags[*len] = Fragment {
                             u,
                             row: r,
-                            geom: g,
-                            prim: t,
-                        });
+                            crossing: Crossing {
+                                t: row.depth(uf),
+                                prim: t,
+                                geom: g as u16,
+                                entry: edges.entry,
+                            },
+                        };
+                        *len += usize::from(row.covers(uf));
                     }
                 }
-            }
-            if frags.len() > before {
-                umin = umin.min(u0);
-                umax = umax.max(u1);
+                if *len > before {
+                    umin = umin.min(u0);
+                    umax = umax.max(u1);
+                }
             }
         }
+        let frags = &frags[..*len];
         if frags.is_empty() {
             return;
         }
         // Counting sort of the fragments by pixel over the band's occupied columns.
         let cols = umax - umin + 1;
         let cells = (row1 - row0 + 1) * cols;
-        let cell = |f: &Fragment| f.row as usize * cols + f.u as usize - umin;
         let start = &mut scratch.start;
         start.clear();
         start.resize(cells + 1, 0);
-        for f in frags.iter() {
-            start[cell(f) + 1] += 1;
+        let cell_of = &mut scratch.cell_of;
+        cell_of.clear();
+        cell_of.extend(
+            frags
+                .iter()
+                .map(|f| (f.row as usize * cols + f.u as usize - umin) as u32),
+        );
+        for &c in cell_of.iter() {
+            start[c as usize + 1] += 1;
         }
         for i in 0..cells {
             start[i + 1] += start[i];
@@ -219,28 +253,85 @@ impl<'a> RasterView<'a> {
         fill.extend_from_slice(&start[..cells]);
         let hits = &mut scratch.hits;
         hits.clear();
-        hits.resize(
-            frags.len(),
-            RawHit {
-                t: 0.0,
-                geom: 0,
-                prim: 0,
-            },
-        );
-        for f in frags.iter() {
-            let k = &mut fill[cell(f)];
-            hits[*k] = RawHit {
-                t: 0.0,
-                geom: f.geom,
-                prim: f.prim,
-            };
+        hits.resize(frags.len(), frags[0].crossing);
+        for (f, &c) in frags.iter().zip(cell_of.iter()) {
+            let k = &mut fill[c as usize];
+            hits[*k] = f.crossing;
             *k += 1;
         }
         for i in 0..cells {
             let (a, z) = (start[i], start[i + 1]);
             if a < z {
-                visit(umin + i % cols, i / cols, &hits[a..z]);
+                visit(umin + i % cols, i / cols, &mut hits[a..z]);
             }
+        }
+    }
+}
+
+/// Triangles per binning chunk.
+const BIN_CHUNK: usize = 16384;
+
+/// A chunk of one mesh's triangles, binned by the bands of rows their bounding boxes span.
+struct Bins {
+    mesh: u32,
+    /// Triangles (indices into the mesh) of band `b`: `tris[start[b]..start[b + 1]]`.
+    start: Vec<u32>,
+    tris: Vec<u32>,
+}
+
+impl Bins {
+    /// Bins `triangles` (the mesh's triangles from index `first`) of mesh `mesh`, whose projected vertices
+    /// are `px`, into bands of `band_rows` (a power of two) rows of an image `height` rows high.
+    fn new(
+        triangles: &[[u32; 3]],
+        px: &[DVec2],
+        mesh: usize,
+        first: usize,
+        height: usize,
+        band_rows: usize,
+    ) -> Self {
+        let bands = height.div_ceil(band_rows);
+        let last_row = height as f64 - 1.0;
+        let shift = band_rows.trailing_zeros();
+        // First and last band of each triangle's rows, `None` when its box holds no pixel row.
+        let ranges: Vec<Option<(u32, u32)>> = triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| px[i as usize].y);
+                let lo = (a.min(b).min(c) - BOX_MARGIN_PX).max(0.0);
+                let hi = (a.max(b).max(c) + BOX_MARGIN_PX).min(last_row);
+                // Here `0 ≤ lo` and `hi < height` (`max` and `min` drop a NaN).
+                if lo > hi {
+                    return None;
+                }
+                let (r0, r1) = (ceil_small(lo) as usize, hi as usize);
+                (r0 <= r1).then_some(((r0 >> shift) as u32, (r1 >> shift) as u32))
+            })
+            .collect();
+        let mut start = vec![0u32; bands + 1];
+        for &(b0, b1) in ranges.iter().flatten() {
+            for b in b0..b1 + 1 {
+                start[b as usize + 1] += 1;
+            }
+        }
+        for b in 0..bands {
+            start[b + 1] += start[b];
+        }
+        let mut fill = start.clone();
+        let mut tris = vec![0u32; start[bands] as usize];
+        for (t, r) in ranges.iter().enumerate() {
+            if let Some((b0, b1)) = *r {
+                for b in b0..b1 + 1 {
+                    let k = &mut fill[b as usize];
+                    tris[*k as usize] = (first + t) as u32;
+                    *k += 1;
+                }
+            }
+        }
+        Bins {
+            mesh: mesh as u32,
+            start,
+            tris,
         }
     }
 }
@@ -248,24 +339,25 @@ impl<'a> RasterView<'a> {
 /// Per-thread buffers of [`RasterView::band_hits`].
 #[derive(Default)]
 pub(crate) struct BandScratch {
+    /// Fragments of the band (only a prefix is in use: its length grows as needed and never shrinks).
     fragments: Vec<Fragment>,
+    cell_of: Vec<u32>,
     start: Vec<usize>,
     fill: Vec<usize>,
-    hits: Vec<RawHit>,
+    hits: Vec<Crossing>,
 }
 
-/// `ceil(x)` clamped below at 0, as an index.
+/// `ceil(x)` of a coordinate clamped to the image (`0 ≤ x < 2³¹`; a NaN gives 0).
 #[inline]
-fn ceil_index(x: f64) -> usize {
-    let x = x.max(0.0);
-    let i = x as usize;
-    if (i as f64) < x { i + 1 } else { i }
+fn ceil_small(x: f64) -> i64 {
+    let i = x as i64;
+    i + i64::from((i as f64) < x)
 }
 
-/// `floor(x)` clamped above at `max`, as an index; `None` when `x < 0` (nothing to cover).
+/// `floor(x)` of a coordinate clamped to the image (`0 ≤ x < 2³¹`; a NaN gives 0).
 #[inline]
-fn floor_index(x: f64, max: usize) -> Option<usize> {
-    (x >= 0.0).then(|| (x as usize).min(max))
+fn floor_small(x: f64) -> i64 {
+    x as i64
 }
 
 /// The constants that turn a camera-frame edge normal `n` into its pixel-space edge function
@@ -296,6 +388,16 @@ impl PixelDirs {
         }
     }
 
+    /// The camera-frame direction `K⁻¹ [u, v, 1]ᵀ` of pixel (u, v) (unit depth).
+    #[inline]
+    fn camera_dir(&self, u: f64, v: f64) -> DVec3 {
+        DVec3::new(
+            self.inv_fx * u - self.k_skew * v - self.k_x,
+            self.inv_fy * v - self.k_y,
+            1.0,
+        )
+    }
+
     /// `[a, b, c]` of the edge function of normal `n`.
     #[inline]
     fn coefficients(&self, n: DVec3) -> [f64; 3] {
@@ -307,9 +409,21 @@ impl PixelDirs {
     }
 }
 
-/// A triangle's three edge functions in pixel space, oriented so that the inside is positive.
+/// A triangle's three edge functions in pixel space, oriented so that the inside is positive, and its
+/// depth along the pixel rays.
 struct Edges {
     e: [[f64; 3]; 3],
+    /// Whether the triangle owns pixels exactly on each edge (the tie rule, [`owns_edge`]).
+    own: [bool; 3],
+    /// `n · K⁻¹ [u, v, 1]ᵀ = p[0]·u + p[1]·v + p[2]` for the plane normal `n`, so a pixel's ray meets the
+    /// plane at depth `det / (p · [u, v, 1])`.
+    p: [f64; 3],
+    /// `n · A`, the plane's offset from the source: negative when the triangle faces the source.
+    det: f64,
+    /// The corners' depth range (the plane depth of a covered pixel lies in it).
+    z_range: (f64, f64),
+    /// The triangle faces the source (rays enter the mesh through it).
+    entry: bool,
 }
 
 impl Edges {
@@ -328,8 +442,14 @@ impl Edges {
         } else {
             [-ab, -bc, -ca]
         };
+        let e = n.map(|n| dirs.coefficients(n));
         Some(Edges {
-            e: n.map(|n| dirs.coefficients(n)),
+            e,
+            own: e.map(owns_edge),
+            p: dirs.coefficients((b - a).cross(c - a)),
+            det,
+            z_range: (a.z.min(b.z).min(c.z), a.z.max(b.z).max(c.z)),
+            entry: det < 0.0,
         })
     }
 
@@ -339,34 +459,49 @@ impl Edges {
         RowEdges {
             a: self.e.map(|e| e[0]),
             r: self.e.map(|e| e[1] * v + e[2]),
-            e: self.e,
+            bias: self
+                .own
+                .map(|own| if own { f64::MIN_POSITIVE } else { 0.0 }),
+            pa: self.p[0],
+            pr: self.p[1] * v + self.p[2],
+            det: self.det,
+            z_range: self.z_range,
         }
     }
 }
 
-/// Edge functions restricted to one row: `E_i(u) = a_i·u + r_i`.
+/// Edge functions restricted to one row: `E_i(u) = a_i·u + r_i`; depth `det / (pa·u + pr)`.
 struct RowEdges {
     a: [f64; 3],
     r: [f64; 3],
-    e: [[f64; 3]; 3],
+    /// [`f64::MIN_POSITIVE`] for an edge the triangle owns, else 0 (see [`Self::covers`]).
+    bias: [f64; 3],
+    pa: f64,
+    pr: f64,
+    det: f64,
+    z_range: (f64, f64),
 }
 
 impl RowEdges {
-    /// Whether the ray through pixel centre `(u, v)` crosses the triangle.
+    /// Depth (camera z, mm) at which the ray through covered pixel `(u, v)` crosses the triangle, kept
+    /// within the corners' depths (a ray nearly in the plane meets it at an ill-conditioned depth).
+    #[inline]
+    fn depth(&self, u: f64) -> f64 {
+        let z = self.det / (self.pa * u + self.pr);
+        // `max` first: a NaN becomes the near end.
+        z.max(self.z_range.0).min(self.z_range.1)
+    }
+
+    /// Whether the ray through pixel centre `(u, v)` crosses the triangle: inside every edge, or exactly
+    /// on an edge the triangle owns (a NaN covers nothing), without a branch. `E ≥ 0` is tested as
+    /// `E + bias > 0` with the smallest normal number (2.2e-308) as the bias, which is exact for every `E`
+    /// that is not subnormal: `E = a·u + r` is rounded from terms of the size of the coefficients
+    /// (`|n| / f`, far above 1e-100 for any scene in mm), so it is exactly 0 or many orders of magnitude
+    /// above the bias.
     #[inline]
     fn covers(&self, u: f64) -> bool {
-        let v = [
-            self.a[0] * u + self.r[0],
-            self.a[1] * u + self.r[1],
-            self.a[2] * u + self.r[2],
-        ];
-        let inside = (v[0] > 0.0) & (v[1] > 0.0) & (v[2] > 0.0);
-        let outside = (v[0] < 0.0) | (v[1] < 0.0) | (v[2] < 0.0);
-        if inside | outside {
-            return inside;
-        }
-        // On an edge (or NaN, which covers nothing).
-        (0..3).all(|i| v[i] > 0.0 || (v[i] == 0.0 && owns_edge(self.e[i])))
+        let side = |i: usize| (self.a[i] * u + self.r[i]) + self.bias[i] > 0.0;
+        side(0) & side(1) & side(2)
     }
 }
 

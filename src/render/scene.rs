@@ -10,6 +10,9 @@ use crate::{Error, Result};
 /// Most objects a render can keep separate silhouettes for (one bit each).
 pub const MAX_OBJECTS: usize = 64;
 
+/// At most this many meshes in one scene (a ray's crossings name their mesh in 16 bits).
+pub const MAX_MESHES: usize = u16::MAX as usize + 1;
+
 /// A closed surface with linear attenuation `mu_per_mm`. Nested surfaces use differential μ: a cancellous
 /// core inside a cortical shell gets `μ_cancellous − μ_cortical`.
 #[derive(Debug, Clone)]
@@ -45,6 +48,15 @@ impl RenderScene {
     pub fn new(meshes: Vec<SceneMesh>) -> Result<Self> {
         if meshes.is_empty() {
             return Err(Error::invalid("scene", "no meshes to render"));
+        }
+        if meshes.len() > MAX_MESHES {
+            return Err(Error::invalid(
+                "scene",
+                format!(
+                    "{} meshes; at most {MAX_MESHES} can be rendered together",
+                    meshes.len()
+                ),
+            ));
         }
         let mut objects: Vec<String> = Vec::new();
         let mut object_of_mesh = Vec::with_capacity(meshes.len());

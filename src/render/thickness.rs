@@ -17,7 +17,7 @@ use serde::Serialize;
 
 use super::bvh::BvhTracer;
 use super::embree::EmbreeScene;
-use super::pairing::{Crossing, RayIntegral, integrate};
+use super::pairing::{Crossing, RayIntegral, integrate, integrate_crossings};
 use super::raster::{BandScratch, RasterView};
 use super::scene::RenderScene;
 use super::tracer::{HitTracer, PACKET, RawHit, RayPacket};
@@ -203,7 +203,7 @@ const RASTER_BAND_ROWS: usize = 16;
 
 thread_local! {
     /// Per-thread buffers of the raster bands.
-    static RASTER_SCRATCH: std::cell::RefCell<(BandScratch, Vec<Crossing>)> = std::cell::RefCell::default();
+    static RASTER_SCRATCH: std::cell::RefCell<BandScratch> = std::cell::RefCell::default();
 }
 
 /// Per-view constants of ray generation.
@@ -354,14 +354,9 @@ impl ThicknessRenderer {
                 let rows = li.len() / w;
                 let mut stats = RenderStats::default();
                 let mut culled = 0u64;
-                // Integrates pixel (u, row r of the band), whose ray has direction `dir`, from its raw hits
-                // and writes its outputs.
-                let mut emit = |u: usize,
-                                r: usize,
-                                dir: DVec3,
-                                hits: &[RawHit],
-                                crossings: &mut Vec<Crossing>| {
-                    let mut ray = integrate(&self.scene, cam.source, dir, hits, crossings);
+                // Writes the outputs of pixel (u, row r of the band) from its integral; `depth_per_t`
+                // turns the integral's `first_t` into camera depth.
+                let mut emit = |u: usize, r: usize, mut ray: RayIntegral, depth_per_t: f64| {
                     if !ray.valid {
                         ray = self.repair(&cam, u as f64, (v0 + r) as f64, ray, &mut stats);
                     }
@@ -372,7 +367,7 @@ impl ThicknessRenderer {
                     if let Some(d) = depth.as_deref_mut()
                         && ray.first_t.is_finite()
                     {
-                        d[i] = (ray.first_t * dir.dot(cam.axis_z)) as f32;
+                        d[i] = (ray.first_t * depth_per_t) as f32;
                     }
                     if let (Some(o), Some(s)) = (obj.as_deref_mut(), st.as_deref_mut()) {
                         o[i] = ray.object_bits;
@@ -403,24 +398,31 @@ impl ThicknessRenderer {
                                 }
                                 tracer.trace_all(&packet, &mut scratch.hits);
                                 for (lane, &(u, r)) in chunk.iter().enumerate() {
-                                    emit(
-                                        u,
-                                        r,
-                                        packet.dir[lane],
+                                    let dir = packet.dir[lane];
+                                    let ray = integrate(
+                                        &self.scene,
+                                        cam.source,
+                                        dir,
                                         &scratch.hits[lane],
                                         &mut scratch.crossings,
                                     );
+                                    emit(u, r, ray, dir.dot(cam.axis_z));
                                 }
                             }
                         }
                     }
                     BandSource::Raster(raster) => {
-                        RASTER_SCRATCH.with_borrow_mut(|(band_scratch, crossings)| {
+                        RASTER_SCRATCH.with_borrow_mut(|band_scratch| {
                             let mut traced = 0;
-                            raster.band_hits(b, band_scratch, |u, r, hits| {
+                            raster.band_hits(b, band_scratch, |u, r, crossings| {
                                 traced += 1;
-                                let dir = cam.dir(u as f64, (v0 + r) as f64);
-                                emit(u, r, dir, hits, crossings);
+                                // Depth to distance along the ray.
+                                let path = raster.path_per_depth(u as f64, (v0 + r) as f64);
+                                for c in crossings.iter_mut() {
+                                    c.t *= path;
+                                }
+                                let ray = integrate_crossings(&self.scene, crossings, opts.masks);
+                                emit(u, r, ray, 1.0 / path);
                             });
                             culled += (rows * w - traced) as u64;
                         });
