@@ -33,7 +33,8 @@ pub enum Backend {
     /// The pure-Rust f64 BVH with a watertight triangle test (reference).
     Bvh,
     /// Rasterised primary rays (all rays leave the source): exact edge functions, no acceleration
-    /// structure; the fastest for DRRs.
+    /// structure; the fastest for DRRs. A view with a vertex at or behind the source plane is traced
+    /// with Embree instead.
     Raster,
 }
 

@@ -30,11 +30,14 @@ use rayon::prelude::*;
 use super::pairing::Crossing;
 use super::scene::RenderScene;
 use crate::geometry::View;
-use crate::{Error, Result};
 
 /// Pixel margin of a triangle's bounding box: covers rounding in the projected corners (the edge
 /// functions, not the box, decide coverage).
 const BOX_MARGIN_PX: f64 = 1e-2;
+
+/// Vertices closer to the source plane than this (mm, camera depth) are not projected (see
+/// [`RasterView::new`]).
+const MIN_DEPTH_MM: f64 = 1e-6;
 
 /// A band's hit on a pixel: column, row within the band, and the crossing (`t`: camera-frame depth, mm).
 #[derive(Debug, Clone, Copy)]
@@ -70,9 +73,10 @@ pub(crate) struct RasterView<'a> {
 }
 
 impl<'a> RasterView<'a> {
-    /// Projects every vertex and bins every triangle by the rows its bounding box spans. Fails when a
-    /// vertex lies at or behind the source plane (a triangle there has no finite projection).
-    pub(crate) fn new(scene: &'a RenderScene, view: &View, band_rows: usize) -> Result<Self> {
+    /// Projects every vertex and bins every triangle by the rows its bounding box spans. `None` when a
+    /// vertex lies at or behind the source plane (a triangle there has no finite projection; such a view
+    /// has to be traced).
+    pub(crate) fn new(scene: &'a RenderScene, view: &View, band_rows: usize) -> Option<Self> {
         assert!(
             band_rows.is_power_of_two(),
             "band rows must be a power of two"
@@ -92,15 +96,8 @@ impl<'a> RasterView<'a> {
                     (c, intr.project_camera(c))
                 })
                 .unzip();
-            if let Some(bad) = c.iter().find(|p| p.z.is_nan() || p.z <= 1e-6) {
-                return Err(Error::invalid(
-                    format!("mesh '{}'", m.mesh.name),
-                    format!(
-                        "a vertex lies {:.3} mm from the source plane, at or behind the X-ray source; \
-                         the raster backend cannot project it (use --backend embree)",
-                        bad.z
-                    ),
-                ));
+            if c.iter().any(|p| p.z.is_nan() || p.z <= MIN_DEPTH_MM) {
+                return None;
             }
             cam.push(c);
             px.push(p);
@@ -130,7 +127,7 @@ impl<'a> RasterView<'a> {
                 )
             })
             .collect();
-        Ok(RasterView {
+        Some(RasterView {
             scene,
             intr,
             dirs: PixelDirs::new(&intr),

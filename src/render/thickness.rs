@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::bvh::BvhTracer;
-use super::embree::EmbreeScene;
+use super::embree::{EmbreeScene, EmbreeTracer};
 use super::pairing::{Crossing, RayIntegral, integrate, integrate_crossings};
 use super::raster::{BandScratch, RasterView};
 use super::scene::RenderScene;
@@ -184,8 +184,9 @@ enum Gather {
     /// Rays traced in packets through a backend.
     Trace(Box<dyn HitTracer>),
     /// Pixels rasterised per view (see [`super::raster`]); single rays (repairs, [`ThicknessRenderer::trace_ray`])
-    /// go through the reference BVH, built on first use.
-    Raster(OnceLock<BvhTracer>),
+    /// and views with a vertex at or behind the source plane (which cannot be projected) are traced with
+    /// Embree (the reference BVH if Embree cannot take the scene), built on first use.
+    Raster(OnceLock<Box<dyn HitTracer + Send>>),
 }
 
 /// One view's way of finding hits, shared by the band workers.
@@ -275,7 +276,12 @@ impl ThicknessRenderer {
     fn ray_tracer(&self) -> &dyn HitTracer {
         match &self.gather {
             Gather::Trace(t) => t.as_ref(),
-            Gather::Raster(bvh) => bvh.get_or_init(|| BvhTracer::new(&self.scene)),
+            Gather::Raster(tracer) => tracer
+                .get_or_init(|| match EmbreeTracer::new(&self.scene) {
+                    Ok(embree) => Box::new(embree),
+                    Err(_) => Box::new(BvhTracer::new(&self.scene)),
+                })
+                .as_ref(),
         }
     }
 
@@ -314,9 +320,18 @@ impl ThicknessRenderer {
                     coverage,
                 }
             }
-            Gather::Raster(_) => {
-                BandSource::Raster(RasterView::new(&self.scene, view, RASTER_BAND_ROWS)?)
-            }
+            Gather::Raster(_) => match RasterView::new(&self.scene, view, RASTER_BAND_ROWS) {
+                Some(raster) => BandSource::Raster(raster),
+                // A vertex at or behind the source plane: the view is traced instead.
+                None => {
+                    let (tiles_x, coverage) = self.plan(view, opts);
+                    BandSource::Trace {
+                        tracer: self.ray_tracer(),
+                        tiles_x,
+                        coverage,
+                    }
+                }
+            },
         };
         let band_rows = match &source {
             BandSource::Trace { .. } => TILE as usize,

@@ -224,7 +224,7 @@ impl Default for GeometrySection {
             file: None,
             views: vec!["ap".into(), "lat".into()],
             binning: 1,
-            backend: Backend::Embree,
+            backend: Backend::Raster,
         }
     }
 }
