@@ -1,11 +1,14 @@
-//! From the raw hits of one ray to its line integral `Σ_m μ_m · L_m`.
+//! From the surface crossings of one ray to its line integral `Σ_m μ_m · L_m`.
 //!
-//! Each raw hit is refined in f64 from its triangle's plane (`t = (d − n·o) / (n·dir)`), so both backends
-//! produce the same distances once they agree on which triangles a ray crosses. Per mesh, hits are sorted
-//! and clustered (a ray through a shared edge or vertex reports it once per triangle). A cluster whose
-//! triangles all face the ray is an entry, all facing away an exit, and a mixed one a tangential touch.
-//! The ray is inside where the winding number (entries − exits) is positive; a ray whose winding goes
-//! negative or does not return to zero lost a crossing, is reported as invalid, and the renderer repairs it.
+//! A ray tracer's raw hits are refined in f64 from their triangles' planes (`t = (d − n·o) / (n·dir)`), so
+//! the tracers produce the same distances once they agree on which triangles a ray crosses; the raster
+//! computes the same distance from the triangle's plane in the camera frame. Per mesh, crossings are
+//! sorted; when they alternate entry, exit, entry, exit… the length is `Σ (exit − entry)` directly.
+//! Otherwise they are clustered (a ray through a shared edge or vertex reports it once per triangle): a
+//! cluster whose triangles all face the ray is an entry, all facing away an exit, and a mixed one a
+//! tangential touch. The ray is inside where the winding number (entries − exits) is positive; a ray whose
+//! winding goes negative or does not return to zero lost a crossing, is reported as invalid, and the
+//! renderer repairs it.
 
 use glam::DVec3;
 
