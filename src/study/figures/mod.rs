@@ -483,35 +483,39 @@ pub fn write_all(out: &Path) -> Result<usize> {
     Ok(n)
 }
 
-/// Per-structure Dice vs Δf (focal family), one figure per (target, view) of the first target.
+/// Per-structure Dice vs Δf (focal family), one figure per (target, view).
 fn structure_figures(t: &Table, figs: &Path) -> Result<()> {
-    let first = match t.rows.first() {
-        Some(r) => t.str(r, "target")?.to_string(),
-        None => return Ok(()),
-    };
-    let mut views: Vec<String> = Vec::new();
+    let (mut targets, mut views): (Vec<String>, Vec<String>) = (Vec::new(), Vec::new());
     for r in &t.rows {
-        let v = t.str(r, "view")?.to_string();
-        if !views.contains(&v) {
-            views.push(v);
+        let (target, v) = (t.str(r, "target")?, t.str(r, "view")?);
+        if !targets.iter().any(|x| x == target) {
+            targets.push(target.to_string());
+        }
+        if !views.iter().any(|x| x == v) {
+            views.push(v.to_string());
         }
     }
-    for v in views {
-        let keep = |r: &[String]| -> Result<bool> {
-            Ok(t.str(r, "target")? == first
-                && t.str(r, "view")? == v
-                && t.str(r, "family")? == "focal")
-        };
-        let s = grouped(
-            t,
-            keep,
-            |r| Ok(t.str(r, "structure")?.to_string()),
-            "df_px",
-            "dice",
-        )?;
-        let file = figs.join(format!("structures_dice_{first}_{v}.png"));
-        let title = format!("Per-structure Dice vs focal offset ({first}, {v})");
-        line_chart(&file, &title, "focal offset Δf (px)", "Dice", &s)?;
+    for target in &targets {
+        for v in &views {
+            let keep = |r: &[String]| -> Result<bool> {
+                Ok(t.str(r, "target")? == target
+                    && t.str(r, "view")? == v
+                    && t.str(r, "family")? == "focal")
+            };
+            let s = grouped(
+                t,
+                keep,
+                |r| Ok(t.str(r, "structure")?.to_string()),
+                "df_px",
+                "dice",
+            )?;
+            if s.is_empty() {
+                continue;
+            }
+            let file = figs.join(format!("structures_dice_{target}_{v}.png"));
+            let title = format!("Per-structure Dice vs focal offset ({target}, {v})");
+            line_chart(&file, &title, "focal offset Δf (px)", "Dice", &s)?;
+        }
     }
     Ok(())
 }
@@ -527,4 +531,70 @@ fn encode_png_sized(path: &Path, buf: Vec<u8>, size: (u32, u32)) -> Result<()> {
     img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
         .map_err(|e| Error::format(path, e.to_string()))?;
     write_atomic_bytes(path, &png)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(columns: &str, rows: &[String]) -> Table {
+        Table {
+            columns: columns.split(',').map(String::from).collect(),
+            rows: rows
+                .iter()
+                .map(|r| r.split(',').map(String::from).collect())
+                .collect(),
+        }
+    }
+
+    /// Every target gets its own landmark overlays and per-structure figures, one per view.
+    #[test]
+    fn overlays_and_structure_figures_for_every_target() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let (mut lm, mut st) = (Vec::new(), Vec::new());
+        for target in ["L1", "segment"] {
+            for view in ["ap", "lat"] {
+                for df in [100, 500] {
+                    for (i, name) in ["center", "spinous_tip"].iter().enumerate() {
+                        let (u, v) = (300.0 + 50.0 * i as f64, 400.0);
+                        let s = f64::from(df) * 1e-3;
+                        lm.push(format!(
+                            "{target},{view},focal,{df},0,0,{name},{u},{v},{},{v},{s},{},{v},{s},0",
+                            u + s,
+                            u + s
+                        ));
+                    }
+                    for s in ["body", "pedicle_left"] {
+                        st.push(format!(
+                            "{target},{view},focal,{df},0,0,{s},{},0.9",
+                            1.0 - f64::from(df) * 1e-4
+                        ));
+                    }
+                }
+            }
+        }
+        let lm = table(
+            "target,view,family,df_px,dcx_px,dcy_px,landmark,ref_u_px,ref_v_px,meas_u_px,meas_v_px,\
+             shift_px,pred_u_px,pred_v_px,pred_shift_px,pred_error_px",
+            &lm,
+        );
+        let st = table(
+            "target,view,family,df_px,dcx_px,dcy_px,structure,dice,iou",
+            &st,
+        );
+        overlay::landmark_overlays(&lm, dir.path()).expect("overlays");
+        structure_figures(&st, dir.path()).expect("structure figures");
+        for target in ["L1", "segment"] {
+            for view in ["ap", "lat"] {
+                for f in [
+                    format!("landmark_overlay_{target}_{view}.png"),
+                    format!("structures_dice_{target}_{view}.png"),
+                ] {
+                    let img =
+                        image::open(dir.path().join(&f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+                    assert!(img.width() > 100, "{f}");
+                }
+            }
+        }
+    }
 }

@@ -12,17 +12,28 @@ use crate::study::tables::Table;
 /// Magnification of displacement vectors in the overlay figures (shifts are a few px on a 1000-px image).
 const OVERLAY_GAIN: f64 = 10.0;
 
-/// Landmark overlay per view of the first target at the largest focal Δf: reference positions (circles),
-/// measured displacement (red, ×[`OVERLAY_GAIN`]) and the H·x prediction (blue cross at the tip).
+/// Landmark overlay per target and view at the largest focal Δf: reference positions (circles), measured
+/// displacement (red, ×[`OVERLAY_GAIN`]) and the H·x prediction (blue cross at the tip).
 pub fn landmark_overlays(t: &Table, figs: &Path) -> Result<()> {
-    let first = match t.rows.first() {
-        Some(r) => t.str(r, "target")?.to_string(),
-        None => return Ok(()),
-    };
+    let mut targets: Vec<String> = Vec::new();
+    for r in &t.rows {
+        let target = t.str(r, "target")?;
+        if !targets.iter().any(|x| x == target) {
+            targets.push(target.to_string());
+        }
+    }
+    for target in &targets {
+        target_overlays(t, target, figs)?;
+    }
+    Ok(())
+}
+
+/// The overlays of one target, one per view.
+fn target_overlays(t: &Table, target: &str, figs: &Path) -> Result<()> {
     let focal: Vec<&Vec<String>> = t
         .rows
         .iter()
-        .filter(|r| r[0] == first && r[2] == "focal")
+        .filter(|r| r[0] == target && r[2] == "focal")
         .collect();
     let df_max = focal
         .iter()
@@ -50,8 +61,8 @@ pub fn landmark_overlays(t: &Table, figs: &Path) -> Result<()> {
                 pts.push((t.str(r, "landmark")?.to_string(), x, m, p));
             }
         }
-        let file = figs.join(format!("landmark_overlay_{first}_{v}.png"));
-        let title = format!("{first} {v}: landmark shifts at Δf {df_max} px (×{OVERLAY_GAIN})");
+        let file = figs.join(format!("landmark_overlay_{target}_{v}.png"));
+        let title = format!("{target} {v}: landmark shifts at Δf {df_max} px (×{OVERLAY_GAIN})");
         overlay_chart(&file, &title, &pts)?;
     }
     Ok(())
