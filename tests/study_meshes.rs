@@ -8,8 +8,8 @@ use glam::DVec3;
 use spinedrr::anatomy::{TriMesh, write_mesh};
 use spinedrr::study::tables::Table;
 
-/// Runs `spinedrr study --config CFG --out OUT`.
-fn run_study(cfg: &Path, out: &Path) -> Output {
+/// Runs `spinedrr study --config CFG --out OUT [EXTRA…]`.
+fn run_study(cfg: &Path, out: &Path, extra: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_spinedrr"))
         .args([
             "study",
@@ -18,17 +18,19 @@ fn run_study(cfg: &Path, out: &Path) -> Output {
             "--out",
             out.to_str().unwrap(),
         ])
+        .args(extra)
         .output()
         .expect("run spinedrr")
 }
-#[test]
-fn mesh_target_study_obeys_the_homography_law() {
-    let dir = tempfile::tempdir().expect("temp dir");
+
+/// A 40 × 30 × 24 mm box and five of its corners as landmarks in `dir`, studied on a small grid; returns
+/// the config file.
+fn box_study(dir: &Path) -> std::path::PathBuf {
     let (lo, hi) = (
         DVec3::new(-20.0, -15.0, -12.0),
         DVec3::new(20.0, 15.0, 12.0),
     );
-    let stl = dir.path().join("box.stl");
+    let stl = dir.join("box.stl");
     write_mesh(&stl, &TriMesh::cuboid("box", lo, hi)).expect("write box.stl");
     let mut lm = String::from("{\"level\": \"box\", \"units\": \"mm\", \"landmarks\": {");
     let mut corners = Vec::new();
@@ -46,7 +48,7 @@ fn mesh_target_study_obeys_the_homography_law() {
     }
     lm.push_str(&corners.join(", "));
     lm.push_str("}}");
-    let lm_path = dir.path().join("box-landmarks.json");
+    let lm_path = dir.join("box-landmarks.json");
     std::fs::write(&lm_path, lm).unwrap();
     let cfg = format!(
         "[anatomy]\nlevels = []\nsegment = false\nmarker_radius_mm = 5.0\n\
@@ -56,10 +58,17 @@ fn mesh_target_study_obeys_the_homography_law() {
         stl.to_str().unwrap(),
         lm_path.to_str().unwrap()
     );
-    let cfg_path = dir.path().join("study.toml");
+    let cfg_path = dir.join("study.toml");
     std::fs::write(&cfg_path, cfg).unwrap();
+    cfg_path
+}
+
+#[test]
+fn mesh_target_study_obeys_the_homography_law() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cfg_path = box_study(dir.path());
     let out = dir.path().join("out");
-    let o = run_study(&cfg_path, &out);
+    let o = run_study(&cfg_path, &out, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let t = Table::read(&out.join("tables/landmarks.csv")).expect("landmarks.csv");
     assert_eq!(
@@ -96,7 +105,7 @@ fn missing_mesh_file_is_named_before_work() {
     )
     .unwrap();
     let out = dir.path().join("out");
-    let o = run_study(&cfg_path, &out);
+    let o = run_study(&cfg_path, &out, &[]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(
@@ -104,4 +113,29 @@ fn missing_mesh_file_is_named_before_work() {
         "{err}"
     );
     assert!(!out.exists());
+}
+
+/// `--quick` with `--config`: the config's own target on the quick grid (piercing 50 px instead of the
+/// config's 20, registration at Δf {0, 100, 500} instead of {0, 300}).
+#[test]
+fn quick_runs_a_config_on_the_quick_grid() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cfg_path = box_study(dir.path());
+    let out = dir.path().join("out");
+    let o = run_study(&cfg_path, &out, &["--quick"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let t = Table::read(&out.join("tables/landmarks.csv")).expect("landmarks.csv");
+    assert_eq!(t.rows.len(), 5 * 2 * 4);
+    for r in &t.rows {
+        assert_eq!(t.str(r, "target").unwrap(), "box");
+        if t.str(r, "family").unwrap() == "piercing" {
+            let du = t.num(r, "meas_u_px").unwrap() - t.num(r, "ref_u_px").unwrap();
+            assert!((du - 50.0).abs() < 1e-6, "{r:?}");
+        }
+    }
+    let s = Table::read(&out.join("tables/registration_summary.csv")).expect("summary");
+    let mut df: Vec<f64> = s.rows.iter().map(|r| s.num(r, "df_px").unwrap()).collect();
+    df.sort_by(f64::total_cmp);
+    df.dedup();
+    assert_eq!(df, [0.0, 100.0, 500.0]);
 }

@@ -12,8 +12,9 @@ pub struct Args {
     /// Study config (TOML; see examples/study.toml). Without it, the paper's defaults.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// A tiny grid (one level, binned detector, two Δf, three trials) for a smoke test.
-    #[arg(long, conflicts_with = "config")]
+    /// A tiny grid for a smoke test: 2× binned detector, Δf {100, 500}, piercing {0, 50}, 3 registration
+    /// trials. Alone it studies L1 only; with --config, the config's targets and views on that grid.
+    #[arg(long)]
     quick: bool,
     /// Output folder (tables/, figures/, units/, report.md).
     #[arg(long, default_value = "study-out")]
@@ -31,8 +32,11 @@ pub struct Args {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let cfg = match &a.config {
-        Some(p) => StudyConfig::from_file(p)
-            .with_context(|| format!("reading study config {}", p.display()))?,
+        Some(p) => {
+            let cfg = StudyConfig::from_file(p)
+                .with_context(|| format!("reading study config {}", p.display()))?;
+            if a.quick { cfg.with_quick_grid() } else { cfg }
+        }
         None if a.quick => StudyConfig::quick(),
         None => StudyConfig::default(),
     };

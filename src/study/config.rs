@@ -258,7 +258,6 @@ impl Default for RegistrationConfig {
 impl StudyConfig {
     /// A tiny grid for smoke tests: L1 only, 2× binned detector, Δf {100, 500}, piercing {0, 50}, 3 trials.
     pub fn quick() -> Self {
-        let d = StudyConfig::default();
         StudyConfig {
             anatomy: AnatomyConfig {
                 levels: vec!["L1".into()],
@@ -268,23 +267,33 @@ impl StudyConfig {
                 meshes: Vec::new(),
                 ct: Vec::new(),
             },
+            ..StudyConfig::default()
+        }
+        .with_quick_grid()
+    }
+
+    /// This study's targets, views and settings on the quick grid: 2× binned detector (unless already
+    /// coarser), Δf {100, 500}, piercing {0, 50}, registration at Δf {0, 100, 500} × piercing {0, 50} with
+    /// 3 trials — a smoke test of a config before its full run.
+    pub fn with_quick_grid(self) -> Self {
+        StudyConfig {
             geometry: GeometrySection {
-                binning: 2,
-                ..d.geometry
+                binning: self.geometry.binning.max(2),
+                ..self.geometry
             },
             perturbations: PerturbationGrid {
                 df_px: vec![100.0, 500.0],
                 piercing_px: vec![0.0, 50.0],
-                ..d.perturbations
+                ..self.perturbations
             },
             registration: RegistrationConfig {
                 df_px: vec![0.0, 100.0, 500.0],
                 piercing_px: vec![0.0, 50.0],
                 trials: 3,
                 trials_per_unit: 3,
-                ..d.registration
+                ..self.registration
             },
-            ..d
+            ..self
         }
     }
 
