@@ -410,8 +410,9 @@ impl PixelDirs {
 /// depth along the pixel rays.
 struct Edges {
     e: [[f64; 3]; 3],
-    /// Whether the triangle owns pixels exactly on each edge (the tie rule, [`owns_edge`]).
-    own: [bool; 3],
+    /// Per edge, [`f64::MIN_POSITIVE`] when the triangle owns pixels exactly on it (the tie rule,
+    /// [`owns_edge`]), else 0 (see [`RowEdges::covers`]).
+    bias: [f64; 3],
     /// `n · K⁻¹ [u, v, 1]ᵀ = p[0]·u + p[1]·v + p[2]` for the plane normal `n`, so a pixel's ray meets the
     /// plane at depth `det / (p · [u, v, 1])`.
     p: [f64; 3],
@@ -442,7 +443,7 @@ impl Edges {
         let e = n.map(|n| dirs.coefficients(n));
         Some(Edges {
             e,
-            own: e.map(owns_edge),
+            bias: e.map(|e| if owns_edge(e) { f64::MIN_POSITIVE } else { 0.0 }),
             p: dirs.coefficients((b - a).cross(c - a)),
             det,
             z_range: (a.z.min(b.z).min(c.z), a.z.max(b.z).max(c.z)),
@@ -456,9 +457,7 @@ impl Edges {
         RowEdges {
             a: self.e.map(|e| e[0]),
             r: self.e.map(|e| e[1] * v + e[2]),
-            bias: self
-                .own
-                .map(|own| if own { f64::MIN_POSITIVE } else { 0.0 }),
+            bias: self.bias,
             pa: self.p[0],
             pr: self.p[1] * v + self.p[2],
             det: self.det,

@@ -311,27 +311,22 @@ impl ThicknessRenderer {
         let cam = Camera::new(view);
         let (w, h) = (cam.width as usize, cam.height as usize);
         // How each band of rows finds its rays' hits.
-        let source = match &self.gather {
-            Gather::Trace(tracer) => {
+        // A raster view when this renderer rasterises and the view can be projected (no vertex at or
+        // behind the source plane); otherwise the pixels are traced.
+        let raster = match &self.gather {
+            Gather::Raster(_) => RasterView::new(&self.scene, view, RASTER_BAND_ROWS),
+            Gather::Trace(_) => None,
+        };
+        let source = match raster {
+            Some(raster) => BandSource::Raster(raster),
+            None => {
                 let (tiles_x, coverage) = self.plan(view, opts);
                 BandSource::Trace {
-                    tracer: tracer.as_ref(),
+                    tracer: self.ray_tracer(),
                     tiles_x,
                     coverage,
                 }
             }
-            Gather::Raster(_) => match RasterView::new(&self.scene, view, RASTER_BAND_ROWS) {
-                Some(raster) => BandSource::Raster(raster),
-                // A vertex at or behind the source plane: the view is traced instead.
-                None => {
-                    let (tiles_x, coverage) = self.plan(view, opts);
-                    BandSource::Trace {
-                        tracer: self.ray_tracer(),
-                        tiles_x,
-                        coverage,
-                    }
-                }
-            },
         };
         let band_rows = match &source {
             BandSource::Trace { .. } => TILE as usize,
