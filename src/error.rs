@@ -21,6 +21,15 @@ pub enum Error {
     /// A numerical procedure could not produce a result (degenerate input, singular system).
     #[error("{0}")]
     Numerical(String),
+    /// Serialising or encoding a product (config, unit file, table, image) failed.
+    #[error("encoding {what}: {message}")]
+    Encode { what: String, message: String },
+    /// The running system refused a resource (a thread pool, a thread).
+    #[error("{0}")]
+    Resource(String),
+    /// A broken invariant inside spinedrr: a bug, not a problem with the user's input.
+    #[error("internal error (a bug in spinedrr; please report it): {0}")]
+    Internal(String),
     /// An external library (Embree, OpenCV) reported an error.
     #[error("{library}: {message}")]
     External {
@@ -46,6 +55,14 @@ impl Error {
         Error::Format {
             path: path.into(),
             message: message.into(),
+        }
+    }
+
+    /// An [`Error::Encode`] for `what`.
+    pub fn encode(what: impl Into<String>, message: impl std::fmt::Display) -> Self {
+        Error::Encode {
+            what: what.into(),
+            message: message.to_string(),
         }
     }
 
