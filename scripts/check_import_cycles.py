@@ -1,0 +1,98 @@
+#!/usr/bin/env python3
+"""Fails when two files under src/ import each other, directly or through a chain.
+
+Builds the file-level graph of `use` items and inline `crate::`/`super::` paths (a path resolves to the
+deepest module file that exists) and prints every strongly connected component of more than one file.
+A parent `mod.rs` naming its children by relative path (`projection::run`) is not an edge: declaring
+child modules is how Rust composes a folder, not a cycle. Exit status 1 when a cycle exists.
+Usage: python3 scripts/check_import_cycles.py [src]"""
+import os, re, sys
+root = sys.argv[1] if len(sys.argv) > 1 else 'src'
+files = {}
+for d, _, fs in os.walk(root):
+    for f in fs:
+        if f.endswith('.rs'):
+            p = os.path.join(d, f)
+            rel = os.path.relpath(p, root)[:-3].split(os.sep)
+            if rel[-1] == 'mod': rel = rel[:-1]
+            if rel == ['lib'] or rel == ['main']: rel = []
+            files[tuple(rel)] = p
+mods = set(files)
+def resolve(path):
+    # deepest existing module prefix
+    for n in range(len(path), -1, -1):
+        if tuple(path[:n]) in mods: return tuple(path[:n])
+    return ()
+def expand_use(s):
+    # expand one level of braces: a::{b, c::d} -> a::b, a::c::d (nested handled recursively)
+    m = re.search(r'\{', s)
+    if not m: return [s]
+    end = len(s) - 1
+    pre = s[:m.start()]
+    depth = 0
+    for i in range(m.start(), len(s)):
+        if s[i] == '{': depth += 1
+        elif s[i] == '}':
+            depth -= 1
+            if depth == 0: end = i; break
+    inner = s[m.start()+1:end]; post = s[end+1:]
+    parts, depth, cur = [], 0, ''
+    for ch in inner:
+        if ch == ',' and depth == 0: parts.append(cur); cur = ''; continue
+        if ch == '{': depth += 1
+        if ch == '}': depth -= 1
+        cur += ch
+    parts.append(cur)
+    out = []
+    for p in parts:
+        p = p.strip()
+        if p: out += expand_use(pre + p + post)
+    return out
+graph = {m: set() for m in mods}
+for m, p in files.items():
+    src = open(p).read()
+    src = re.sub(r'//[^\n]*', '', src)
+    paths = []
+    for u in re.finditer(r'^\s*(?:pub(?:\([^)]*\))?\s+)?use\s+([^;]+);', src, re.M):
+        paths += expand_use(re.sub(r'\s+', '', u.group(1)))
+    paths += re.findall(r'\b((?:crate|super)(?:::\w+)+)', src)
+    for q in paths:
+        q = q.split(' as ')[0]
+        segs = [s for s in q.split('::') if s]
+        if not segs: continue
+        if segs[0] == 'crate': base, rest = [], segs[1:]
+        elif segs[0] == 'super':
+            base = list(m)
+            rest = segs
+            while rest and rest[0] == 'super':
+                base = base[:-1]; rest = rest[1:]
+        elif segs[0] == 'self':
+            base = list(m); rest = segs[1:]
+        else: continue
+        t = resolve(base + rest)
+        if t != m and t != ():
+            graph[m].add(t)
+def name(m): return '/'.join(m) or 'lib'
+sys.setrecursionlimit(10000)
+index, low, stack, on, sccs = {}, {}, [], set(), []
+c = [0]
+def strong(v):
+    index[v] = low[v] = c[0]; c[0] += 1; stack.append(v); on.add(v)
+    for w in graph[v]:
+        if w not in index: strong(w); low[v] = min(low[v], low[w])
+        elif w in on: low[v] = min(low[v], index[w])
+    if low[v] == index[v]:
+        comp = []
+        while True:
+            w = stack.pop(); on.discard(w); comp.append(w)
+            if w == v: break
+        if len(comp) > 1: sccs.append(comp)
+for v in graph:
+    if v not in index: strong(v)
+for comp in sccs:
+    print('cycle:', ', '.join(sorted(name(x) for x in comp)))
+    for a in comp:
+        for b in graph[a]:
+            if b in comp: print('   ', name(a), '->', name(b))
+print(f'import cycles between files under {root}: {len(sccs)}')
+sys.exit(1 if sccs else 0)
