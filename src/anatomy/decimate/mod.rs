@@ -311,11 +311,7 @@ impl Collapser {
 
     /// Link condition, flip and sliver tests for collapsing `v` into `u` at `p`.
     fn collapse_allowed(&self, u: u32, v: u32, p: DVec3) -> bool {
-        let shared: Vec<u32> = self
-            .topo
-            .incident(u)
-            .filter(|&t| self.topo.tris[t as usize].contains(&v))
-            .collect();
+        let shared = self.topo.edge_triangles(u, v);
         if shared.len() != 2 {
             return false;
         }

@@ -42,11 +42,7 @@ impl State {
     /// Tries to collapse `b` into `a` at `target` (no new edge longer than `cap`); returns whether it
     /// happened.
     fn try_collapse(&mut self, a: u32, b: u32, project: Projector, cap2: f64) -> bool {
-        let shared: Vec<u32> = self
-            .topo
-            .incident(a)
-            .filter(|&t| self.topo.tris[t as usize].contains(&b))
-            .collect();
+        let shared = self.topo.edge_triangles(a, b);
         if shared.len() != 2 {
             return false;
         }

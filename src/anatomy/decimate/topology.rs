@@ -37,6 +37,13 @@ impl Topology {
             .filter(|&t| self.tri_alive[t as usize])
     }
 
+    /// The live triangles incident to both `a` and `b` (two for an interior edge of a closed manifold).
+    pub fn edge_triangles(&self, a: u32, b: u32) -> Vec<u32> {
+        self.incident(a)
+            .filter(|&t| self.tris[t as usize].contains(&b))
+            .collect()
+    }
+
     /// The vertices sharing a live triangle with `v`, ascending, without `v`.
     pub fn neighbours(&self, v: u32) -> Vec<u32> {
         let mut n: Vec<u32> = self
