@@ -1,23 +1,29 @@
 //! spinedrr: projection-domain calibration-sensitivity analysis of vertebral DRRs.
 //!
-//! Data flows one way through the stages, each a module that depends only on those above it:
+//! Data flows one way through the stages; each module depends only on those before it in this list
+//! (and on [`io`], the file layer, which needs only `geometry`):
 //!
 //! ```text
-//! anatomy  -> geometry -> render -> analysis -> registration -> study
+//! math, geometry -> anatomy -> render -> analysis, registration -> study
 //! ```
 //!
-//! * [`geometry`]: the pinhole C-arm model (`Intrinsics`, `View`, `CArm`, `Perturbation`) and the one
-//!   `project` function.
+//! * [`math`]: the small dense linear algebra (symmetric eigen-decomposition, Cholesky solve); depends
+//!   on nothing else in the crate.
+//! * [`geometry`]: the pinhole C-arm model (`Intrinsics`, `View`, `CArm`, `Perturbation`), rigid
+//!   transforms and the one `project` function.
 //! * [`anatomy`]: triangle meshes, mesh files, the parametric lumbar phantom and its landmarks.
-//! * [`render`]: thickness DRRs through Embree or the pure-Rust BVH, images and their JSON sidecars.
+//! * [`render`]: thickness DRRs of meshes (the raster, Embree or the pure-Rust BVH) and CT volume DRRs.
+//! * [`io`]: atomic writes, float32 TIFF images, PNG previews and the JSON sidecar every image carries.
 //! * [`analysis`]: projection-domain metrics (landmark shifts, contours, overlap, image similarity).
 //! * [`registration`]: landmark 2D–3D registration (LM over SE(3), two-view Kabsch, OpenCV PnP).
+//! * [`study`]: the calibration-sensitivity study: experiments, tables, figures and the report.
 
 pub mod analysis;
 pub mod anatomy;
 pub mod error;
 pub mod geometry;
 pub mod io;
+pub mod math;
 pub mod registration;
 pub mod render;
 pub mod study;

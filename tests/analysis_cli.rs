@@ -1,7 +1,6 @@
 //! `spinedrr compare` end to end on files written the way the renderer writes them.
 
 use std::path::Path;
-use std::process::Command;
 
 use glam::{DVec2, DVec3};
 use serde_json::Value;
@@ -9,6 +8,9 @@ use spinedrr::geometry::{CArm, Perturbation, View};
 use spinedrr::io::{
     ImageF32, Sidecar, read_tiff_f32, sidecar_path, write_mask_png, write_tiff_f32,
 };
+
+mod common;
+use common::Spinedrr;
 
 const N: u32 = 256;
 
@@ -66,7 +68,7 @@ fn compare_writes_metrics_heatmap_and_difference() {
     )
     .unwrap();
     let out = dir.path().join("out");
-    let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+    let o = Spinedrr::new()
         .args(["compare", "--reference"])
         .arg(dir.path().join("ref.tiff"))
         .arg("--perturbed")
@@ -75,8 +77,7 @@ fn compare_writes_metrics_heatmap_and_difference() {
         .arg(&lm)
         .arg("--out")
         .arg(&out)
-        .output()
-        .unwrap();
+        .output();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let m: Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
@@ -145,7 +146,7 @@ fn compare_reports_bad_input() {
         if let Some(f) = remove {
             std::fs::remove_file(dir.path().join(f)).unwrap();
         }
-        let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+        Spinedrr::new()
             .current_dir(dir.path())
             .args([
                 "compare",
@@ -157,12 +158,7 @@ fn compare_reports_bad_input() {
                 "o",
             ])
             .args(extra)
-            .output()
-            .unwrap();
-        (
-            o.status.success(),
-            String::from_utf8_lossy(&o.stderr).into_owned(),
-        )
+            .outcome()
     };
     let (ok, err) = run(&["--masks", "ref_mask_body.png"], None);
     assert!(!ok && err.contains("REF.png:PERT.png"), "{err}");

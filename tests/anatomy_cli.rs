@@ -1,13 +1,14 @@
 //! `spinedrr phantom` end to end: the real binary writes meshes and landmarks that read back.
 
-use std::process::Command;
-
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_landmarks, read_mesh};
+
+mod common;
+use common::Spinedrr;
 
 #[test]
 fn phantom_command_writes_closed_meshes_and_landmarks() {
     let dir = tempfile::tempdir().unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+    let out = Spinedrr::new()
         .args([
             "phantom",
             "--levels",
@@ -18,8 +19,7 @@ fn phantom_command_writes_closed_meshes_and_landmarks() {
             "--out",
         ])
         .arg(dir.path())
-        .output()
-        .unwrap();
+        .output();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     for name in [
@@ -65,13 +65,12 @@ fn phantom_command_writes_closed_meshes_and_landmarks() {
 fn bad_arguments_fail_with_a_clear_message() {
     let dir = tempfile::tempdir().unwrap();
     let run = |args: &[&str]| {
-        let out = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+        let out = Spinedrr::new()
             .arg("phantom")
             .args(args)
             .arg("--out")
             .arg(dir.path())
-            .output()
-            .unwrap();
+            .output();
         assert!(!out.status.success());
         String::from_utf8_lossy(&out.stderr).to_string()
     };

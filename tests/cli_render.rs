@@ -1,22 +1,13 @@
 //! End-to-end runs of `spinedrr render` and `spinedrr geometry`: outputs, sidecars and bad input.
 
 use std::path::Path;
-use std::process::{Command, Output};
 
 use glam::DVec3;
 use spinedrr::anatomy::{TriMesh, write_mesh};
 use spinedrr::io::{Sidecar, read_tiff_f32};
 
-fn spinedrr(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_spinedrr"))
-        .args(args)
-        .output()
-        .expect("running spinedrr")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+mod common;
+use common::{spinedrr, stderr};
 
 /// A small geometry so end-to-end renders stay quick.
 fn small_geometry(dir: &Path, detector: &str) -> String {

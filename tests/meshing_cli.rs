@@ -1,22 +1,13 @@
 //! `spinedrr mesh` and `spinedrr phantom --ct` end to end, and their failures on bad input.
 
 use std::path::Path;
-use std::process::Command;
 
 use glam::{DMat4, DQuat, DVec3};
 use spinedrr::anatomy::ct::{LabelMap, read_ct, read_labels, write_labels};
 use spinedrr::anatomy::{read_landmarks, read_mesh};
 
-fn spinedrr(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::run;
 
 /// Two labels on an oblique, anisotropic grid: L1 (31) a box of voxels, L2 (30) an ellipsoid below it.
 fn write_two_vertebrae(path: &Path) -> LabelMap {
@@ -67,7 +58,7 @@ fn mesh_writes_a_closed_surface_with_the_voxel_volume() {
         let o = d(out);
         args.extend(["--out", o.as_str()]);
         args.extend(extra.iter().copied());
-        let (ok, err) = spinedrr(&args);
+        let (ok, err) = run(&args);
         assert!(ok, "{err}");
         let m = read_mesh(Path::new(&o)).unwrap();
         assert!(m.check().is_watertight(), "{out}: {:?}", m.check());
@@ -92,7 +83,7 @@ fn mesh_writes_a_closed_surface_with_the_voxel_volume() {
 fn phantom_ct_round_trips_into_mesh_and_auto_landmarks() {
     let dir = tempfile::tempdir().unwrap();
     let d = |n: &str| dir.path().join(n).display().to_string();
-    let (ok, err) = spinedrr(&[
+    let (ok, err) = run(&[
         "phantom",
         "--levels",
         "L3",
@@ -121,7 +112,7 @@ fn phantom_ct_round_trips_into_mesh_and_auto_landmarks() {
     let lab = seg.count(29) as f64 * seg.voxel_volume_mm3();
     assert!((lab - cortical.volume()).abs() / cortical.volume() < 0.03);
 
-    let (ok, err) = spinedrr(&[
+    let (ok, err) = run(&[
         "mesh",
         "--seg",
         &d("seg.nii.gz"),
@@ -174,18 +165,18 @@ fn bad_input_fails_with_a_clear_message() {
         let mut full = vec!["mesh"];
         full.extend(args.iter().copied());
         full.extend(["--out", out.as_str()]);
-        let (ok, err) = spinedrr(&full);
+        let (ok, err) = run(&full);
         assert!(!ok, "{full:?} succeeded");
         assert!(err.contains(needle), "{full:?}: {err}");
     }
-    let (ok, err) = spinedrr(&["mesh", "--seg", &s, "--label", "L1", "--out", "x.vtk"]);
+    let (ok, err) = run(&["mesh", "--seg", &s, "--label", "L1", "--out", "x.vtk"]);
     assert!(!ok && err.contains("vtk"), "{err}");
     let bytes = std::fs::read(&seg_path).unwrap();
     std::fs::write(&seg_path, &bytes[..bytes.len() / 3]).unwrap();
-    let (ok, err) = spinedrr(&["mesh", "--seg", &s, "--label", "L1", "--out", &out]);
+    let (ok, err) = run(&["mesh", "--seg", &s, "--label", "L1", "--out", &out]);
     assert!(!ok && err.contains("seg.nii.gz"), "{err}");
     let ph = dir.path().join("ph").display().to_string();
-    let (ok, err) = spinedrr(&[
+    let (ok, err) = run(&[
         "phantom",
         "--levels",
         "L3",

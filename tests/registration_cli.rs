@@ -1,11 +1,13 @@
 //! `spinedrr register` end to end: real binary, real files.
 
 use std::path::Path;
-use std::process::Command;
 
 use glam::DVec3;
 use serde_json::{Value, json};
 use spinedrr::geometry::{CArm, RigidTransform, rotation_exp};
+
+mod common;
+use common::Spinedrr;
 
 fn landmarks() -> Vec<(&'static str, [f64; 3])> {
     vec![
@@ -56,23 +58,18 @@ fn run(dir: &Path, problem: &str, args: &[&str]) -> (bool, String, Option<Value>
     let out = dir.join("R.json");
     let _ = std::fs::remove_file(&out);
     std::fs::write(&p, problem).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+    let (ok, err) = Spinedrr::new()
         .arg("register")
         .arg("--problem")
         .arg(&p)
         .arg("--out")
         .arg(&out)
         .args(args)
-        .output()
-        .unwrap();
+        .outcome();
     let r = std::fs::read_to_string(&out)
         .ok()
         .map(|t| serde_json::from_str(&t).unwrap());
-    (
-        o.status.success(),
-        String::from_utf8_lossy(&o.stderr).into_owned(),
-        r,
-    )
+    (ok, err, r)
 }
 
 #[test]

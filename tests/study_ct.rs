@@ -5,7 +5,7 @@
 //! bad inputs must be named before any output exists.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use std::sync::OnceLock;
 
 use glam::{DMat4, DVec3};
@@ -15,6 +15,9 @@ use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
 use spinedrr::anatomy::vertebra::Level;
 use spinedrr::anatomy::{Landmarks, PhantomOptions, build_phantom, write_landmarks};
 use spinedrr::study::tables::Table;
+
+mod common;
+use common::Spinedrr;
 
 /// Where the scanner puts the phantom's origin (mm): far from where the views aim.
 const SCANNER_OFFSET: [f64; 3] = [30.0, -20.0, 400.0];
@@ -72,13 +75,12 @@ fn spinedrr(cfg: &str, dir: &Path) -> (Output, PathBuf) {
     let cfg_path = dir.join("study.toml");
     std::fs::write(&cfg_path, cfg).unwrap();
     let out = dir.join("out");
-    let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+    let o = Spinedrr::new()
         .args(["study", "--config"])
         .arg(&cfg_path)
         .arg("--out")
         .arg(&out)
-        .output()
-        .expect("run spinedrr");
+        .output();
     (o, out)
 }
 

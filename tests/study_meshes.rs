@@ -2,15 +2,18 @@
 //! The homography law and the exact piercing translation must hold for it too.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use glam::DVec3;
 use spinedrr::anatomy::{TriMesh, write_mesh};
 use spinedrr::study::tables::Table;
 
+mod common;
+use common::Spinedrr;
+
 /// Runs `spinedrr study --config CFG --out OUT [EXTRA…]`.
 fn run_study(cfg: &Path, out: &Path, extra: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+    Spinedrr::new()
         .args([
             "study",
             "--config",
@@ -20,7 +23,6 @@ fn run_study(cfg: &Path, out: &Path, extra: &[&str]) -> Output {
         ])
         .args(extra)
         .output()
-        .expect("run spinedrr")
 }
 
 /// A 40 × 30 × 24 mm box and five of its corners as landmarks in `dir`, studied on a small grid; returns

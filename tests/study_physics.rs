@@ -4,21 +4,22 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
 
 use spinedrr::study::tables::Table;
+
+mod common;
+use common::Spinedrr;
 
 fn quick_out() -> &'static Path {
     static OUT: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
     &OUT.get_or_init(|| {
         let dir = tempfile::tempdir().expect("temp dir");
         let out = dir.path().join("study");
-        let st = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+        let st = Spinedrr::new()
             .args(["study", "--quick", "--out"])
             .arg(&out)
-            .status()
-            .expect("run spinedrr");
+            .status();
         assert!(st.success(), "spinedrr study --quick failed");
         (dir, out)
     })

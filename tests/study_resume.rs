@@ -2,15 +2,14 @@
 //! an uninterrupted one, 1 and 2 threads give the same bytes, and a bad config fails before any work.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
+mod common;
+use common::Spinedrr;
+
+/// Runs `spinedrr ARGS --out OUT`.
 fn spinedrr(args: &[&str], out: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_spinedrr"))
-        .args(args)
-        .arg("--out")
-        .arg(out)
-        .output()
-        .expect("run spinedrr")
+    Spinedrr::new().args(args).arg("--out").arg(out).output()
 }
 
 fn tables(out: &Path) -> Vec<(String, Vec<u8>)> {

@@ -1,22 +1,13 @@
 //! `spinedrr render --ct` end to end: outputs with sidecar, and clear failures on bad input.
 
 use std::path::Path;
-use std::process::Command;
 
 use glam::{DMat4, DVec3};
 use spinedrr::anatomy::ct::{CtVolume, LabelMap, write_ct, write_labels};
 use spinedrr::io::{Sidecar, read_tiff_f32};
 
-fn spinedrr(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::run;
 
 fn write_inputs(dir: &Path) {
     let a = DMat4::from_scale_rotation_translation(
@@ -44,9 +35,9 @@ fn render_ct_writes_tiff_sidecar_and_preview() {
     let dir = tempfile::tempdir().unwrap();
     write_inputs(dir.path());
     let d = |n: &str| dir.path().join(n).display().to_string();
-    let (ok, err) = spinedrr(&["render", "--ct", &d("ct.nii.gz"), "--out", &d("full.tiff")]);
+    let (ok, err) = run(&["render", "--ct", &d("ct.nii.gz"), "--out", &d("full.tiff")]);
     assert!(ok, "{err}");
-    let (ok, err) = spinedrr(&[
+    let (ok, err) = run(&[
         "render",
         "--ct",
         &d("ct.nii.gz"),
@@ -128,7 +119,7 @@ fn bad_input_fails_with_a_clear_message() {
         all.extend(args);
         all.extend(["--out".to_string(), d("x.tiff")]);
         let refs: Vec<&str> = all.iter().map(String::as_str).collect();
-        let (ok, err) = spinedrr(&refs);
+        let (ok, err) = run(&refs);
         assert!(!ok, "{all:?} must fail");
         assert!(err.contains(needle), "{all:?}: {err}");
         assert!(!err.contains("panicked"), "{err}");

@@ -155,10 +155,6 @@ impl Phantom {
     }
 }
 
-fn rigid_to_mat4(t: &RigidTransform) -> DMat4 {
-    DMat4::from_translation(t.translation) * DMat4::from_mat3(t.rotation)
-}
-
 /// Poses of every level from the first to the last requested (see the placement rule).
 fn level_poses(levels: &[Level], disc_mm: f64, lordosis_deg: f64) -> Vec<(Level, RigidTransform)> {
     let (first, last) = (levels[0].index(), levels[levels.len() - 1].index());
@@ -199,7 +195,7 @@ fn sample(
     let index_to_local = DMat4::from_translation(lo) * DMat4::from_scale(DVec3::splat(voxel));
     // Gradient-norm margin 4: the elliptic distances stay below ~3 for our aspect ratios (tested).
     let mut grid = ScalarGrid::from_fn_banded(dims, index_to_local, f, band, 4.0)?;
-    grid.index_to_world = rigid_to_mat4(to_world) * index_to_local;
+    grid.index_to_world = to_world.to_mat4() * index_to_local;
     Ok(grid)
 }
 

@@ -1,6 +1,6 @@
 //! Rigid transforms (rotation + translation) in f64, and the SO(3) exponential/logarithm.
 
-use glam::{DMat3, DVec3};
+use glam::{DMat3, DMat4, DVec3};
 use serde::{Deserialize, Serialize};
 
 use crate::{Error, Result};
@@ -91,16 +91,14 @@ impl RigidTransform {
         })
     }
 
-    /// Row-major 4×4 homogeneous matrix.
+    /// The homogeneous 4×4 matrix `[R t; 0 1]` (glam's column-major `DMat4`).
+    pub fn to_mat4(&self) -> DMat4 {
+        DMat4::from_mat3_translation(self.rotation, self.translation)
+    }
+
+    /// Row-major 4×4 homogeneous matrix `[R t; 0 1]` (the JSON and TOML layout).
     pub fn to_rows(&self) -> [[f64; 4]; 4] {
-        let r = self.rotation;
-        let t = self.translation;
-        [
-            [r.x_axis.x, r.y_axis.x, r.z_axis.x, t.x],
-            [r.x_axis.y, r.y_axis.y, r.z_axis.y, t.y],
-            [r.x_axis.z, r.y_axis.z, r.z_axis.z, t.z],
-            [0.0, 0.0, 0.0, 1.0],
-        ]
+        self.to_mat4().transpose().to_cols_array_2d()
     }
 
     /// From a row-major 4×4 matrix, checking that the upper 3×3 block is a rotation (orthonormal,
@@ -112,15 +110,13 @@ impl RigidTransform {
         if m[3] != [0.0, 0.0, 0.0, 1.0] {
             return Err(Error::invalid(field, "last row must be [0, 0, 0, 1]"));
         }
-        let rotation = DMat3::from_cols(
-            DVec3::new(m[0][0], m[1][0], m[2][0]),
-            DVec3::new(m[0][1], m[1][1], m[2][1]),
-            DVec3::new(m[0][2], m[1][2], m[2][2]),
-        );
+        // The transpose of the row-major array read column-major is the matrix itself.
+        let h = DMat4::from_cols_array_2d(&m).transpose();
+        let rotation = DMat3::from_mat4(h);
         check_rotation(&rotation, field)?;
         Ok(RigidTransform {
             rotation,
-            translation: DVec3::new(m[0][3], m[1][3], m[2][3]),
+            translation: h.w_axis.truncate(),
         })
     }
 
@@ -139,12 +135,7 @@ impl RigidTransform {
 
     /// Row-major rotation.
     pub fn rotation_rows(&self) -> [[f64; 3]; 3] {
-        let m = self.to_rows();
-        [
-            [m[0][0], m[0][1], m[0][2]],
-            [m[1][0], m[1][1], m[1][2]],
-            [m[2][0], m[2][1], m[2][2]],
-        ]
+        self.rotation.transpose().to_cols_array_2d()
     }
 }
 
@@ -273,6 +264,12 @@ mod tests {
         assert!((t.apply_vector(DVec3::Z) - DVec3::new(0.0, -1.0, 0.0)).length() < 1e-12);
         let back = RigidTransform::from_rows(t.to_rows(), "m").unwrap();
         assert_eq!(back, t);
+        // The 4×4 matrix maps homogeneous points as the transform maps points.
+        let p = DVec3::new(3.0, -7.0, 11.0);
+        let h = t.to_mat4() * p.extend(1.0);
+        assert!((h.truncate() - t.apply(p)).length() < 1e-12 && h.w == 1.0);
+        assert_eq!(t.to_rows()[1][3], t.translation.y);
+        assert_eq!(t.rotation_rows()[0][1], t.rotation.y_axis.x);
         assert!(
             t.inverse()
                 .compose(&t)

@@ -10,26 +10,24 @@
 
 use glam::{DMat3, DQuat, DVec2, DVec3};
 
-use super::linalg::{cholesky_solve, symmetric_eigen};
 use super::{RegistrationProblem, RegistrationResult, mean_residual_px};
 use crate::geometry::{RigidTransform, View};
+use crate::math::{cholesky_solve, symmetric_eigen};
 use crate::{Error, Result};
 
 /// Triangulates one point from `(view, pixel)` observations (at least two).
 pub fn triangulate(obs: &[(&View, DVec2)]) -> Result<DVec3> {
     if obs.len() < 2 {
-        return Err(Error::Numerical("triangulation needs two views".into()));
+        return Err(Error::invalid(
+            "observations",
+            format!("triangulation needs two views, got {}", obs.len()),
+        ));
     }
     let mut ata = [[0.0; 4]; 4];
     for (view, x) in obs {
         let d = view.intrinsics.back_project(x.x, x.y);
-        let r = view.world_to_camera.rotation.transpose(); // columns of rᵀ are rows of R
-        let t = view.world_to_camera.translation;
-        let row = |k: usize| -> [f64; 4] {
-            let rk = [r.x_axis, r.y_axis, r.z_axis][k];
-            [rk.x, rk.y, rk.z, t[k]]
-        };
-        let (p1, p2, p3) = (row(0), row(1), row(2));
+        // The rows of the camera matrix [R | t].
+        let [p1, p2, p3, _] = view.world_to_camera.to_rows();
         for (coord, p) in [(d.x, p1), (d.y, p2)] {
             let a: [f64; 4] = std::array::from_fn(|j| coord * p3[j] - p[j]);
             let norm = a.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -40,8 +38,8 @@ pub fn triangulate(obs: &[(&View, DVec2)]) -> Result<DVec3> {
             }
         }
     }
-    let (_, vecs) = symmetric_eigen(ata);
-    let h = vecs[0];
+    // The smallest eigenvalue's eigenvector.
+    let h = symmetric_eigen(ata).vectors[0];
     if h[3].abs() < 1e-15 {
         return Err(Error::Numerical(
             "triangulated point is at infinity (parallel rays)".into(),
@@ -94,8 +92,13 @@ fn refine_point(obs: &[(&View, DVec2)], mut x: DVec3) -> DVec3 {
 /// The rigid transform minimising `Σ ‖R X_i + t − Y_i‖²` (Horn's quaternion method).
 pub fn fit_rigid(model: &[DVec3], world: &[DVec3]) -> Result<RigidTransform> {
     if model.len() != world.len() || model.len() < 3 {
-        return Err(Error::Numerical(
-            "rigid fit needs at least 3 point pairs".into(),
+        return Err(Error::invalid(
+            "points",
+            format!(
+                "a rigid fit needs at least 3 point pairs of equal count, got {} model and {} world points",
+                model.len(),
+                world.len()
+            ),
         ));
     }
     let n = model.len() as f64;
@@ -117,8 +120,8 @@ pub fn fit_rigid(model: &[DVec3], world: &[DVec3]) -> Result<RigidTransform> {
         [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
         [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
     ];
-    let (_, vecs) = symmetric_eigen(nmat);
-    let [w, x, y, z] = vecs[3];
+    // The largest eigenvalue's eigenvector.
+    let [w, x, y, z] = symmetric_eigen(nmat).vectors[3];
     let q = DQuat::from_xyzw(x, y, z, w).normalize();
     let r = DMat3::from_quat(q);
     if !r.is_finite() {

@@ -9,9 +9,9 @@
 
 use glam::{DMat3, DVec3};
 
-use super::linalg::cholesky_solve;
 use super::{RegistrationOptions, RegistrationProblem, RegistrationResult, mean_residual_px};
 use crate::geometry::{RigidTransform, View, rotation_exp};
+use crate::math::cholesky_solve;
 use crate::{Error, Result};
 
 /// Sum of squared reprojection residuals (px²) of `pose` over every observation.

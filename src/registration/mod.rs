@@ -9,7 +9,6 @@
 //! thousands of registrations in parallel.
 
 mod kabsch;
-pub(crate) mod linalg;
 mod lm;
 mod pnp;
 mod problem;

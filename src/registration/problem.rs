@@ -11,8 +11,8 @@ use std::collections::BTreeMap;
 use glam::{DVec2, DVec3};
 use serde::Deserialize;
 
-use super::linalg::symmetric_eigen;
 use crate::geometry::{Intrinsics, RigidTransform, View};
+use crate::math::symmetric_eigen;
 use crate::{Error, Result};
 
 /// One view's observations: `(landmark index, observed pixel)` pairs.
@@ -227,7 +227,7 @@ fn check_not_collinear(points: impl Iterator<Item = DVec3> + Clone) -> Result<()
             }
         }
     }
-    let (w, _) = symmetric_eigen(s);
+    let w = symmetric_eigen(s).values;
     if w[2] <= 0.0 || w[1] <= 1e-10 * w[2] {
         return Err(Error::invalid(
             "landmarks_3d",

@@ -30,9 +30,10 @@ use glam::DVec3;
 
 use super::landmarks::Landmarks;
 use super::{TriMesh, decimate::SurfaceDistance};
+use crate::math::symmetric_eigen;
 use crate::{Error, Result};
 
-pub use probes::{Section, line_intervals, section, solid_moments, symmetric_eigen};
+pub use probes::{Section, line_intervals, section, solid_moments};
 
 /// An estimated anatomical frame: origin on the mid-sagittal plane, unit axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -111,7 +112,8 @@ pub fn analyse(mesh: &TriMesh, level: &str) -> Result<(Landmarks, VertebraFrame)
 
 /// The principal axis whose mirror plane through the centroid maps the surface closest onto itself.
 fn symmetry_normal(mesh: &TriMesh, c0: DVec3, cov: &glam::DMat3) -> DVec3 {
-    let (axes, _) = symmetric_eigen(*cov);
+    // The covariance is symmetric, so its column-major array is its row-major one.
+    let axes = symmetric_eigen(cov.to_cols_array_2d()).vector_columns();
     let sd = SurfaceDistance::new(mesh);
     let step = (mesh.vertices.len() / 3000).max(1);
     let score = |e: DVec3| -> f64 {

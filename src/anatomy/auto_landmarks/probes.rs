@@ -26,48 +26,6 @@ pub fn solid_moments(mesh: &TriMesh) -> (f64, DVec3, DMat3) {
     (vol, r + mu, second * (1.0 / vol) - outer(mu))
 }
 
-/// Eigenvectors of a symmetric 3×3 matrix by cyclic Jacobi rotations, as columns, with eigenvalues.
-pub fn symmetric_eigen(m: DMat3) -> (DMat3, DVec3) {
-    let mut a = m.to_cols_array_2d();
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    for _ in 0..50 {
-        let off = a[0][1].powi(2) + a[0][2].powi(2) + a[1][2].powi(2);
-        if off < 1e-30 {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            if a[p][q].abs() < 1e-300 {
-                continue;
-            }
-            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let t = if theta == 0.0 { 1.0 } else { t };
-            let (c, s) = (1.0 / (t * t + 1.0).sqrt(), t / (t * t + 1.0).sqrt());
-            for row in &mut a {
-                let (akp, akq) = (row[p], row[q]);
-                row[p] = c * akp - s * akq;
-                row[q] = s * akp + c * akq;
-            }
-            let (row_p, row_q) = (a[p], a[q]);
-            for (k, (apk, aqk)) in row_p.into_iter().zip(row_q).enumerate() {
-                a[p][k] = c * apk - s * aqk;
-                a[q][k] = s * apk + c * aqk;
-            }
-            for row in &mut v {
-                let (vp, vq) = (row[p], row[q]);
-                row[p] = c * vp - s * vq;
-                row[q] = s * vp + c * vq;
-            }
-        }
-    }
-    // `v` holds the eigenvectors as columns in row-major storage.
-    let col = |j: usize| DVec3::new(v[0][j], v[1][j], v[2][j]);
-    (
-        DMat3::from_cols(col(0), col(1), col(2)),
-        DVec3::new(a[0][0], a[1][1], a[2][2]),
-    )
-}
-
 /// The parameter intervals `[t_in, t_out]` where the line `q + t·d` (|d| = 1) is inside the closed
 /// mesh, ascending: every triangle crossing (Möller–Trumbore) is an entry when `n·d < 0`, an exit
 /// otherwise; nesting depth pairs them.
@@ -207,19 +165,5 @@ mod tests {
         let iv = line_intervals(&m, DVec3::new(0.5, 0.3, 0.0), DVec3::Z);
         assert_eq!(iv.len(), 1);
         assert!((iv[0].0 + 3.0).abs() < 1e-12 && (iv[0].1 - 5.0).abs() < 1e-12);
-    }
-
-    #[test]
-    fn jacobi_recovers_a_rotated_diagonal() {
-        let r = DMat3::from_axis_angle(DVec3::new(1.0, 2.0, 3.0).normalize(), 0.7);
-        let m = r * DMat3::from_diagonal(DVec3::new(5.0, 2.0, 1.0)) * r.transpose();
-        let (vecs, vals) = symmetric_eigen(m);
-        for j in 0..3 {
-            let v = vecs.col(j);
-            assert!((m * v - v * vals[j]).length() < 1e-9);
-        }
-        let mut sorted = vals.to_array();
-        sorted.sort_by(f64::total_cmp);
-        assert!((sorted[2] - 5.0).abs() < 1e-9 && (sorted[0] - 1.0).abs() < 1e-9);
     }
 }

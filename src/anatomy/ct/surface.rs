@@ -52,7 +52,8 @@ pub fn label_surface(seg: &LabelMap, label: u16, opts: &SurfaceOptions) -> Resul
         keep = largest_component(seg.dims, &keep);
     }
     let Some(mask) = super::VoxelMask::from_keep(seg, keep) else {
-        return Err(Error::Numerical(format!("label {label}: empty mask")));
+        // `keep` holds a voxel (checked above) and its largest component is never empty.
+        return Err(Error::Internal(format!("label {label}: empty mask")));
     };
     let (lo, hi) = mask.bbox;
     let sub = [0, 1, 2].map(|a| hi[a] - lo[a] + 1);

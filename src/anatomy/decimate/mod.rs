@@ -21,6 +21,7 @@
 mod distance;
 mod quadric;
 mod short_edges;
+mod topology;
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -29,6 +30,7 @@ use glam::DVec3;
 
 use super::TriMesh;
 use crate::{Error, Result};
+use topology::Topology;
 
 pub use distance::{Deviation, SurfaceDistance, deviation};
 pub use quadric::Quadric;
@@ -163,10 +165,7 @@ struct Collapser {
     stamp: Vec<u32>,
     locked: Vec<bool>,
     vertex_alive: Vec<bool>,
-    tris: Vec<[u32; 3]>,
-    tri_alive: Vec<bool>,
-    /// Incident triangles per vertex (may hold dead triangles until the vertex is next touched).
-    vt: Vec<Vec<u32>>,
+    topo: Topology,
     heap: BinaryHeap<Candidate>,
     live_tris: usize,
     collapses: usize,
@@ -192,7 +191,6 @@ impl Collapser {
             .iter()
             .map(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
             .collect();
-        let mut vt: Vec<Vec<u32>> = vec![Vec::new(); n];
         let mut quad = vec![Quadric::default(); n];
         for (i, t) in tris.iter().enumerate() {
             if !tri_alive[i] {
@@ -206,7 +204,6 @@ impl Collapser {
                 None => Quadric::default(),
             };
             for &v in t {
-                vt[v as usize].push(i as u32);
                 quad[v as usize] += q;
             }
         }
@@ -218,9 +215,7 @@ impl Collapser {
             stamp: vec![0; n],
             locked,
             vertex_alive: vec![true; n],
-            tris,
-            tri_alive,
-            vt,
+            topo: Topology::new(tris, tri_alive, n),
             heap: BinaryHeap::with_capacity(live_tris * 3 / 2),
             live_tris,
             collapses: 0,
@@ -233,11 +228,11 @@ impl Collapser {
     }
 
     fn push_all_edges(&mut self) {
-        for i in 0..self.tris.len() {
-            if !self.tri_alive[i] {
+        for i in 0..self.topo.tris.len() {
+            if !self.topo.tri_alive[i] {
                 continue;
             }
-            let t = self.tris[i];
+            let t = self.topo.tris[i];
             for k in 0..3 {
                 let (a, b) = (t[k], t[(k + 1) % 3]);
                 if a < b {
@@ -314,42 +309,21 @@ impl Collapser {
         }
     }
 
-    fn live_tris_of(&self, v: u32) -> impl Iterator<Item = u32> + '_ {
-        self.vt[v as usize]
-            .iter()
-            .copied()
-            .filter(|&t| self.tri_alive[t as usize])
-    }
-
-    fn neighbours(&self, v: u32) -> Vec<u32> {
-        let mut out: Vec<u32> = self
-            .live_tris_of(v)
-            .flat_map(|t| self.tris[t as usize])
-            .filter(|&w| w != v)
-            .collect();
-        out.sort_unstable();
-        out.dedup();
-        out
-    }
-
     /// Link condition, flip and sliver tests for collapsing `v` into `u` at `p`.
     fn collapse_allowed(&self, u: u32, v: u32, p: DVec3) -> bool {
-        let shared: Vec<u32> = self
-            .live_tris_of(u)
-            .filter(|&t| self.tris[t as usize].contains(&v))
-            .collect();
+        let shared = self.topo.edge_triangles(u, v);
         if shared.len() != 2 {
             return false;
         }
-        let (nu, nv) = (self.neighbours(u), self.neighbours(v));
+        let (nu, nv) = (self.topo.neighbours(u), self.topo.neighbours(v));
         let common = nu.iter().filter(|w| nv.binary_search(w).is_ok()).count();
         if common != 2 {
             return false;
         }
         let mut old_min_q = f64::INFINITY;
         let mut new_min_q = f64::INFINITY;
-        for t in self.live_tris_of(u).chain(self.live_tris_of(v)) {
-            let tri = self.tris[t as usize];
+        for t in self.topo.incident(u).chain(self.topo.incident(v)) {
+            let tri = self.topo.tris[t as usize];
             let [a, b, c] = tri.map(|i| self.pos[i as usize]);
             let q_old = quality(a, b, c);
             old_min_q = old_min_q.min(q_old);
@@ -390,35 +364,35 @@ impl Collapser {
         if q.weight > 0.0 {
             self.max_err = self.max_err.max((q.error(p) / q.weight).sqrt());
         }
-        let vts = std::mem::take(&mut self.vt[iv]);
+        let vts = std::mem::take(&mut self.topo.vert_tris[iv]);
         for &t in &vts {
             let ti = t as usize;
-            if !self.tri_alive[ti] {
+            if !self.topo.tri_alive[ti] {
                 continue;
             }
-            if self.tris[ti].contains(&u) {
-                self.tri_alive[ti] = false;
+            if self.topo.tris[ti].contains(&u) {
+                self.topo.tri_alive[ti] = false;
                 self.live_tris -= 1;
             } else {
-                for x in &mut self.tris[ti] {
+                for x in &mut self.topo.tris[ti] {
                     if *x == v {
                         *x = u;
                     }
                 }
             }
         }
-        let mut merged = std::mem::take(&mut self.vt[iu]);
+        let mut merged = std::mem::take(&mut self.topo.vert_tris[iu]);
         merged.extend(vts);
-        merged.retain(|&t| self.tri_alive[t as usize]);
+        merged.retain(|&t| self.topo.tri_alive[t as usize]);
         merged.sort_unstable();
         merged.dedup();
-        self.vt[iu] = merged;
+        self.topo.vert_tris[iu] = merged;
         self.pos[iu] = p;
         self.quad[iu] = q;
         self.stamp[iu] = self.stamp[iu].wrapping_add(1);
         self.vertex_alive[iv] = false;
         self.collapses += 1;
-        for w in self.neighbours(u) {
+        for w in self.topo.neighbours(u) {
             let (a, b) = if u < w { (u, w) } else { (w, u) };
             self.push_edge(a, b);
         }
@@ -426,13 +400,12 @@ impl Collapser {
 
     /// Compacts live triangles and their vertices into a new mesh with the input's name and labels.
     fn into_mesh(self, original: &TriMesh) -> TriMesh {
-        let live = self
-            .tris
-            .iter()
-            .enumerate()
-            .filter(|&(i, _)| self.tri_alive[i])
-            .map(|(i, t)| (i, *t));
-        TriMesh::compacted(&original.name, &self.pos, live, &original.labels)
+        TriMesh::compacted(
+            &original.name,
+            &self.pos,
+            self.topo.live(),
+            &original.labels,
+        )
     }
 }
 

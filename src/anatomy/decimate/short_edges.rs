@@ -15,6 +15,7 @@
 
 use glam::DVec3;
 
+use super::topology::Topology;
 use crate::anatomy::TriMesh;
 
 /// Places a merged vertex on the surface (identity when `None`).
@@ -22,31 +23,11 @@ pub type Projector<'a> = Option<&'a (dyn Fn(DVec3) -> DVec3 + Sync)>;
 
 struct State {
     pos: Vec<DVec3>,
-    tris: Vec<[u32; 3]>,
-    tri_alive: Vec<bool>,
+    topo: Topology,
     vert_alive: Vec<bool>,
-    vert_tris: Vec<Vec<u32>>,
 }
 
 impl State {
-    fn incident(&self, v: u32) -> impl Iterator<Item = u32> + '_ {
-        self.vert_tris[v as usize]
-            .iter()
-            .copied()
-            .filter(|&t| self.tri_alive[t as usize])
-    }
-
-    fn neighbours(&self, v: u32) -> Vec<u32> {
-        let mut n: Vec<u32> = self
-            .incident(v)
-            .flat_map(|t| self.tris[t as usize])
-            .filter(|&w| w != v)
-            .collect();
-        n.sort_unstable();
-        n.dedup();
-        n
-    }
-
     fn normal(&self, t: [u32; 3], moved: (u32, DVec3)) -> DVec3 {
         let p = |v: u32| {
             if v == moved.0 {
@@ -61,20 +42,17 @@ impl State {
     /// Tries to collapse `b` into `a` at `target` (no new edge longer than `cap`); returns whether it
     /// happened.
     fn try_collapse(&mut self, a: u32, b: u32, project: Projector, cap2: f64) -> bool {
-        let shared: Vec<u32> = self
-            .incident(a)
-            .filter(|&t| self.tris[t as usize].contains(&b))
-            .collect();
+        let shared = self.topo.edge_triangles(a, b);
         if shared.len() != 2 {
             return false;
         }
-        let (na, nb) = (self.neighbours(a), self.neighbours(b));
+        let (na, nb) = (self.topo.neighbours(a), self.topo.neighbours(b));
         if na.len() <= 3 || nb.len() <= 3 {
             return false;
         }
         let mut opposite: Vec<u32> = shared
             .iter()
-            .flat_map(|&t| self.tris[t as usize])
+            .flat_map(|&t| self.topo.tris[t as usize])
             .filter(|&w| w != a && w != b)
             .collect();
         opposite.sort_unstable();
@@ -99,12 +77,13 @@ impl State {
             return false;
         }
         let around: Vec<u32> = self
+            .topo
             .incident(a)
-            .chain(self.incident(b))
+            .chain(self.topo.incident(b))
             .filter(|t| !shared.contains(t))
             .collect();
         for &t in &around {
-            let old = self.tris[t as usize];
+            let old = self.topo.tris[t as usize];
             let new = old.map(|v| if v == b { a } else { v });
             let n0 = self.normal(old, (u32::MAX, DVec3::ZERO));
             let n1 = self.normal(new, (a, target));
@@ -114,22 +93,22 @@ impl State {
             }
         }
         for &t in &shared {
-            self.tri_alive[t as usize] = false;
+            self.topo.tri_alive[t as usize] = false;
         }
-        let moved: Vec<u32> = self.incident(b).collect();
+        let moved: Vec<u32> = self.topo.incident(b).collect();
         for t in moved {
-            for v in &mut self.tris[t as usize] {
+            for v in &mut self.topo.tris[t as usize] {
                 if *v == b {
                     *v = a;
                 }
             }
-            self.vert_tris[a as usize].push(t);
+            self.topo.vert_tris[a as usize].push(t);
         }
         self.vert_alive[b as usize] = false;
-        self.vert_tris[b as usize].clear();
+        self.topo.vert_tris[b as usize].clear();
         self.pos[a as usize] = target;
-        let alive = &self.tri_alive;
-        self.vert_tris[a as usize].retain(|&t| alive[t as usize]);
+        let alive = &self.topo.tri_alive;
+        self.topo.vert_tris[a as usize].retain(|&t| alive[t as usize]);
         true
     }
 }
@@ -143,26 +122,17 @@ pub fn collapse_short_edges(
     passes: usize,
     project: Projector,
 ) -> TriMesh {
+    let n = mesh.vertices.len();
     let mut st = State {
         pos: mesh.vertices.clone(),
-        tris: mesh.triangles.clone(),
-        tri_alive: vec![true; mesh.triangles.len()],
-        vert_alive: vec![true; mesh.vertices.len()],
-        vert_tris: vec![Vec::new(); mesh.vertices.len()],
+        topo: Topology::new(mesh.triangles.clone(), vec![true; mesh.triangles.len()], n),
+        vert_alive: vec![true; n],
     };
-    for (i, t) in mesh.triangles.iter().enumerate() {
-        for &v in t {
-            st.vert_tris[v as usize].push(i as u32);
-        }
-    }
     let max2 = (0.8 * target_edge_mm).powi(2);
     let cap2 = (4.0 / 3.0 * target_edge_mm).powi(2);
     for _ in 0..passes {
         let mut edges: Vec<(f64, u32, u32)> = Vec::new();
-        for (i, t) in st.tris.iter().enumerate() {
-            if !st.tri_alive[i] {
-                continue;
-            }
+        for (_, t) in st.topo.live() {
             for k in 0..3 {
                 let (a, b) = (t[k], t[(k + 1) % 3]);
                 let l2 = (st.pos[a as usize] - st.pos[b as usize]).length_squared();
@@ -189,28 +159,7 @@ pub fn collapse_short_edges(
             break;
         }
     }
-    compact(mesh, &st)
-}
-
-fn compact(mesh: &TriMesh, st: &State) -> TriMesh {
-    let mut remap = vec![u32::MAX; st.pos.len()];
-    let mut out = TriMesh::new(mesh.name.clone(), Vec::new(), Vec::new());
-    for (i, t) in st.tris.iter().enumerate() {
-        if !st.tri_alive[i] {
-            continue;
-        }
-        out.triangles.push(t.map(|v| {
-            if remap[v as usize] == u32::MAX {
-                remap[v as usize] = out.vertices.len() as u32;
-                out.vertices.push(st.pos[v as usize]);
-            }
-            remap[v as usize]
-        }));
-        if let Some(&l) = mesh.labels.get(i) {
-            out.labels.push(l);
-        }
-    }
-    out
+    TriMesh::compacted(&mesh.name, &st.pos, st.topo.live(), &mesh.labels)
 }
 
 /// Newton projection onto the zero set of `f`: `p ← p − f(p) ∇f / ‖∇f‖²` (forward differences), at

@@ -1,0 +1,81 @@
+//! The one runner of the `spinedrr` binary shared by the test binaries (`mod common;` in each).
+//!
+//! `spinedrr(&args)` runs the binary and returns its `Output`; `run(&args)` returns whether it
+//! succeeded and its stderr. `Spinedrr` builds a command line of mixed arguments (strings and paths) or
+//! one that needs a working directory.
+
+// Each test binary compiles this module and uses a part of it.
+#![allow(dead_code)]
+
+use std::ffi::OsStr;
+use std::path::Path;
+use std::process::{Command, ExitStatus, Output};
+
+/// A `spinedrr` command line under construction.
+pub struct Spinedrr(Command);
+
+impl Spinedrr {
+    /// The binary cargo built for these tests, with no arguments yet.
+    pub fn new() -> Self {
+        Spinedrr(Command::new(env!("CARGO_BIN_EXE_spinedrr")))
+    }
+
+    /// Appends one argument.
+    pub fn arg(mut self, a: impl AsRef<OsStr>) -> Self {
+        self.0.arg(a);
+        self
+    }
+
+    /// Appends arguments.
+    pub fn args<S: AsRef<OsStr>>(mut self, args: impl IntoIterator<Item = S>) -> Self {
+        self.0.args(args);
+        self
+    }
+
+    /// Runs in `dir` instead of the test's working directory.
+    pub fn current_dir(mut self, dir: impl AsRef<Path>) -> Self {
+        self.0.current_dir(dir);
+        self
+    }
+
+    /// Runs to completion and returns the exit status with the captured stdout and stderr.
+    pub fn output(mut self) -> Output {
+        self.0.output().expect("running spinedrr")
+    }
+
+    /// Runs to completion with stdout and stderr passed through (a long run shows its progress).
+    pub fn status(mut self) -> ExitStatus {
+        self.0.status().expect("running spinedrr")
+    }
+
+    /// Runs and returns whether it succeeded, with its stderr.
+    pub fn outcome(self) -> (bool, String) {
+        outcome(&self.output())
+    }
+}
+
+impl Default for Spinedrr {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Runs `spinedrr ARGS` and returns its output.
+pub fn spinedrr<S: AsRef<OsStr>>(args: &[S]) -> Output {
+    Spinedrr::new().args(args).output()
+}
+
+/// Runs `spinedrr ARGS` and returns whether it succeeded, with its stderr.
+pub fn run<S: AsRef<OsStr>>(args: &[S]) -> (bool, String) {
+    outcome(&spinedrr(args))
+}
+
+/// The stderr of a run, as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Whether a run succeeded, with its stderr.
+pub fn outcome(o: &Output) -> (bool, String) {
+    (o.status.success(), stderr(o))
+}
