@@ -9,10 +9,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use serde_json::json;
-use spinedrr::analysis::{
-    MaskPair, abs_difference, compare, read_landmarks, read_mask_png, write_heatmap_png,
-};
-use spinedrr::io::{ImageF32, Sidecar, read_tiff_f32, sidecar_path, write_tiff_f32};
+use spinedrr::analysis::{MaskPair, abs_difference, compare, read_landmarks, read_mask_png};
+use spinedrr::io::{ImageF32, Sidecar, read_tiff_f32, sidecar_path, write_difference};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -162,25 +160,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let diff = abs_difference(&ra, &rb)?;
-    let mut sc = sb.clone();
-    sc.kind = "abs_difference".into();
-    sc.details
-        .insert("reference".into(), json!(a.reference.display().to_string()));
-    sc.details
-        .insert("perturbed".into(), json!(a.perturbed.display().to_string()));
-    for (file, kind) in [
-        ("absdiff.tiff", "abs_difference"),
-        ("heatmap.png", "heatmap"),
-    ] {
-        let path = a.out.join(file);
-        if file.ends_with(".tiff") {
-            write_tiff_f32(&path, &diff)?;
-        } else {
-            write_heatmap_png(&path, &diff)?;
-        }
-        sc.kind = kind.into();
-        sc.write(&sidecar_path(&path))?;
-    }
+    let inputs = json!({
+        "reference": a.reference.display().to_string(),
+        "perturbed": a.perturbed.display().to_string(),
+    });
+    write_difference(&a.out, &diff, &sb, &inputs)?;
     let metrics = json!({
         "reference": a.reference.display().to_string(),
         "perturbed": a.perturbed.display().to_string(),
