@@ -3,6 +3,8 @@
 //! into linear attenuation, `μ(HU) = μ_water · max(0, 1 + HU / 1000)`, used by the phantom's render scene
 //! and by the CT volume renderer.
 
+use std::ops::{Add, Div, Mul};
+
 use super::Tissue;
 
 /// Linear attenuation of water at the effective energy of a fluoroscope (~70 keV), mm⁻¹.
@@ -20,10 +22,17 @@ pub fn tissue_hu(t: Tissue) -> f64 {
 }
 
 /// Linear attenuation (mm⁻¹) of a voxel or tissue of CT number `hu`:
-/// `μ(HU) = μ_water · max(0, 1 + HU / 1000)` (air and below attenuate nothing).
+/// `μ(HU) = μ_water · max(0, 1 + HU / 1000)` (air and below, and NaN, attenuate nothing). Generic over the
+/// float type so that the f32 voxel grid of the CT renderer and the f64 tissue table evaluate the same law
+/// in their own precision.
 #[inline]
-pub fn mu_from_hu(hu: f64, mu_water_per_mm: f64) -> f64 {
-    mu_water_per_mm * (1.0 + hu / 1000.0).max(0.0)
+pub fn mu_from_hu<F>(hu: F, mu_water_per_mm: F) -> F
+where
+    F: Copy + PartialOrd + From<i16> + Add<Output = F> + Div<Output = F> + Mul<Output = F>,
+{
+    let relative = F::from(1) + hu / F::from(1000);
+    let zero = F::from(0);
+    mu_water_per_mm * if relative > zero { relative } else { zero }
 }
 
 /// Attenuation of a phantom tissue (mm⁻¹), `μ(tissue_hu(t))` with [`MU_WATER_PER_MM`].
@@ -42,5 +51,13 @@ mod tests {
         assert_eq!(mu_from_hu(-1000.0, MU_WATER_PER_MM), 0.0);
         assert_eq!(mu_from_hu(-3024.0, MU_WATER_PER_MM), 0.0);
         assert!((tissue_mu(Tissue::Cortical) - 2.2 * MU_WATER_PER_MM).abs() < 1e-15);
+        assert_eq!(mu_from_hu(f32::NAN, 0.02f32), 0.0);
+        // The f32 law rounds as the direct f32 expression does.
+        for hu in [-1024.0f32, -999.5, -3.0, 0.5, 40.0, 700.0, 1200.0, 3071.0] {
+            assert_eq!(
+                mu_from_hu(hu, 0.0193f32),
+                0.0193f32 * (1.0 + hu / 1000.0).max(0.0)
+            );
+        }
     }
 }

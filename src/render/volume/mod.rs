@@ -123,10 +123,11 @@ impl VolumeRenderer {
                 format!("{} must be a positive number (mm⁻¹)", opts.mu_water),
             ));
         }
+        let mu_water = opts.mu_water as f32;
         let mut mu: Vec<f32> = ct
             .values
             .par_iter()
-            .map(|&hu| mu_from_hu(f64::from(hu), opts.mu_water) as f32)
+            .map(|&hu| mu_from_hu(hu, mu_water))
             .collect();
         let (mut lo, mut hi) = ([0; 3], ct.dims.map(|n| n - 1));
         if let Some(m) = mask {
