@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde_json::json;
 use spinedrr::analysis::{MaskPair, abs_difference, compare, read_landmarks, read_mask_png};
-use spinedrr::io::{ImageF32, Sidecar, read_tiff_f32, sidecar_path, write_difference};
+use spinedrr::io::{ImageF32, Sidecar, read_with_sidecar, sidecar_path, write_difference};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -32,26 +32,7 @@ pub struct Args {
 }
 
 fn load(path: &Path) -> anyhow::Result<(ImageF32, Sidecar)> {
-    let img = read_tiff_f32(path).with_context(|| format!("reading {}", path.display()))?;
-    let sc_path = sidecar_path(path);
-    let sc = Sidecar::read(&sc_path).with_context(|| {
-        format!(
-            "reading the sidecar of {} ({})",
-            path.display(),
-            sc_path.display()
-        )
-    })?;
-    if (sc.width, sc.height) != (img.width, img.height) {
-        bail!(
-            "{}: sidecar says {}×{}, image is {}×{}",
-            sc_path.display(),
-            sc.width,
-            sc.height,
-            img.width,
-            img.height
-        );
-    }
-    Ok((img, sc))
+    read_with_sidecar(path).with_context(|| format!("reading {} and its sidecar", path.display()))
 }
 
 fn read_mask(path: &Path, size: (u32, u32)) -> anyhow::Result<Vec<bool>> {

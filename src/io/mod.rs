@@ -11,7 +11,7 @@ pub use atomic::{write_atomic, write_atomic_bytes};
 pub use heatmap::{format_label, heatmap_rgb, write_heatmap_png};
 pub use image::{ImageF32, read_tiff_f32, write_mask_png, write_preview_png, write_tiff_f32};
 pub use products::{
-    DrrValues, Silhouette, SilhouetteOf, sibling, write_depth, write_difference,
+    DrrValues, Silhouette, SilhouetteOf, read_with_sidecar, sibling, write_depth, write_difference,
     write_difference_heatmap, write_drr, write_masks,
 };
 pub use sidecar::{Sidecar, kind, sidecar_path, units};

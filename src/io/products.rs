@@ -1,4 +1,4 @@
-//! Every product the tool writes, each image with its sidecar (built by [`Sidecar`]): DRRs (float TIFF +
+//! Every product the tool writes (and reads back), each image with its sidecar (built by [`Sidecar`]): DRRs (float TIFF +
 //! sidecar + PNG preview), depth maps, silhouette masks, difference images and heatmaps. File names follow
 //! the output path as `spinedrr render` documents them: `OUT.tiff`, `OUT.json`, `OUT.png`,
 //! `OUT_depth.tiff`, `OUT_mask.png`, `OUT_mask_<object>.png`, `OUT_mask_<structure>.png`.
@@ -9,7 +9,7 @@ use serde::Serialize;
 use serde_json::json;
 
 use super::{
-    ImageF32, Sidecar, kind, sidecar_path, units, write_heatmap_png, write_mask_png,
+    ImageF32, Sidecar, kind, read_tiff_f32, sidecar_path, units, write_heatmap_png, write_mask_png,
     write_preview_png, write_tiff_f32,
 };
 use crate::geometry::{Perturbation, View};
@@ -89,6 +89,24 @@ pub fn write_drr(
     write_tiff_f32(out, &values.apply(line_integral))?;
     sidecar.write(&sidecar_path(out))?;
     write_preview_png(&out.with_extension("png"), line_integral, false)
+}
+
+/// Reads an image written with its sidecar (a DRR, or any float TIFF beside a `name.json`), checking
+/// that the two agree on the size.
+pub fn read_with_sidecar(path: &Path) -> Result<(ImageF32, Sidecar)> {
+    let img = read_tiff_f32(path)?;
+    let sc_path = sidecar_path(path);
+    let sc = Sidecar::read(&sc_path)?;
+    if (sc.width, sc.height) != (img.width, img.height) {
+        return Err(Error::format(
+            &sc_path,
+            format!(
+                "sidecar says {}×{}, image is {}×{}",
+                sc.width, sc.height, img.width, img.height
+            ),
+        ));
+    }
+    Ok((img, sc))
 }
 
 /// Writes the depth map of the DRR `out` as `OUT_depth.tiff` with its sidecar (kind `depth`, mm).
