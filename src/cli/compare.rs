@@ -8,9 +8,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use serde_json::json;
-use spinedrr::analysis::{MaskPair, abs_difference, compare, read_landmarks, read_mask_png};
-use spinedrr::io::{ImageF32, Sidecar, read_with_sidecar, sidecar_path, write_difference};
+use serde::Serialize;
+use spinedrr::analysis::{
+    Comparison, MaskPair, abs_difference, compare, read_landmarks, read_mask_png,
+};
+use spinedrr::io::{
+    ImageF32, Sidecar, read_with_sidecar, sidecar_path, write_difference, write_json,
+};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -95,6 +99,26 @@ fn conventional_masks(a: &Path, b: &Path) -> Vec<(String, PathBuf, PathBuf)> {
     out
 }
 
+/// The two images compared (also recorded in the difference images' sidecars).
+#[derive(Serialize)]
+struct Inputs {
+    reference: String,
+    perturbed: String,
+}
+
+/// `metrics.json`.
+#[derive(Serialize)]
+struct Metrics {
+    #[serde(flatten)]
+    inputs: Inputs,
+    view: String,
+    perturbation_reference: String,
+    perturbation: String,
+    /// `image`, `silhouettes` and `landmarks`.
+    #[serde(flatten)]
+    comparison: Comparison,
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     let (ra, sa) = load(&a.reference)?;
     let (rb, sb) = load(&a.perturbed)?;
@@ -141,23 +165,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let diff = abs_difference(&ra, &rb)?;
-    let inputs = json!({
-        "reference": a.reference.display().to_string(),
-        "perturbed": a.perturbed.display().to_string(),
-    });
+    let inputs = Inputs {
+        reference: a.reference.display().to_string(),
+        perturbed: a.perturbed.display().to_string(),
+    };
     write_difference(&a.out, &diff, &sb, &inputs)?;
-    let metrics = json!({
-        "reference": a.reference.display().to_string(),
-        "perturbed": a.perturbed.display().to_string(),
-        "view": sa.view,
-        "perturbation_reference": sa.perturbation_spec,
-        "perturbation": sb.perturbation_spec,
-        "image": result.image,
-        "silhouettes": result.silhouettes,
-        "landmarks": result.landmarks,
-    });
+    let metrics = Metrics {
+        inputs,
+        view: sa.view,
+        perturbation_reference: sa.perturbation_spec,
+        perturbation: sb.perturbation_spec,
+        comparison: result,
+    };
     let path = a.out.join("metrics.json");
-    spinedrr::io::write_atomic_bytes(&path, serde_json::to_string_pretty(&metrics)?.as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
+    // Through a JSON value: its keys come out sorted, as metrics.json has always had them.
+    let metrics = serde_json::to_value(&metrics).context("encoding metrics.json")?;
+    write_json(&path, &metrics).with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }

@@ -7,7 +7,7 @@ mod image;
 mod products;
 mod sidecar;
 
-pub use atomic::{write_atomic, write_atomic_bytes};
+pub use atomic::{write_atomic, write_atomic_bytes, write_json};
 pub use heatmap::{format_label, heatmap_rgb, write_heatmap_png};
 pub use image::{ImageF32, read_tiff_f32, write_mask_png, write_preview_png, write_tiff_f32};
 pub use products::{

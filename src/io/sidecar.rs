@@ -126,9 +126,7 @@ impl Sidecar {
 
     /// Writes the sidecar atomically as pretty JSON.
     pub fn write(&self, path: &Path) -> Result<()> {
-        let text = serde_json::to_string_pretty(self)
-            .map_err(|e| Error::encode("sidecar", e.to_string()))?;
-        super::write_atomic_bytes(path, text.as_bytes())
+        super::write_json(path, self)
     }
 
     /// Reads a sidecar.
