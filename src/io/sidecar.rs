@@ -161,4 +161,29 @@ mod tests {
         let v = back.rendered_view(&path).unwrap();
         assert_eq!(v, ap.perturbed(&p).unwrap());
     }
+
+    #[test]
+    fn details_merge_and_derived_keeps_geometry() {
+        let c = CArm::default_paper();
+        let lat = c.view("lat").unwrap();
+        let p = Perturbation::parse("df=100").unwrap();
+        let s = Sidecar::new(kind::DRR, units::LINE_INTEGRAL, lat, &p)
+            .unwrap()
+            .with_details(&serde_json::json!({ "a": 1, "b": "x" }))
+            .unwrap()
+            .with_details(&serde_json::json!({ "b": "y" }))
+            .unwrap();
+        assert_eq!(
+            (s.details["a"].as_i64(), s.details["b"].as_str()),
+            (Some(1), Some("y"))
+        );
+        let h = s.derived(kind::HEATMAP);
+        assert_eq!(h.kind, "heatmap");
+        assert_eq!(
+            (h.k, h.k_reference, h.units.as_str()),
+            (s.k, s.k_reference, units::LINE_INTEGRAL)
+        );
+        assert_eq!(h.k[0][0], lat.intrinsics.fx + 100.0);
+        assert!(s.with_details(&3).is_err());
+    }
 }
