@@ -55,8 +55,7 @@ fn bench_render(c: &mut Criterion) {
                 let s = r.render(view, &drr).expect("render").stats;
                 let (mut best, mut floor_ms) = (f64::INFINITY, f64::INFINITY);
                 for _ in 0..15 {
-                    floor_ms =
-                        floor_ms.min(renderers[0].1.first_hit_floor(&floor_scene, view, &drr).1);
+                    floor_ms = floor_ms.min(floor_scene.first_hit_floor(&scene, view, &drr).1);
                     best = best.min(r.render(view, &drr).expect("render").stats.render_ms);
                 }
                 let best_full =
@@ -83,7 +82,7 @@ fn bench_render(c: &mut Criterion) {
                 });
             }
             g.bench_function("embree_first_hit_floor", |b| {
-                b.iter(|| renderers[0].1.first_hit_floor(&floor_scene, view, &drr))
+                b.iter(|| floor_scene.first_hit_floor(&scene, view, &drr))
             });
             g.finish();
         }

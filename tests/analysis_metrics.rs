@@ -353,7 +353,16 @@ fn heatmap_png_and_landmark_json() {
         assert_eq!(*x, (y - z).abs());
     }
     let path = dir.path().join("h.png");
-    write_heatmap_png(&path, &d).unwrap();
+    let carm = CArm::default_paper();
+    let side = spinedrr::io::Sidecar::new(
+        "heatmap",
+        "test",
+        carm.view("ap").unwrap(),
+        &Perturbation::parse("none").unwrap(),
+    )
+    .unwrap();
+    spinedrr::io::write_heatmap_png(&path, &d, &side).unwrap();
+    assert!(dir.path().join("h.json").exists());
     let png = image::open(&path).unwrap().into_rgb8();
     assert_eq!(png.dimensions(), (64 + 130, 64));
     // The hottest pixel is viridis(1), the coldest viridis(0).
@@ -369,8 +378,8 @@ fn heatmap_png_and_landmark_json() {
         png.get_pixel((imax % 64) as u32, (imax / 64) as u32).0,
         [top.r, top.g, top.b]
     );
-    assert_eq!(format_label(0.1234), "0.123");
-    assert_eq!(format_label(2.5e-5), "2.50e-5");
+    assert_eq!(spinedrr::io::format_label(0.1234), "0.123");
+    assert_eq!(spinedrr::io::format_label(2.5e-5), "2.50e-5");
 
     let lms = parse_landmarks(
         r#"{"level": "L1", "landmarks": {"a": [1, 2, 3], "b": [0, 0, 1]}}"#,

@@ -1,11 +1,10 @@
 //! CT volume DRR: Siddon against analytic chords, trilinear against Siddon, the homography law, masks.
 
 use glam::{DMat3, DMat4, DVec2, DVec3};
+use spinedrr::anatomy::MU_WATER_PER_MM;
 use spinedrr::anatomy::ct::{CtVolume, LabelMap, Volume, VoxelMask};
 use spinedrr::geometry::{Intrinsics, Perturbation, Ray, RigidTransform, View, apply_homography};
-use spinedrr::render::volume::{
-    MU_WATER_70KEV, VolumeMethod, VolumeRenderOptions, VolumeRenderer, render_volume,
-};
+use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer, render_volume};
 
 /// A rotation (not axis aligned) and anisotropic spacings: the world box is an oblique cuboid.
 fn oblique() -> (DMat3, DVec3, DVec3) {
@@ -38,7 +37,7 @@ fn chord(ray: &Ray, rot: DMat3, origin: DVec3, lo: DVec3, hi: DVec3) -> f64 {
 }
 
 fn mu(hu: f64) -> f64 {
-    MU_WATER_70KEV * (1.0 + hu / 1000.0).max(0.0)
+    MU_WATER_PER_MM * (1.0 + hu / 1000.0).max(0.0)
 }
 
 /// Deterministic pseudo-random numbers in [0, 1) (a 64-bit LCG), so the test needs no rng crate.

@@ -1,14 +1,14 @@
 //! Projection-domain metrics between a reference and a perturbed projection: landmark shifts (with the
 //! homography prediction), silhouette contours (OpenCV `findContours`), Chamfer / Hausdorff / HD95 /
 //! edge-based contour distances, Dice and IoU, NCC / SSIM / mutual information / gradient correlation,
-//! and absolute-difference heatmaps.
+//! and absolute differences (written as heatmaps by `io`).
 //!
 //! Every function is pure (no global state, no printing), so a study can call them in parallel.
 
 mod compare;
 mod contours;
+mod difference;
 mod distances;
-mod heatmap;
 mod landmarks;
 mod overlap;
 mod similarity;
@@ -18,8 +18,8 @@ pub use compare::{
     read_mask_png, silhouette_metrics, union_masks,
 };
 pub use contours::{border_pixels, contour_points, contours, subpixel_boundary};
+pub use difference::abs_difference;
 pub use distances::{ContourDistances, directed_distances, edge_distance, percentile};
-pub use heatmap::{abs_difference, format_label, heatmap_rgb, write_heatmap_png};
 pub use landmarks::{
     Landmark, LandmarkShift, blob_centroid, landmark_shifts, parse_landmarks, read_landmarks,
 };

@@ -8,11 +8,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use serde_json::json;
+use serde::Serialize;
 use spinedrr::analysis::{
-    MaskPair, abs_difference, compare, read_landmarks, read_mask_png, write_heatmap_png,
+    Comparison, MaskPair, abs_difference, compare, read_landmarks, read_mask_png,
 };
-use spinedrr::io::{ImageF32, Sidecar, read_tiff_f32, sidecar_path, write_tiff_f32};
+use spinedrr::io::{
+    ImageF32, Sidecar, read_with_sidecar, sidecar_path, write_difference, write_json,
+};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -34,26 +36,7 @@ pub struct Args {
 }
 
 fn load(path: &Path) -> anyhow::Result<(ImageF32, Sidecar)> {
-    let img = read_tiff_f32(path).with_context(|| format!("reading {}", path.display()))?;
-    let sc_path = sidecar_path(path);
-    let sc = Sidecar::read(&sc_path).with_context(|| {
-        format!(
-            "reading the sidecar of {} ({})",
-            path.display(),
-            sc_path.display()
-        )
-    })?;
-    if (sc.width, sc.height) != (img.width, img.height) {
-        bail!(
-            "{}: sidecar says {}×{}, image is {}×{}",
-            sc_path.display(),
-            sc.width,
-            sc.height,
-            img.width,
-            img.height
-        );
-    }
-    Ok((img, sc))
+    read_with_sidecar(path).with_context(|| format!("reading {} and its sidecar", path.display()))
 }
 
 fn read_mask(path: &Path, size: (u32, u32)) -> anyhow::Result<Vec<bool>> {
@@ -116,6 +99,26 @@ fn conventional_masks(a: &Path, b: &Path) -> Vec<(String, PathBuf, PathBuf)> {
     out
 }
 
+/// The two images compared (also recorded in the difference images' sidecars).
+#[derive(Serialize)]
+struct Inputs {
+    reference: String,
+    perturbed: String,
+}
+
+/// `metrics.json`.
+#[derive(Serialize)]
+struct Metrics {
+    #[serde(flatten)]
+    inputs: Inputs,
+    view: String,
+    perturbation_reference: String,
+    perturbation: String,
+    /// `image`, `silhouettes` and `landmarks`.
+    #[serde(flatten)]
+    comparison: Comparison,
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     let (ra, sa) = load(&a.reference)?;
     let (rb, sb) = load(&a.perturbed)?;
@@ -162,37 +165,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let diff = abs_difference(&ra, &rb)?;
-    let mut sc = sb.clone();
-    sc.kind = "abs_difference".into();
-    sc.details
-        .insert("reference".into(), json!(a.reference.display().to_string()));
-    sc.details
-        .insert("perturbed".into(), json!(a.perturbed.display().to_string()));
-    for (file, kind) in [
-        ("absdiff.tiff", "abs_difference"),
-        ("heatmap.png", "heatmap"),
-    ] {
-        let path = a.out.join(file);
-        if file.ends_with(".tiff") {
-            write_tiff_f32(&path, &diff)?;
-        } else {
-            write_heatmap_png(&path, &diff)?;
-        }
-        sc.kind = kind.into();
-        sc.write(&sidecar_path(&path))?;
-    }
-    let metrics = json!({
-        "reference": a.reference.display().to_string(),
-        "perturbed": a.perturbed.display().to_string(),
-        "view": sa.view,
-        "perturbation_reference": sa.perturbation_spec,
-        "perturbation": sb.perturbation_spec,
-        "image": result.image,
-        "silhouettes": result.silhouettes,
-        "landmarks": result.landmarks,
-    });
+    let inputs = Inputs {
+        reference: a.reference.display().to_string(),
+        perturbed: a.perturbed.display().to_string(),
+    };
+    write_difference(&a.out, &diff, &sb, &inputs)?;
+    let metrics = Metrics {
+        inputs,
+        view: sa.view,
+        perturbation_reference: sa.perturbation_spec,
+        perturbation: sb.perturbation_spec,
+        comparison: result,
+    };
     let path = a.out.join("metrics.json");
-    spinedrr::io::write_atomic_bytes(&path, serde_json::to_string_pretty(&metrics)?.as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
+    // Through a JSON value: its keys come out sorted, as metrics.json has always had them.
+    let metrics = serde_json::to_value(&metrics).context("encoding metrics.json")?;
+    write_json(&path, &metrics).with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }

@@ -5,9 +5,9 @@ use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use serde_json::json;
-use spinedrr::anatomy::{PhantomOptions, Structure, build_phantom, parse_levels, read_mesh};
-use spinedrr::geometry::{CArm, Perturbation, View};
-use spinedrr::io::{ImageF32, Sidecar, write_mask_png, write_preview_png, write_tiff_f32};
+use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
+use spinedrr::geometry::{CArm, Perturbation};
+use spinedrr::io::{DrrValues, write_depth, write_drr, write_masks};
 use spinedrr::render::{
     Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, phantom_scene,
 };
@@ -55,7 +55,7 @@ pub struct Args {
     /// Write the first-hit depth map.
     #[arg(long)]
     depth: bool,
-    /// Write I0·exp(−line integral) instead of the line integral (a radiograph look).
+    /// Write I0·exp(−line integral) instead of the line integral (a radiograph look), for meshes and CT.
     #[arg(long, value_name = "I0")]
     intensity: Option<f64>,
     /// Render N times and print timing statistics as one JSON line on stderr.
@@ -81,16 +81,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let rendered = view
         .perturbed(&perturbation)
         .context("applying the perturbation")?;
-    if let Some(i0) = a.intensity
-        && !(i0.is_finite() && i0 > 0.0)
-    {
-        bail!("invalid --intensity {i0}: I0 must be a positive number");
-    }
+    let values = DrrValues::new(a.intensity).context("--intensity")?;
     if a.repeat == 0 {
         bail!("invalid --repeat 0: render at least once");
     }
     if a.ct.ct.is_some() {
-        return super::render_ct::run_ct(&a.ct, &view, &perturbation, &a.out);
+        return super::render_ct::run_ct(&a.ct, &view, &perturbation, values, &a.out);
     }
 
     let (scene, anatomy) = build_scene(&a)?;
@@ -123,63 +119,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         eprintln!("{}", timing_json(&a, &renderer, &drr, &mut times));
     }
 
-    let mut sidecar = Sidecar::new(
-        "drr",
-        if a.intensity.is_some() {
-            "intensity I0·exp(−∫μ dl)"
-        } else {
-            "line integral ∫μ dl (μ in 1/mm)"
-        },
+    let details = renderer.details(drr.stats, anatomy);
+    write_drr(
+        &a.out,
+        &drr.line_integral,
+        values,
         &view,
         &perturbation,
+        &details,
     )?;
-    sidecar
-        .details
-        .insert("renderer".into(), json!("thickness"));
-    sidecar
-        .details
-        .insert("backend".into(), json!(renderer.backend_name()));
-    sidecar.details.insert("anatomy".into(), anatomy);
-    sidecar
-        .details
-        .insert("stats".into(), serde_json::to_value(drr.stats)?);
-    if let Some(i0) = a.intensity {
-        sidecar.details.insert("I0".into(), json!(i0));
-    }
-    let image = match a.intensity {
-        Some(i0) => ImageF32 {
-            data: drr
-                .line_integral
-                .data
-                .iter()
-                .map(|&l| (i0 * (-f64::from(l)).exp()) as f32)
-                .collect(),
-            ..drr.line_integral.clone()
-        },
-        None => drr.line_integral.clone(),
-    };
-    write_tiff_f32(&a.out, &image)?;
-    sidecar.write(&a.out.with_extension("json"))?;
-    write_preview_png(&a.out.with_extension("png"), &drr.line_integral, false)?;
     if a.masks {
-        write_masks(&a.out, &drr, &view, &perturbation)?;
+        write_masks(&a.out, &drr.silhouettes()?, &view, &perturbation)?;
     }
     if a.depth {
-        let p = sibling(&a.out, "depth", "tiff");
-        write_tiff_f32(&p, drr.depth()?)?;
-        Sidecar::new(
-            "depth",
-            "camera z of the first surface, mm (0 = no surface)",
-            &view,
-            &perturbation,
-        )?
-        .write(&p.with_extension("json"))?;
+        write_depth(&a.out, drr.depth()?, &view, &perturbation)?;
     }
     eprintln!(
         "{}: {} × {} {} DRR, view {}, perturbation {}, {:.1} ms ({} rays traced, {} culled)",
         a.out.display(),
-        image.width,
-        image.height,
+        drr.line_integral.width,
+        drr.line_integral.height,
         renderer.backend_name(),
         view.name,
         perturbation,
@@ -205,7 +164,7 @@ fn check_out_path(out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The scene and a JSON description of it for the sidecar.
+/// The scene and a JSON description of it for the sidecar (`details.anatomy`).
 fn build_scene(a: &Args) -> anyhow::Result<(RenderScene, serde_json::Value)> {
     if let Some(spec) = &a.phantom {
         let opts = PhantomOptions {
@@ -261,52 +220,6 @@ fn split_mesh_spec(spec: &str, default_mu: f64) -> anyhow::Result<(PathBuf, f64)
         return Ok((PathBuf::from(path), mu));
     }
     Ok((PathBuf::from(spec), default_mu))
-}
-
-/// `OUT_<suffix>.<ext>` beside OUT.
-fn sibling(out: &Path, suffix: &str, ext: &str) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    out.with_file_name(format!("{stem}_{suffix}.{ext}"))
-}
-
-fn write_masks(
-    out: &Path,
-    drr: &ThicknessDrr,
-    view: &View,
-    p: &Perturbation,
-) -> anyhow::Result<()> {
-    let (w, h) = (drr.line_integral.width, drr.line_integral.height);
-    let write = |suffix: String, mask: Vec<bool>, what: serde_json::Value| -> anyhow::Result<()> {
-        let path = sibling(out, &suffix, "png");
-        write_mask_png(&path, w, h, &mask)?;
-        let mut s = Sidecar::new("mask", "silhouette: 255 inside, 0 outside", view, p)?;
-        s.details.insert("silhouette_of".into(), what);
-        s.write(&path.with_extension("json"))?;
-        Ok(())
-    };
-    let masks = drr.masks()?;
-    write("mask".into(), masks.union(), json!("all objects"))?;
-    for (i, name) in drr.objects.iter().enumerate() {
-        write(
-            format!("mask_{name}"),
-            masks.object(i),
-            json!({"object": name}),
-        )?;
-    }
-    for s in Structure::ALL {
-        let mask = masks.structure(s);
-        if s != Structure::Unlabelled && mask.iter().any(|&m| m) {
-            write(
-                format!("mask_{}", s.name()),
-                mask,
-                json!({"structure": s.name()}),
-            )?;
-        }
-    }
-    Ok(())
 }
 
 fn timing_json(

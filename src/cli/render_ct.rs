@@ -3,11 +3,14 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use spinedrr::anatomy::ct::{VoxelMask, read_ct, read_labels};
+use spinedrr::anatomy::MU_WATER_PER_MM;
+use spinedrr::anatomy::ct::{read_ct, read_labels};
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::geometry::{Perturbation, View};
-use spinedrr::io::{Sidecar, sidecar_path, write_preview_png, write_tiff_f32};
-use spinedrr::render::volume::{MU_WATER_70KEV, VolumeMethod, VolumeRenderOptions, VolumeRenderer};
+use spinedrr::io::{DrrValues, write_drr};
+use spinedrr::render::volume::{
+    VolumeDetails, VolumeMethod, VolumeRenderOptions, VolumeRenderer, select_voxels,
+};
 
 /// Flags of a CT volume DRR.
 #[derive(clap::Args, Debug, Clone)]
@@ -31,19 +34,20 @@ pub struct CtArgs {
     #[arg(long, default_value = "siddon")]
     pub method: String,
     /// μ of water (mm⁻¹) in μ(HU) = μ_water · max(0, 1 + HU/1000).
-    #[arg(long, default_value_t = MU_WATER_70KEV)]
+    #[arg(long, default_value_t = MU_WATER_PER_MM)]
     pub mu_water: f64,
     /// Trilinear step (mm), capped at half the smallest voxel spacing.
     #[arg(long)]
     pub step_mm: Option<f64>,
 }
 
-/// Renders the CT DRR of `view` under `perturbation` to `out` (float32 TIFF), with its JSON sidecar
-/// and an 8-bit PNG preview beside it.
+/// Renders the CT DRR of `view` under `perturbation` to `out` (float32 TIFF of `values`), with its JSON
+/// sidecar and an 8-bit PNG preview beside it.
 pub fn run_ct(
     a: &CtArgs,
     view: &View,
     perturbation: &Perturbation,
+    values: DrrValues,
     out: &Path,
 ) -> anyhow::Result<()> {
     let Some(ct_path) = &a.ct else {
@@ -52,30 +56,26 @@ pub fn run_ct(
     let method: VolumeMethod = a.method.parse()?;
     let convention: LabelConvention = a.labels.parse()?;
     let ct = read_ct(ct_path).with_context(|| format!("reading CT {}", ct_path.display()))?;
-    let mut mask = None;
-    if let (Some(seg_path), Some(spec)) = (&a.seg, &a.label) {
-        let id = convention.resolve(spec)?;
-        let seg = read_labels(seg_path)
-            .with_context(|| format!("reading segmentation {}", seg_path.display()))?;
-        if !ct.same_grid(&seg) {
-            bail!(
-                "segmentation {} is not on the CT's grid (dims {:?} vs {:?}, or a different affine)",
-                seg_path.display(),
-                seg.dims,
-                ct.dims
-            );
+    let label = match (&a.seg, &a.label) {
+        (Some(seg_path), Some(spec)) => {
+            let id = convention.resolve(spec)?;
+            let seg = read_labels(seg_path)
+                .with_context(|| format!("reading segmentation {}", seg_path.display()))?;
+            Some((seg_path, spec, seg, id))
         }
-        let m = VoxelMask::from_labels(&seg, &[id])
-            .with_context(|| format!("label {spec} (id {id}) in {}", seg_path.display()))?;
-        mask = Some(m);
-    }
-    if let Some(hu) = a.bone_hu {
-        let bone = VoxelMask::from_threshold(&ct, hu)?;
-        mask = Some(match mask {
-            Some(m) => intersect(&ct, &m, &bone)?,
-            None => bone,
-        });
-    }
+        _ => None,
+    };
+    let mask = select_voxels(
+        &ct,
+        label.as_ref().map(|(_, _, seg, id)| (seg, *id)),
+        a.bone_hu,
+    )
+    .with_context(|| match &label {
+        Some((seg_path, spec, _, id)) => {
+            format!("label {spec} (id {id}) in {}", seg_path.display())
+        }
+        None => "--bone-hu".into(),
+    })?;
     let opts = VolumeRenderOptions {
         method,
         mu_water: a.mu_water,
@@ -83,27 +83,26 @@ pub fn run_ct(
     };
     let renderer = VolumeRenderer::new(&ct, &opts, mask.as_ref())?;
     let img = renderer.render(&view.perturbed(perturbation)?);
-    write_tiff_f32(out, &img).with_context(|| format!("writing {}", out.display()))?;
-    let mut side = Sidecar::new("drr", "line integral of mu (unitless)", view, perturbation)?;
-    let details = serde_json::json!({
-        "renderer": "ct-volume", "method": method.to_string(), "mu_water_per_mm": a.mu_water,
-        "step_mm": renderer.step_mm(), "ct": ct_path.display().to_string(),
-        "seg": a.seg.as_ref().map(|p| p.display().to_string()), "label": a.label,
-        "labels": convention.to_string(), "bone_hu": a.bone_hu,
-    });
-    if let serde_json::Value::Object(map) = details {
-        side.details = map;
-    }
-    side.write(&sidecar_path(out))?;
-    write_preview_png(&out.with_extension("png"), &img, false)?;
-    Ok(())
+    let inputs = CtInputs {
+        ct: ct_path.display().to_string(),
+        seg: a.seg.as_ref().map(|p| p.display().to_string()),
+        label: a.label.clone(),
+        labels: convention.to_string(),
+        bone_hu: a.bone_hu,
+        render: renderer.details(),
+    };
+    write_drr(out, &img, values, view, perturbation, &inputs)
+        .with_context(|| format!("writing {}", out.display()))
 }
 
-fn intersect(
-    ct: &spinedrr::anatomy::ct::CtVolume,
-    a: &VoxelMask,
-    b: &VoxelMask,
-) -> anyhow::Result<VoxelMask> {
-    let keep = a.keep.iter().zip(&b.keep).map(|(x, y)| *x && *y).collect();
-    VoxelMask::from_keep(ct, keep).context("no voxel of the label reaches the --bone-hu threshold")
+/// The CT render's sidecar `details`: the inputs as given, and the renderer's record.
+#[derive(serde::Serialize)]
+struct CtInputs {
+    ct: String,
+    seg: Option<String>,
+    label: Option<String>,
+    labels: String,
+    bone_hu: Option<f32>,
+    #[serde(flatten)]
+    render: VolumeDetails,
 }

@@ -37,6 +37,13 @@ where
     result
 }
 
+/// Writes `value` to `path` atomically as pretty-printed JSON.
+pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+    let text = serde_json::to_string_pretty(value)
+        .map_err(|e| Error::encode(path.display().to_string(), e))?;
+    write_atomic_bytes(path, text.as_bytes())
+}
+
 /// Writes `bytes` to `path` atomically.
 pub fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic(path, |w| w.write_all(bytes).map_err(|e| Error::io(path, e)))

@@ -1,4 +1,7 @@
-//! The JSON sidecar written beside every image (`name.json` for `name.tiff` / `name.png`).
+//! The JSON sidecar written beside every image (`name.json` for `name.tiff` / `name.png`): the one
+//! builder of every sidecar the tool writes ([`Sidecar::new`] for a rendered image, [`Sidecar::derived`]
+//! for an image computed from another, [`Sidecar::with_details`] for the producer's record), and the one
+//! spelling of each image kind ([`kind`]) and unit ([`units`]).
 
 use std::path::{Path, PathBuf};
 
@@ -6,6 +9,34 @@ use serde::{Deserialize, Serialize};
 
 use crate::geometry::{Perturbation, View};
 use crate::{Error, Result};
+
+/// What an image's pixels are (the sidecar's `kind`).
+pub mod kind {
+    /// A DRR: line integral or intensity.
+    pub const DRR: &str = "drr";
+    /// A silhouette mask.
+    pub const MASK: &str = "mask";
+    /// A first-hit depth map.
+    pub const DEPTH: &str = "depth";
+    /// `|A − B|` of two DRRs, as a float image.
+    pub const ABS_DIFFERENCE: &str = "abs_difference";
+    /// A colour map of values (a difference) with a colour bar.
+    pub const HEATMAP: &str = "heatmap";
+}
+
+/// Units of pixel values (the sidecar's `units`), one spelling each.
+pub mod units {
+    /// The line integral of linear attenuation, unitless (μ in mm⁻¹ times mm).
+    pub const LINE_INTEGRAL: &str = "line integral ∫μ dl (μ in 1/mm)";
+    /// Transmitted intensity by the Beer–Lambert law.
+    pub const INTENSITY: &str = "intensity I0·exp(−∫μ dl)";
+    /// Camera depth of the first surface a ray enters.
+    pub const DEPTH_MM: &str = "camera z of the first surface, mm (0 = no surface)";
+    /// Silhouette pixels of a mask PNG.
+    pub const SILHOUETTE: &str = "silhouette: 255 inside, 0 outside";
+    /// Absolute difference of two line-integral DRRs.
+    pub const LINE_INTEGRAL_DIFFERENCE: &str = "|Δ line integral ∫μ dl| (μ in 1/mm)";
+}
 
 /// Everything needed to interpret an image geometrically.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -60,6 +91,30 @@ impl Sidecar {
         })
     }
 
+    /// A sidecar for an image computed from the image this sidecar describes (same geometry, units and
+    /// details), of another kind.
+    pub fn derived(&self, kind: &str) -> Self {
+        Sidecar {
+            kind: kind.into(),
+            ..self.clone()
+        }
+    }
+
+    /// Adds the fields of `details` (a struct or map serialising to a JSON object) to the sidecar's
+    /// `details`, replacing fields of the same name.
+    pub fn with_details(mut self, details: &impl Serialize) -> Result<Self> {
+        match serde_json::to_value(details) {
+            Ok(serde_json::Value::Object(map)) => {
+                self.details.extend(map);
+                Ok(self)
+            }
+            Ok(other) => Err(Error::Internal(format!(
+                "sidecar details must be a JSON object, not {other}"
+            ))),
+            Err(e) => Err(Error::encode("sidecar details", e.to_string())),
+        }
+    }
+
     /// The view the image was rendered with (perturbed intrinsics), checked for validity.
     pub fn rendered_view(&self, path: &Path) -> Result<View> {
         let k = crate::geometry::Intrinsics::from_matrix(self.k, self.width, self.height)
@@ -71,9 +126,7 @@ impl Sidecar {
 
     /// Writes the sidecar atomically as pretty JSON.
     pub fn write(&self, path: &Path) -> Result<()> {
-        let text =
-            serde_json::to_string_pretty(self).map_err(|e| Error::format(path, e.to_string()))?;
-        super::write_atomic_bytes(path, text.as_bytes())
+        super::write_json(path, self)
     }
 
     /// Reads a sidecar.
@@ -107,5 +160,30 @@ mod tests {
         assert_eq!(back, s);
         let v = back.rendered_view(&path).unwrap();
         assert_eq!(v, ap.perturbed(&p).unwrap());
+    }
+
+    #[test]
+    fn details_merge_and_derived_keeps_geometry() {
+        let c = CArm::default_paper();
+        let lat = c.view("lat").unwrap();
+        let p = Perturbation::parse("df=100").unwrap();
+        let s = Sidecar::new(kind::DRR, units::LINE_INTEGRAL, lat, &p)
+            .unwrap()
+            .with_details(&serde_json::json!({ "a": 1, "b": "x" }))
+            .unwrap()
+            .with_details(&serde_json::json!({ "b": "y" }))
+            .unwrap();
+        assert_eq!(
+            (s.details["a"].as_i64(), s.details["b"].as_str()),
+            (Some(1), Some("y"))
+        );
+        let h = s.derived(kind::HEATMAP);
+        assert_eq!(h.kind, "heatmap");
+        assert_eq!(
+            (h.k, h.k_reference, h.units.as_str()),
+            (s.k, s.k_reference, units::LINE_INTEGRAL)
+        );
+        assert_eq!(h.k[0][0], lat.intrinsics.fx + 100.0);
+        assert!(s.with_details(&3).is_err());
     }
 }

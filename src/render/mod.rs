@@ -1,10 +1,12 @@
 //! Rendering: thickness DRRs of triangle meshes (Embree, the raster or the pure-Rust BVH) and CT volume
 //! DRRs.
 //!
-//! `scene` owns what is rendered (meshes, μ, objects), `tracer` the ray-tracing backend interface, `embree`
-//! and `bvh` the two ray tracers, `raster` the rasteriser of primary rays, `pairing` how a ray's hits become
-//! a path length, `thickness` the image loop, `volume` the CT renderer (Siddon and trilinear).
+//! `scene` owns what is rendered (meshes, μ, objects), `backend` which backend finds the rays' hits,
+//! `tracer` the ray-tracing backend interface, `embree` and `bvh` the two ray tracers, `raster` the
+//! rasteriser of primary rays, `pairing` how a ray's hits become a path length, `thickness` the image loop,
+//! `phantom_scene` the phantom's meshes with μ from HU, `volume` the CT renderer (Siddon and trilinear).
 
+mod backend;
 pub mod bvh;
 pub mod embree;
 mod pairing;
@@ -15,37 +17,12 @@ mod thickness;
 mod tracer;
 pub mod volume;
 
-pub use phantom_scene::{MU_WATER_PER_MM, mu_from_hu, phantom_scene, tissue_mu};
+/// μ of a phantom tissue, for the study's mesh targets (defined with μ(HU) in [`crate::anatomy`]).
+pub use crate::anatomy::tissue_mu;
+pub use backend::Backend;
+pub use phantom_scene::phantom_scene;
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh};
-pub use thickness::{RenderStats, TILE, ThicknessDrr, ThicknessOptions, ThicknessRenderer};
+pub use thickness::{
+    Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions, ThicknessRenderer,
+};
 pub use tracer::{HitTracer, PACKET, RawHit, RayPacket};
-
-use crate::Result;
-
-/// The ray-tracing backend of a thickness render.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
-)]
-#[serde(rename_all = "lowercase")]
-pub enum Backend {
-    /// Intel Embree (system library), all hits gathered in one traversal.
-    Embree,
-    /// The pure-Rust f64 BVH with a watertight triangle test (reference).
-    Bvh,
-    /// Rasterised primary rays (all rays leave the source): exact edge functions, no acceleration
-    /// structure; the fastest for DRRs. A view with a vertex at or behind the source plane is traced
-    /// with Embree instead.
-    Raster,
-}
-
-impl Backend {
-    /// Builds a renderer for `scene` with this backend.
-    pub fn renderer(self, scene: RenderScene) -> Result<ThicknessRenderer> {
-        let tracer: Box<dyn HitTracer> = match self {
-            Backend::Embree => Box::new(embree::EmbreeTracer::new(&scene)?),
-            Backend::Bvh => Box::new(bvh::BvhTracer::new(&scene)),
-            Backend::Raster => return Ok(ThicknessRenderer::raster(scene)),
-        };
-        Ok(ThicknessRenderer::new(scene, tracer))
-    }
-}

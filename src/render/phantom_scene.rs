@@ -1,26 +1,14 @@
 //! The phantom as a render scene: attenuation from Hounsfield units, nested surfaces as differential μ.
 //!
-//! `μ(HU) = μ_water · max(0, 1 + HU / 1000)` (the same law the CT renderer uses), so a thickness DRR of the
-//! phantom and a volume DRR of its synthetic CT integrate the same attenuation.
+//! μ comes from [`crate::anatomy::tissue_mu`], `μ(HU) = μ_water · max(0, 1 + HU / 1000)`, the law the CT
+//! renderer uses, so a thickness DRR of the phantom and a volume DRR of its synthetic CT integrate the same
+//! attenuation.
 
 use std::sync::Arc;
 
 use super::{RenderScene, SceneMesh};
 use crate::Result;
-use crate::anatomy::{Phantom, Tissue, tissue_hu};
-
-/// Linear attenuation of water at the effective energy of a fluoroscope (~70 keV), mm⁻¹.
-pub const MU_WATER_PER_MM: f64 = 0.0193;
-
-/// `μ_water · max(0, 1 + HU / 1000)`.
-pub fn mu_from_hu(hu: f64, mu_water_per_mm: f64) -> f64 {
-    mu_water_per_mm * (1.0 + hu / 1000.0).max(0.0)
-}
-
-/// Attenuation of a phantom tissue (mm⁻¹).
-pub fn tissue_mu(t: Tissue) -> f64 {
-    mu_from_hu(tissue_hu(t), MU_WATER_PER_MM)
-}
+use crate::anatomy::{Phantom, Tissue, tissue_mu};
 
 /// The phantom's meshes with their μ: per vertebra the cortical surface (object = level name) and the
 /// cancellous surface inside it with `μ_cancellous − μ_cortical`; discs (object `discs`); the soft-tissue

@@ -4,6 +4,8 @@
 //! committed Embree scene is immutable and Embree documents concurrent queries on it as thread-safe, which
 //! is why the types are `Send + Sync` (stated once, below).
 
+mod floor;
+
 use std::mem::MaybeUninit;
 use std::sync::OnceLock;
 use std::time::Instant;

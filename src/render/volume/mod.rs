@@ -1,5 +1,6 @@
 //! CT volume DRRs: the line integral of the linear attenuation coefficient through a CT,
-//! `∫ μ(HU(x)) dl` with `μ(HU) = μ_water · max(0, 1 + HU / 1000)` (mm⁻¹; the output is unitless).
+//! `∫ μ(HU(x)) dl` with `μ(HU) = μ_water · max(0, 1 + HU / 1000)` ([`mu_from_hu`], mm⁻¹; the output is
+//! unitless).
 //!
 //! Two ray integrators over the same μ voxel grid:
 //! * [`VolumeMethod::Siddon`]: exact for the piecewise-constant voxel model (Siddon 1985, in Jacobs et al.
@@ -12,6 +13,7 @@
 //! volume's box (or a mask's bounding box) in continuous voxel-index space via the inverse affine; the ray
 //! parameter stays in world millimetres because the index map is affine.
 
+mod select;
 pub mod siddon;
 pub mod trilinear;
 
@@ -20,14 +22,15 @@ use std::str::FromStr;
 
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
+use serde::Serialize;
+
+pub use self::select::select_voxels;
 
 pub use crate::anatomy::ct::{CtVolume, VoxelMask};
+use crate::anatomy::{MU_WATER_PER_MM, mu_from_hu};
 use crate::geometry::{Ray, View};
 use crate::io::ImageF32;
 use crate::{Error, Result};
-
-/// μ of water at ~70 keV (mm⁻¹); the same constant as the thickness renderer's.
-pub const MU_WATER_70KEV: f64 = super::MU_WATER_PER_MM;
 
 /// How a ray's line integral is evaluated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -76,7 +79,7 @@ impl Default for VolumeRenderOptions {
     fn default() -> Self {
         VolumeRenderOptions {
             method: VolumeMethod::Siddon,
-            mu_water: MU_WATER_70KEV,
+            mu_water: MU_WATER_PER_MM,
             step_mm: None,
         }
     }
@@ -92,7 +95,19 @@ pub struct VolumeRenderer {
     pub(crate) lo: [usize; 3],
     pub(crate) hi: [usize; 3],
     method: VolumeMethod,
+    mu_water: f64,
     step_mm: f64,
+}
+
+/// What a CT DRR's sidecar records about its making (`details`).
+#[derive(Debug, Clone, Serialize)]
+pub struct VolumeDetails {
+    /// `ct-volume`.
+    pub renderer: &'static str,
+    pub method: String,
+    pub mu_water_per_mm: f64,
+    /// The trilinear step used (mm).
+    pub step_mm: f64,
 }
 
 impl VolumeRenderer {
@@ -108,11 +123,11 @@ impl VolumeRenderer {
                 format!("{} must be a positive number (mm⁻¹)", opts.mu_water),
             ));
         }
-        let mu_w = opts.mu_water as f32;
+        let mu_water = opts.mu_water as f32;
         let mut mu: Vec<f32> = ct
             .values
             .par_iter()
-            .map(|&hu| mu_w * (1.0 + hu / 1000.0).max(0.0))
+            .map(|&hu| mu_from_hu(hu, mu_water))
             .collect();
         let (mut lo, mut hi) = ([0; 3], ct.dims.map(|n| n - 1));
         if let Some(m) = mask {
@@ -153,6 +168,7 @@ impl VolumeRenderer {
             lo,
             hi,
             method: opts.method,
+            mu_water: opts.mu_water,
             step_mm,
         })
     }
@@ -160,6 +176,16 @@ impl VolumeRenderer {
     /// The trilinear step actually used (mm).
     pub fn step_mm(&self) -> f64 {
         self.step_mm
+    }
+
+    /// The sidecar record of this renderer.
+    pub fn details(&self) -> VolumeDetails {
+        VolumeDetails {
+            renderer: "ct-volume",
+            method: self.method.to_string(),
+            mu_water_per_mm: self.mu_water,
+            step_mm: self.step_mm,
+        }
     }
 
     /// The ray in index space: origin `p0` and per-mm direction `dp` (`p(t) = p0 + t·dp`, t in mm).

@@ -168,6 +168,7 @@ mod tests {
             lo: [0, 0, 0],
             hi: dims.map(|d| d - 1),
             method: VolumeMethod::Siddon,
+            mu_water: 1.0,
             step_mm: 0.5,
         };
         let mut checked = 0;

@@ -7,9 +7,7 @@
 
 use super::{Context, Reference, Target};
 use crate::Result;
-use crate::analysis::{
-    MaskPair, abs_difference, blob_centroid, image_metrics, silhouette_metrics, write_heatmap_png,
-};
+use crate::analysis::{MaskPair, abs_difference, blob_centroid, image_metrics, silhouette_metrics};
 use crate::anatomy::Structure;
 use crate::geometry::{View, apply_homography};
 use crate::io::ImageF32;
@@ -61,7 +59,8 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
                     "heatmap_{}_{}_df{}.png",
                     t.name, view.name, q.df_px
                 ));
-                write_heatmap_png(&path, &diff)?;
+                let details = serde_json::json!({ "target": t.name });
+                crate::io::write_difference_heatmap(&path, &diff, view, q, &details)?;
             }
             Ok(())
         })?;

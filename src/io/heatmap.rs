@@ -1,35 +1,12 @@
-//! Absolute-difference heatmaps: `|A − B|` as a float image, and as a colour PNG (viridis, a
-//! perceptually uniform map) with a colour bar labelled with its minimum and maximum.
+//! Heatmap PNGs: a float image through viridis (a perceptually uniform colour map) with a colour bar
+//! labelled with its minimum and maximum, written with its sidecar.
 
 use std::path::Path;
 
 use image::{Rgb, RgbImage};
 
-use crate::io::{ImageF32, write_atomic};
+use super::{ImageF32, Sidecar, kind, sidecar_path, write_atomic};
 use crate::{Error, Result};
-
-/// `|a − b|` per pixel.
-pub fn abs_difference(a: &ImageF32, b: &ImageF32) -> Result<ImageF32> {
-    if (a.width, a.height) != (b.width, b.height) {
-        return Err(Error::invalid(
-            "images",
-            format!(
-                "sizes differ: {}×{} vs {}×{}",
-                a.width, a.height, b.width, b.height
-            ),
-        ));
-    }
-    Ok(ImageF32 {
-        width: a.width,
-        height: a.height,
-        data: a
-            .data
-            .iter()
-            .zip(&b.data)
-            .map(|(x, y)| (x - y).abs())
-            .collect(),
-    })
-}
 
 /// Width of the colour-bar panel right of the image (px).
 const PANEL_PX: u32 = 130;
@@ -89,6 +66,22 @@ pub fn format_label(v: f64) -> String {
     }
 }
 
+/// `[min, max]` of the finite values of `img` (`[0, 0]` when there are none): the colour bar's range.
+fn value_range(img: &ImageF32) -> (f64, f64) {
+    let (lo, hi) = img
+        .data
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    if lo <= hi {
+        (f64::from(lo), f64::from(hi))
+    } else {
+        (0.0, 0.0)
+    }
+}
+
 fn viridis(t: f64) -> Rgb<u8> {
     let c = colorous::VIRIDIS.eval_continuous(t.clamp(0.0, 1.0));
     Rgb([c.r, c.g, c.b])
@@ -97,18 +90,7 @@ fn viridis(t: f64) -> Rgb<u8> {
 /// Renders `img` through viridis over `[min, max]` of its finite values, with a vertical colour bar
 /// (max at the top, min at the bottom, both labelled) in a panel to the right.
 pub fn heatmap_rgb(img: &ImageF32) -> RgbImage {
-    let (lo, hi) = img
-        .data
-        .iter()
-        .filter(|v| v.is_finite())
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
-            (l.min(v), h.max(v))
-        });
-    let (lo, hi) = if lo <= hi {
-        (f64::from(lo), f64::from(hi))
-    } else {
-        (0.0, 0.0)
-    };
+    let (lo, hi) = value_range(img);
     let span = if hi > lo { hi - lo } else { 1.0 };
     let (w, h) = (img.width, img.height.max(60));
     let mut out = RgbImage::from_pixel(w + PANEL_PX, h, Rgb([255, 255, 255]));
@@ -138,11 +120,20 @@ pub fn heatmap_rgb(img: &ImageF32) -> RgbImage {
     out
 }
 
-/// Writes [`heatmap_rgb`] of `img` as a PNG, atomically.
-pub fn write_heatmap_png(path: &Path, img: &ImageF32) -> Result<()> {
+/// Writes [`heatmap_rgb`] of `img` as a PNG, atomically, with `sidecar` (describing `img`: its geometry,
+/// units and details) beside it as kind `heatmap`, its `details.colour_bar` giving the map and the
+/// range of values it spans.
+pub fn write_heatmap_png(path: &Path, img: &ImageF32, sidecar: &Sidecar) -> Result<()> {
     let rgb = heatmap_rgb(img);
+    let (min, max) = value_range(img);
+    let sidecar = sidecar
+        .derived(kind::HEATMAP)
+        .with_details(&serde_json::json!({
+            "colour_bar": { "map": "viridis", "min": min, "max": max }
+        }))?;
     write_atomic(path, |w| {
         rgb.write_to(w, image::ImageFormat::Png)
-            .map_err(|e| Error::format(path, e.to_string()))
-    })
+            .map_err(|e| Error::encode(format!("PNG {}", path.display()), e))
+    })?;
+    sidecar.write(&sidecar_path(path))
 }

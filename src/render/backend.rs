@@ -1,0 +1,46 @@
+//! The one place a thickness renderer's ray-finding backend is chosen, including the tracer a
+//! rasterising renderer falls back to.
+
+use super::bvh::BvhTracer;
+use super::embree::EmbreeTracer;
+use super::scene::RenderScene;
+use super::thickness::ThicknessRenderer;
+use super::tracer::HitTracer;
+use crate::Result;
+
+/// The ray-tracing backend of a thickness render.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// Intel Embree (system library), all hits gathered in one traversal.
+    Embree,
+    /// The pure-Rust f64 BVH with a watertight triangle test (reference).
+    Bvh,
+    /// Rasterised primary rays (all rays leave the source): exact edge functions, no acceleration
+    /// structure; the fastest for DRRs. A view with a vertex at or behind the source plane is traced
+    /// with Embree instead.
+    Raster,
+}
+
+impl Backend {
+    /// Builds a renderer for `scene` with this backend.
+    pub fn renderer(self, scene: RenderScene) -> Result<ThicknessRenderer> {
+        let tracer: Box<dyn HitTracer> = match self {
+            Backend::Embree => Box::new(EmbreeTracer::new(&scene)?),
+            Backend::Bvh => Box::new(BvhTracer::new(&scene)),
+            Backend::Raster => return Ok(ThicknessRenderer::raster(scene, raster_fallback)),
+        };
+        Ok(ThicknessRenderer::new(scene, tracer))
+    }
+}
+
+/// What the raster traces when it cannot rasterise (single rays, views with a vertex at or behind the
+/// source plane): Embree, or the reference BVH if Embree cannot take the scene.
+fn raster_fallback(scene: &RenderScene) -> Box<dyn HitTracer + Send> {
+    match EmbreeTracer::new(scene) {
+        Ok(embree) => Box::new(embree),
+        Err(_) => Box::new(BvhTracer::new(scene)),
+    }
+}

@@ -1,0 +1,301 @@
+//! Thickness DRRs: per pixel, `Σ_m μ_m · L_m` with `L_m` the path length of the pixel's ray inside mesh m.
+//!
+//! Rays start at the source and pass through pixel centres (`dir ∝ Rᵀ K⁻¹ [u, v, 1]ᵀ`). With a ray-tracing
+//! backend, pixels are traced in 4 × 4 tiles (two 4 × 2 packets each), in parallel over rows of tiles; a
+//! tile that no projected triangle's bounding box touches cannot see the mesh and is skipped (`tiles`).
+//! The raster backend instead finds each band of rows' hits by rasterising the triangles binned to it.
+//! Either way a pixel's hits go through the same f64 pairing. Rays whose crossings do not pair up (a hit
+//! lost at an edge or vertex) are retraced with a sub-pixel-small offset; failing that, their value is
+//! capped by the mesh's longest chord (`repair`). Both counts are reported.
+//!
+//! Which tracer a renderer uses (and the raster's fallback tracer) is chosen by [`super::Backend`].
+
+mod output;
+mod rays;
+mod repair;
+pub(crate) mod tiles;
+
+use std::sync::OnceLock;
+use std::time::Instant;
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use self::output::bands;
+pub use self::output::{Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions};
+use self::rays::{Scratch, integrate_lane, trace_single};
+use self::tiles::{Camera, TILE, TilePlan};
+use super::pairing::{RayIntegral, integrate_crossings};
+use super::raster::{BandScratch, RasterView};
+use super::scene::RenderScene;
+use super::tracer::HitTracer;
+use crate::Result;
+use crate::geometry::View;
+use crate::io::ImageF32;
+
+/// Builds the tracer a rasterising renderer falls back to for single rays and unprojectable views.
+pub(crate) type FallbackTracer = fn(&RenderScene) -> Box<dyn HitTracer + Send>;
+
+/// A scene plus a backend, built once and rendered from any number of views.
+pub struct ThicknessRenderer {
+    scene: RenderScene,
+    gather: Gather,
+}
+
+/// How a renderer finds the triangles each ray crosses.
+enum Gather {
+    /// Rays traced in packets through a backend.
+    Trace(Box<dyn HitTracer>),
+    /// Pixels rasterised per view (see [`super::raster`]); single rays (repairs, [`ThicknessRenderer::trace_ray`])
+    /// and views with a vertex at or behind the source plane (which cannot be projected) are traced with
+    /// the fallback tracer, built on first use.
+    Raster {
+        fallback: FallbackTracer,
+        tracer: OnceLock<Box<dyn HitTracer + Send>>,
+    },
+}
+
+/// One view's way of finding hits, shared by the band workers.
+enum BandSource<'a> {
+    Trace {
+        tracer: &'a dyn HitTracer,
+        plan: TilePlan,
+    },
+    Raster(RasterView<'a>),
+}
+
+/// Rows per band of the raster backend: a triangle spanning two bands is set up twice.
+const RASTER_BAND_ROWS: usize = 16;
+
+thread_local! {
+    /// Per-thread buffers of the raster bands.
+    static RASTER_SCRATCH: std::cell::RefCell<BandScratch> = std::cell::RefCell::default();
+}
+
+/// One band of rows of every output, written by one worker; outputs not asked for are `None`.
+struct BandOut<'a> {
+    line_integral: &'a mut [f32],
+    depth: Option<&'a mut [f32]>,
+    object_bits: Option<&'a mut [u64]>,
+    structure_bits: Option<&'a mut [u32]>,
+}
+
+impl BandOut<'_> {
+    /// Writes pixel `i` of the band from its integral; `depth_per_t` turns the ray distance `first_t`
+    /// into camera depth.
+    #[inline]
+    fn write(&mut self, i: usize, ray: &RayIntegral, depth_per_t: f64) {
+        self.line_integral[i] = ray.line_integral as f32;
+        if let Some(d) = self.depth.as_deref_mut()
+            && ray.first_t.is_finite()
+        {
+            d[i] = (ray.first_t * depth_per_t) as f32;
+        }
+        if let (Some(o), Some(s)) = (
+            self.object_bits.as_deref_mut(),
+            self.structure_bits.as_deref_mut(),
+        ) {
+            o[i] = ray.object_bits;
+            s[i] = ray.structure_bits;
+        }
+    }
+}
+
+impl ThicknessRenderer {
+    /// A renderer that traces every ray with `tracer`.
+    pub fn new(scene: RenderScene, tracer: Box<dyn HitTracer>) -> Self {
+        ThicknessRenderer {
+            scene,
+            gather: Gather::Trace(tracer),
+        }
+    }
+
+    /// A renderer that rasterises each view instead of tracing rays (nothing to build up front); what it
+    /// cannot rasterise it traces with the tracer `fallback` builds, on first use.
+    pub(crate) fn raster(scene: RenderScene, fallback: FallbackTracer) -> Self {
+        ThicknessRenderer {
+            scene,
+            gather: Gather::Raster {
+                fallback,
+                tracer: OnceLock::new(),
+            },
+        }
+    }
+
+    /// The backend that traces single rays (for repairs and [`Self::trace_ray`]).
+    fn ray_tracer(&self) -> &dyn HitTracer {
+        match &self.gather {
+            Gather::Trace(t) => t.as_ref(),
+            Gather::Raster { fallback, tracer } => {
+                tracer.get_or_init(|| fallback(&self.scene)).as_ref()
+            }
+        }
+    }
+
+    pub fn scene(&self) -> &RenderScene {
+        &self.scene
+    }
+
+    pub fn backend_name(&self) -> &'static str {
+        match &self.gather {
+            Gather::Trace(t) => t.name(),
+            Gather::Raster { .. } => "raster",
+        }
+    }
+
+    /// The sidecar record of a render of `anatomy` (its description) that `stats` came from.
+    pub fn details(&self, stats: RenderStats, anatomy: serde_json::Value) -> ThicknessDetails {
+        ThicknessDetails {
+            renderer: "thickness",
+            backend: self.backend_name(),
+            anatomy,
+            stats,
+        }
+    }
+
+    /// BVH build time of the backend (ms).
+    pub fn build_ms(&self) -> f64 {
+        match &self.gather {
+            Gather::Trace(t) => t.build_ms(),
+            Gather::Raster { .. } => 0.0,
+        }
+    }
+
+    /// Renders the scene from `view` (its intrinsics may be perturbed; rays follow them).
+    pub fn render(&self, view: &View, opts: &ThicknessOptions) -> Result<ThicknessDrr> {
+        view.intrinsics.validate()?;
+        let start = Instant::now();
+        let cam = Camera::new(view);
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        // A raster view when this renderer rasterises and the view can be projected (no vertex at or
+        // behind the source plane); otherwise the pixels are traced.
+        let raster = match &self.gather {
+            Gather::Raster { .. } => RasterView::new(&self.scene, view, RASTER_BAND_ROWS),
+            Gather::Trace(_) => None,
+        };
+        let source = match raster {
+            Some(raster) => BandSource::Raster(raster),
+            None => BandSource::Trace {
+                tracer: self.ray_tracer(),
+                plan: TilePlan::new(&self.scene, view, opts.cull),
+            },
+        };
+        let band_rows = match &source {
+            BandSource::Trace { .. } => TILE as usize,
+            BandSource::Raster(r) => r.band_rows(),
+        };
+
+        // Zeroed by the allocator: fresh pages cost nothing until a traced pixel touches them.
+        let n = w * h;
+        let mut li = vec![0f32; n];
+        let mut depth = vec![0f32; if opts.depth { n } else { 0 }];
+        let mut obj = vec![0u64; if opts.masks { n } else { 0 }];
+        let mut st = vec![0u32; if opts.masks { n } else { 0 }];
+        let band = w * band_rows;
+        let n_bands = h.div_ceil(band_rows);
+        let stats = li
+            .par_chunks_mut(band)
+            .zip(bands(&mut depth, band, n_bands))
+            .zip(bands(&mut obj, band, n_bands))
+            .zip(bands(&mut st, band, n_bands))
+            .enumerate()
+            .map(|(b, (((li, depth), obj), st))| {
+                let out = BandOut {
+                    line_integral: li,
+                    depth,
+                    object_bits: obj,
+                    structure_bits: st,
+                };
+                self.render_band(&source, &cam, b, band_rows, out, opts)
+            })
+            .reduce(RenderStats::default, RenderStats::add);
+
+        let stats = RenderStats {
+            render_ms: start.elapsed().as_secs_f64() * 1e3,
+            ..stats
+        };
+        let image = |data| ImageF32 {
+            width: cam.width,
+            height: cam.height,
+            data,
+        };
+        Ok(ThicknessDrr {
+            line_integral: image(li),
+            depth: opts.depth.then(|| image(depth)),
+            masks: opts.masks.then_some(Masks {
+                object_bits: obj,
+                structure_bits: st,
+            }),
+            objects: self.scene.objects.clone(),
+            stats,
+        })
+    }
+
+    /// Renders band `b` (rows `b · band_rows ..`) into `out` and returns its counters.
+    fn render_band(
+        &self,
+        source: &BandSource,
+        cam: &Camera,
+        b: usize,
+        band_rows: usize,
+        mut out: BandOut,
+        opts: &ThicknessOptions,
+    ) -> RenderStats {
+        let w = cam.width as usize;
+        let v0 = b * band_rows;
+        let rows = out.line_integral.len() / w;
+        let mut stats = RenderStats::default();
+        // Writes the outputs of pixel (u, row r of the band) from its integral, repairing it first when
+        // its crossings did not pair up.
+        let mut emit = |u: usize, r: usize, mut ray: RayIntegral, depth_per_t: f64| {
+            if !ray.valid {
+                let pixel = (u as f64, (v0 + r) as f64);
+                ray = repair::repair(self.ray_tracer(), &self.scene, cam, pixel, ray, &mut stats);
+            }
+            stats.rays_traced += 1;
+            stats.hits += u64::from(ray.hits);
+            out.write(r * w + u, &ray, depth_per_t);
+        };
+        let culled = match source {
+            BandSource::Trace { tracer, plan } => {
+                let mut scratch = Scratch::new();
+                plan.for_each_packet(cam, b, rows, |packet, pixels| {
+                    tracer.trace_all(packet, &mut scratch.hits);
+                    for (lane, &(u, r)) in pixels.iter().enumerate() {
+                        let ray = integrate_lane(&self.scene, packet, lane, &mut scratch);
+                        emit(u, r, ray, packet.dir[lane].dot(cam.axis_z));
+                    }
+                })
+            }
+            BandSource::Raster(raster) => RASTER_SCRATCH.with_borrow_mut(|band_scratch| {
+                let mut traced = 0;
+                raster.band_hits(b, band_scratch, |u, r, crossings| {
+                    traced += 1;
+                    // Depth to distance along the ray.
+                    let path = raster.path_per_depth(u as f64, (v0 + r) as f64);
+                    for c in crossings.iter_mut() {
+                        c.t *= path;
+                    }
+                    let ray = integrate_crossings(&self.scene, crossings, opts.masks);
+                    emit(u, r, ray, 1.0 / path);
+                });
+                (rows * w - traced) as u64
+            }),
+        };
+        stats.rays_culled += culled;
+        stats
+    }
+
+    /// Traces one ray (world frame, unit `dir`) and returns its line integral and whether its crossings
+    /// paired up without repair. For tools and tests that aim rays at chosen points.
+    pub fn trace_ray(&self, origin: DVec3, dir: DVec3) -> (f64, bool) {
+        let ray = trace_single(
+            self.ray_tracer(),
+            &self.scene,
+            origin,
+            dir.normalize(),
+            &mut Scratch::new(),
+        );
+        (ray.line_integral, ray.valid)
+    }
+}
