@@ -2,8 +2,9 @@
 //! Beer–Lambert law `I = I0 · exp(−L)` of the line-integral render of the same anatomy, one spelling of the
 //! line-integral unit for both renderers, and the study's heatmap sidecar (kind, K of the perturbed view).
 
+mod common;
+
 use std::path::Path;
-use std::process::Command;
 
 use glam::{DMat4, DVec3};
 use spinedrr::anatomy::ct::{CtVolume, write_ct};
@@ -15,15 +16,8 @@ const I0: f64 = 1000.0;
 
 /// Runs the binary and fails the test with its stderr when it fails.
 fn run_ok(args: &[&str]) {
-    let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
-        .args(args)
-        .output()
-        .expect("running spinedrr");
-    assert!(
-        o.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let (ok, err) = common::run(args);
+    assert!(ok, "{args:?}: {err}");
 }
 
 /// A 96 × 80 detector looking along +y at the origin from 1000 mm.
