@@ -134,8 +134,15 @@ pub fn register<'py>(
     } else if problem.is_instance_of::<PyDict>() {
         let kwargs = PyDict::new(py);
         kwargs.set_item("default", wrap_pyfunction!(_tolist, py)?)?;
+        kwargs.set_item("allow_nan", false)?;
         let json = py.import("json")?;
-        json.call_method("dumps", (problem,), Some(&kwargs))?
+        json.call_method("dumps", (problem,), Some(&kwargs))
+            .map_err(|e| {
+                PyValueError::new_err(format!(
+                    "problem: {} (a NaN or infinite number, or a value JSON cannot hold)",
+                    e.value(py)
+                ))
+            })?
             .extract()?
     } else {
         return Err(PyTypeError::new_err(
