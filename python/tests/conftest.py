@@ -16,12 +16,16 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _cli_path() -> Path:
-    p = Path(os.environ.get("SPINEDRR_BIN", ROOT / "target" / "release" / "spinedrr"))
-    if not p.is_absolute():
-        p = ROOT / p
-    if not p.exists():
-        raise RuntimeError(f"the spinedrr CLI is not built at {p}: run `make python` (or set SPINEDRR_BIN)")
-    return p
+    """$SPINEDRR_BIN, else the newer of the release and debug builds (`cargo test` makes the debug one)."""
+    if "SPINEDRR_BIN" in os.environ:
+        p = Path(os.environ["SPINEDRR_BIN"])
+        p = p if p.is_absolute() else ROOT / p
+        found = [p] if p.exists() else []
+    else:
+        found = [p for p in (ROOT / "target" / b / "spinedrr" for b in ("release", "debug")) if p.exists()]
+    if not found:
+        raise RuntimeError("the spinedrr CLI is not built: run `cargo build` (or set SPINEDRR_BIN)")
+    return max(found, key=lambda p: p.stat().st_mtime)
 
 
 class Cli:
