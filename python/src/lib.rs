@@ -20,6 +20,16 @@ mod geometry;
 mod lib_bridge;
 mod render;
 
+/// spinedrr: calibration-sensitivity analysis of vertebral DRRs — thickness DRRs of meshes, CT DRRs,
+/// projection-domain metrics and landmark 2D–3D registration, with numpy arrays in and out.
+///
+/// Conventions (the CLI's): world frame RAS+ in millimetres; camera frame OpenCV's (origin at the X-ray
+/// source, +z along the central ray toward the detector, +x along detector rows, +y down the
+/// detector); pixel centres at integer coordinates; ``x ~ K [R | t] X`` with
+/// ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``. Images are float32 ``H × W`` arrays (row v, column
+/// u). Renders, phantom builds, comparisons and registrations release the GIL. Errors: ``ValueError``
+/// (bad values or file content), ``OSError`` (files), ``TypeError`` (wrong types or dtypes), with the
+/// library's messages.
 #[pymodule]
 #[pyo3(name = "spinedrr")]
 fn spinedrr_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
