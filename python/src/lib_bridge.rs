@@ -141,6 +141,8 @@ pub struct Rendered {
     pub depth: Option<ImageF32>,
     /// `("all", union)`, then per object, then per structure present (the CLI's `--masks` files).
     pub masks: Option<RenderedMasks>,
+    /// Rays whose crossings did not pair even after retracing (the CLI warns about them).
+    pub rays_unrepaired: u64,
 }
 
 pub struct RenderedMasks {
@@ -194,6 +196,7 @@ impl Renderer {
             image: drr.line_integral,
             depth: drr.depth,
             masks,
+            rays_unrepaired: drr.stats.rays_unrepaired,
         })
     }
 }

@@ -62,8 +62,36 @@ fn scene_meshes(meshes_with_mu: &Bound<'_, PyAny>) -> PyResult<Vec<lib::SceneMes
     Ok(out)
 }
 
+/// `RuntimeWarning`s for what the CLI warns about on stderr: meshes that are not closed, rays whose
+/// surface crossings did not pair.
+fn warn(py: Python<'_>, message: String) -> PyResult<()> {
+    let category = py.get_type::<pyo3::exceptions::PyRuntimeWarning>();
+    let text = std::ffi::CString::new(message.replace('\0', " "))?;
+    PyErr::warn(py, category.as_any(), &text, 1)
+}
+
+fn warn_open(py: Python<'_>, open: &[String]) -> PyResult<()> {
+    for name in open {
+        warn(
+            py,
+            format!("mesh '{name}' is not closed; path lengths near its holes are unreliable"),
+        )?;
+    }
+    Ok(())
+}
+
 /// The render outputs as Python objects: the image, or a tuple with masks and/or depth.
 fn outputs(py: Python<'_>, r: lib::Rendered, masks: bool, depth: bool) -> PyResult<Py<PyAny>> {
+    if r.rays_unrepaired > 0 {
+        warn(
+            py,
+            format!(
+                "{} rays did not pair their surface crossings even after retracing; their values are capped \
+                 by the longest chord (is a mesh open or self-intersecting?)",
+                r.rays_unrepaired
+            ),
+        )?;
+    }
     let (w, h) = (r.image.width, r.image.height);
     let image = image_to_py(py, r.image)?.into_any();
     if !masks && !depth {
@@ -96,6 +124,7 @@ impl PyRenderer {
         let meshes = scene_meshes(meshes_with_mu)?;
         let backend = lib::backend(backend).py_err()?;
         let r = py.detach(|| lib::Renderer::new(meshes, backend)).py_err()?;
+        warn_open(py, &r.open_meshes())?;
         Ok(PyRenderer { inner: Arc::new(r) })
     }
 
@@ -152,9 +181,13 @@ pub fn render_mesh(
     let meshes = scene_meshes(meshes_with_mu)?;
     let backend = lib::backend(backend).py_err()?;
     let v = view.inner.clone();
-    let out = py
-        .detach(move || lib::Renderer::new(meshes, backend)?.render(&v, masks, depth))
+    let (open, out) = py
+        .detach(move || {
+            let r = lib::Renderer::new(meshes, backend)?;
+            Ok((r.open_meshes(), r.render(&v, masks, depth)?))
+        })
         .py_err()?;
+    warn_open(py, &open)?;
     outputs(py, out, masks, depth)
 }
 

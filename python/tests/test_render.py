@@ -3,6 +3,7 @@ bad inputs; four Python threads rendering at once."""
 
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -61,6 +62,11 @@ def test_renderer_reuses_its_scene(l3, carm):
     assert same_bits(image, r.render(view))
     # The silhouette is where the line integral is positive (the phantom has no μ = 0 shell).
     assert np.array_equal(masks["all"], image != 0)
+    image2, depth = r.render(view, depth=True)
+    assert same_bits(image2, image) and depth.dtype == np.float32
+    # Depth is the camera z of the first surface: inside the silhouette, between source and detector.
+    inside = depth[masks["all"]]
+    assert np.all(depth[~masks["all"]] == 0) and inside.min() > 0 and inside.max() < 1000 + 50
 
 
 def test_output_is_handed_over_without_a_copy(l3, carm):
@@ -77,18 +83,30 @@ def test_mesh_arrays_round_trip(l3):
     assert m.vertices.dtype == np.float64 and m.faces.dtype == np.uint32 and m.labels.dtype == np.uint8
 
 
+CUBE_V = np.array([[x, y, z] for x in (-10.0, 10.0) for y in (-10.0, 10.0) for z in (-10.0, 10.0)])
+CUBE_F = np.array(
+    [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], dtype=np.uint32)
+
+
 def test_a_cube_is_as_thick_as_its_side(carm):
     # Analytic: a 20 mm cube at the isocentre, μ = 1, seen through its centre is 20 mm thick.
-    v = np.array([[x, y, z] for x in (-10.0, 10.0) for y in (-10.0, 10.0) for z in (-10.0, 10.0)])
-    f = np.array(
-        [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-         [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], dtype=np.uint32)
-    cube = spinedrr.Mesh(v, f, name="cube")
+    cube = spinedrr.Mesh(CUBE_V, CUBE_F, name="cube")
     view = carm.view("ap")
     centre = view.project(np.zeros((1, 3)))[0]
-    image = spinedrr.render_mesh([(cube, 1.0)], view)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a closed mesh renders without a warning
+        image = spinedrr.render_mesh([(cube, 1.0)], view)
     u, w = int(round(centre[0] + 0.5)), int(round(centre[1] + 0.5))
     assert abs(image[w, u] - 20.0) < 0.2  # the ray through a pixel near the centre is nearly axial
+
+
+def test_an_open_mesh_is_rendered_with_a_warning(carm):
+    box = spinedrr.Mesh(CUBE_V, np.ascontiguousarray(CUBE_F[2:]), name="lidless")
+    with pytest.warns(RuntimeWarning, match="mesh 'lidless' is not closed"):
+        spinedrr.Renderer([(box, 1.0)])
+    with pytest.warns(RuntimeWarning, match="mesh 'lidless' is not closed"):
+        spinedrr.render_mesh([(box, 1.0)], carm.view("ap"))
 
 
 def test_bad_render_inputs(l3, carm):
