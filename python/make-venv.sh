@@ -9,6 +9,7 @@ if [ ! -x "$venv/bin/python" ]; then
     sudo=""
     [ "$(id -u)" -ne 0 ] && sudo="sudo"
     echo "installing python3-venv (python3 has no venv module)" >&2
+    $sudo apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends python3-venv >/dev/null
   fi
   python3 -m venv "$venv"
