@@ -101,16 +101,18 @@ class Renderer:
     @overload
     def render(self, view: View) -> F32: ...
     @overload
-    def render(self, view: View, masks: bool = ..., depth: bool = ...) -> F32 | tuple[Any, ...]: ...
+    def render(self, view: View, masks: bool = ..., depth: bool = ..., stats: bool = ...) -> F32 | tuple[Any, ...]:
+        """Line integral (float32 H × W), or ``(image, masks, depth, stats)`` with what was asked for."""
 
 @overload
 def render_mesh(meshes_with_mu: Sequence[MeshWithMu], view: View, backend: Backend = "raster") -> F32: ...
 @overload
 def render_mesh(
-    meshes_with_mu: Sequence[MeshWithMu], view: View, backend: Backend = "raster", masks: bool = ..., depth: bool = ...
+    meshes_with_mu: Sequence[MeshWithMu], view: View, backend: Backend = "raster", masks: bool = ...,
+    depth: bool = ..., stats: bool = ...,
 ) -> F32 | tuple[Any, ...]:
-    """Line integral ``Σ μ·L`` (float32 H × W); with ``masks``/``depth`` a tuple ``(image, masks, depth)``
-    of what was asked for."""
+    """Line integral ``Σ μ·L`` (float32 H × W); with ``masks``/``depth``/``stats`` a tuple
+    ``(image, masks, depth, stats)`` of what was asked for."""
 
 def render_ct(
     hu: npt.NDArray[Any], affine: F64, view: View, mask: Bool | None = None,

@@ -143,6 +143,8 @@ pub struct Rendered {
     pub masks: Option<RenderedMasks>,
     /// Rays whose crossings did not pair even after retracing (the CLI warns about them).
     pub rays_unrepaired: u64,
+    /// The render's counters and time, as the sidecar's `stats` entry.
+    pub stats: serde_json::Value,
 }
 
 pub struct RenderedMasks {
@@ -197,6 +199,7 @@ impl Renderer {
             depth: drr.depth,
             masks,
             rays_unrepaired: drr.stats.rays_unrepaired,
+            stats: serde_json::to_value(drr.stats).map_err(|e| Error::encode("render stats", e))?,
         })
     }
 }

@@ -12,7 +12,7 @@ use pyo3::types::{PyDict, PyTuple};
 
 use crate::anatomy::PyMesh;
 use crate::arrays::{image_to_py, into_2d, matrix, untyped};
-use crate::errors::IntoPy;
+use crate::errors::{IntoPy, json_to_py};
 use crate::geometry::PyView;
 use crate::lib_bridge as lib;
 
@@ -80,8 +80,16 @@ fn warn_open(py: Python<'_>, open: &[String]) -> PyResult<()> {
     Ok(())
 }
 
-/// The render outputs as Python objects: the image, or a tuple with masks and/or depth.
-fn outputs(py: Python<'_>, r: lib::Rendered, masks: bool, depth: bool) -> PyResult<Py<PyAny>> {
+/// Which outputs beside the image a call asked for.
+#[derive(Clone, Copy)]
+struct Extras {
+    masks: bool,
+    depth: bool,
+    stats: bool,
+}
+
+/// The render outputs as Python objects: the image, or a tuple with masks, depth and/or stats.
+fn outputs(py: Python<'_>, r: lib::Rendered, want: Extras) -> PyResult<Py<PyAny>> {
     if r.rays_unrepaired > 0 {
         warn(
             py,
@@ -94,7 +102,7 @@ fn outputs(py: Python<'_>, r: lib::Rendered, masks: bool, depth: bool) -> PyResu
     }
     let (w, h) = (r.image.width, r.image.height);
     let image = image_to_py(py, r.image)?.into_any();
-    if !masks && !depth {
+    if !(want.masks || want.depth || want.stats) {
         return Ok(image.unbind());
     }
     let mut items = vec![image];
@@ -113,6 +121,9 @@ fn outputs(py: Python<'_>, r: lib::Rendered, masks: bool, depth: bool) -> PyResu
     if let Some(d) = r.depth {
         items.push(image_to_py(py, d)?.into_any());
     }
+    if want.stats {
+        items.push(json_to_py(py, &r.stats)?);
+    }
     Ok(PyTuple::new(py, items)?.into_any().unbind())
 }
 
@@ -129,22 +140,33 @@ impl PyRenderer {
     }
 
     /// Renders ``view`` (its K may be perturbed; rays follow it). Returns the line integral
-    /// ``Σ μ·L`` as float32 H × W (with μ = 1 mm⁻¹ the thickness in mm); with ``masks=True`` and/or
-    /// ``depth=True`` a tuple ``(image, masks, depth)`` of what was asked for, where ``masks`` is
-    /// ``{"all": bool H × W, "objects": {name: …}, "structures": {name: …}}`` and ``depth`` the camera
-    /// z (mm) of the first surface, 0 where no ray hits. The GIL is released while it renders.
-    #[pyo3(signature = (view, masks=false, depth=false))]
+    /// ``Σ μ·L`` as float32 H × W (with μ = 1 mm⁻¹ the thickness in mm); with ``masks=True``,
+    /// ``depth=True`` and/or ``stats=True`` a tuple ``(image, masks, depth, stats)`` of what was asked
+    /// for, where ``masks`` is ``{"all": bool H × W, "objects": {name: …}, "structures": {name: …}}``,
+    /// ``depth`` the camera z (mm) of the first surface, 0 where no ray hits, and ``stats`` the
+    /// render's counters and ``render_ms`` (the sidecar's ``stats``). The GIL is released while it
+    /// renders.
+    #[pyo3(signature = (view, masks=false, depth=false, stats=false))]
     fn render(
         &self,
         py: Python<'_>,
         view: &PyView,
         masks: bool,
         depth: bool,
+        stats: bool,
     ) -> PyResult<Py<PyAny>> {
         let v = view.inner.clone();
         let r = Arc::clone(&self.inner);
         let out = py.detach(move || r.render(&v, masks, depth)).py_err()?;
-        outputs(py, out, masks, depth)
+        outputs(
+            py,
+            out,
+            Extras {
+                masks,
+                depth,
+                stats,
+            },
+        )
     }
 
     /// ``"raster"``, ``"embree"`` or ``"bvh"``.
@@ -166,10 +188,11 @@ impl PyRenderer {
     }
 }
 
-/// One thickness DRR: ``Renderer(meshes_with_mu, backend).render(view, masks, depth)``, the result of
-/// ``spinedrr render --mesh FILE:MU … --view … [--masks] [--depth]`` bit for bit.
+/// One thickness DRR: ``Renderer(meshes_with_mu, backend).render(view, masks, depth, stats)``, the
+/// result of ``spinedrr render --mesh FILE:MU … --view … [--masks] [--depth]`` bit for bit (and of
+/// ``--phantom LEVELS`` for ``phantom(LEVELS).scene``).
 #[pyfunction]
-#[pyo3(signature = (meshes_with_mu, view, backend="raster", masks=false, depth=false))]
+#[pyo3(signature = (meshes_with_mu, view, backend="raster", masks=false, depth=false, stats=false))]
 pub fn render_mesh(
     py: Python<'_>,
     meshes_with_mu: &Bound<'_, PyAny>,
@@ -177,6 +200,7 @@ pub fn render_mesh(
     backend: &str,
     masks: bool,
     depth: bool,
+    stats: bool,
 ) -> PyResult<Py<PyAny>> {
     let meshes = scene_meshes(meshes_with_mu)?;
     let backend = lib::backend(backend).py_err()?;
@@ -188,7 +212,15 @@ pub fn render_mesh(
         })
         .py_err()?;
     warn_open(py, &open)?;
-    outputs(py, out, masks, depth)
+    outputs(
+        py,
+        out,
+        Extras {
+            masks,
+            depth,
+            stats,
+        },
+    )
 }
 
 /// Voxels of a 3-D `(i, j, k)` array in x-fastest order (the library's layout, NIfTI's Fortran order):

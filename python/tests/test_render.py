@@ -11,7 +11,7 @@ import tifffile
 from PIL import Image
 
 import spinedrr
-from conftest import same_bits
+from conftest import read_json, same_bits
 
 
 @pytest.mark.parametrize(
@@ -21,10 +21,13 @@ from conftest import same_bits
 def test_phantom_render_equals_cli_tiff(cli, l3, carm, tmp_path, view_name, spec):
     expected = cli.render(tmp_path / "cli.tiff", "--phantom", "L3", "--view", view_name, "--perturb", spec)
     view = carm.view(view_name).perturbed(spinedrr.Perturbation.parse(spec))
-    image = spinedrr.render_mesh(l3.scene, view)
+    image, stats = spinedrr.render_mesh(l3.scene, view, stats=True)
     assert image.dtype == np.float32 and image.shape == (1024, 1024)
     assert image.max() > 1.0  # the vertebra is in the picture
     assert same_bits(image, expected)
+    cli_stats = read_json(tmp_path / "cli.json")["details"]["stats"]
+    assert stats.pop("render_ms") > 0 and cli_stats.pop("render_ms") > 0
+    assert stats == cli_stats and stats["rays_traced"] > 0
 
 
 @pytest.mark.parametrize("backend", ["raster", "embree", "bvh"])
