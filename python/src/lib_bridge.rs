@@ -139,7 +139,7 @@ unsafe impl Send for Renderer {}
 pub struct Rendered {
     pub image: ImageF32,
     pub depth: Option<ImageF32>,
-    /// `("all", union)`, then per object, then per structure present (the CLI's `--masks` files).
+    /// The silhouettes the CLI writes with `--masks`: the union, per object, per structure present.
     pub masks: Option<RenderedMasks>,
     /// Rays whose crossings did not pair even after retracing (the CLI warns about them).
     pub rays_unrepaired: u64,
