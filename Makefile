@@ -6,13 +6,26 @@ CARGO ?= cargo
 BIN := target/release/spinedrr
 OUT ?= out
 
-.PHONY: deps build study demo test bench clean
+.PHONY: deps build python study demo test bench clean
 
 deps:
 	@bash scripts/install-deps.sh
 
 build: deps
 	$(CARGO) build --release
+
+# The `spinedrr` Python module (python/), built in release mode with maturin and installed into a virtual
+# environment under target/ with the pinned test requirements (numpy, pytest, nibabel, OpenCV, …):
+# `target/pyenv/bin/python -c "import spinedrr"`.
+PYENV := target/pyenv
+PYTHON := $(PYENV)/bin/python
+WHEELS := target/python-wheels
+
+python: deps
+	@bash python/make-venv.sh $(PYENV)
+	@rm -rf $(WHEELS)
+	cd python && ../$(PYENV)/bin/maturin build --release --quiet --interpreter ../$(PYTHON) --out ../$(WHEELS)
+	$(PYTHON) -m pip install --quiet --disable-pip-version-check --force-reinstall --no-deps $(WHEELS)/spinedrr-*.whl
 
 # The paper's whole sensitivity study on the built-in L1–L5 phantom, into out/study/.
 study: build
@@ -33,14 +46,19 @@ demo: build
 		--landmarks $(OUT)/phantom/landmarks.json --out $(OUT)/compare_lat_df500
 	@echo "DRRs, previews, masks and sidecars are in $(OUT)/; metrics and heatmaps in $(OUT)/compare_*/"
 
-# The last line is a plain "N passed, N failed" total over every test binary.
+# The last line is a plain "N passed, N failed" total over every test binary and the Python tests. The
+# Python tests compare the module with the CLI that `cargo test` built (target/debug/spinedrr).
 test: deps
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	python3 scripts/check_import_cycles.py src
 	@mkdir -p target
 	set -o pipefail; $(CARGO) test --workspace --lib --bins --tests 2>&1 | tee target/test.log
-	@awk '/^test result:/ {p += $$4; f += $$6} END {printf "%d passed, %d failed\n", p, f}' target/test.log
+	$(MAKE) --no-print-directory python
+	set -o pipefail; SPINEDRR_BIN=target/debug/spinedrr $(PYTHON) -m pytest -p no:cacheprovider python/tests 2>&1 | tee target/pytest.log
+	@awk '/^test result:/ {p += $$4; f += $$6} END {print p, f}' target/test.log > target/test.counts
+	@awk '/ in [0-9.]+s/ && /(passed|failed|error)/ { for (i = 2; i <= NF; i++) { if ($$i ~ /^passed/) p += $$(i-1); if ($$i ~ /^(failed|error)/) f += $$(i-1) } } END {print p + 0, f + 0}' target/pytest.log >> target/test.counts
+	@awk '{p += $$1; f += $$2} END {printf "%d passed, %d failed\n", p, f}' target/test.counts
 
 bench: deps
 	$(CARGO) bench

@@ -1,0 +1,345 @@
+//! Every call from the Python module into the spinedrr library, and nothing else: the other files of
+//! this crate convert numpy arrays and Python objects and call these functions. Each function makes
+//! the same library calls as the matching CLI subcommand, so a Python result equals the CLI's bit for
+//! bit; when the library moves a piece of work (issue 10), only this file is re-pointed.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use glam::DVec3;
+use spinedrr::anatomy::ct::VoxelMask;
+use spinedrr::anatomy::landmarks::landmarks_to_json;
+use spinedrr::anatomy::{PhantomOptions, Structure, build_phantom, parse_levels};
+use spinedrr::registration::{
+    LoadedProblem, Method, RegistrationOptions, add_pixel_noise, model_centroid, perturb_pose,
+    pose_errors,
+};
+use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
+use spinedrr::render::{RenderScene, ThicknessOptions, ThicknessRenderer};
+
+pub use spinedrr::analysis::{Landmark, MaskPair};
+pub use spinedrr::anatomy::TriMesh;
+pub use spinedrr::anatomy::ct::CtVolume;
+pub use spinedrr::geometry::{CArm, Intrinsics, Perturbation, RigidTransform, View};
+pub use spinedrr::io::ImageF32;
+pub use spinedrr::render::volume::MU_WATER_70KEV;
+pub use spinedrr::render::{Backend, SceneMesh};
+pub use spinedrr::{Error, Result, VERSION};
+
+/// Shortest round-trip decimal of every parameter, parsed by [`Perturbation::parse`]: keyword
+/// arguments get exactly the validation (finite, positive scales) and values of `--perturb`.
+pub fn perturbation(
+    df: f64,
+    alpha: f64,
+    dcx: f64,
+    dcy: f64,
+    skew: f64,
+    sx: f64,
+    sy: f64,
+) -> Result<Perturbation> {
+    Perturbation::parse(&format!(
+        "df={df},alpha={alpha},dcx={dcx},dcy={dcy},skew={skew},sx={sx},sy={sy}"
+    ))
+}
+
+/// A view from a row-major `K`, a detector size and a row-major 4 × 4 `world_to_camera`.
+pub fn view_from_matrices(
+    name: &str,
+    k: [[f64; 3]; 3],
+    width: u32,
+    height: u32,
+    world_to_camera: [[f64; 4]; 4],
+) -> Result<View> {
+    let intrinsics = Intrinsics::from_matrix(k, width, height)?;
+    let pose = RigidTransform::from_rows(world_to_camera, "world_to_camera")?;
+    Ok(View::new(name, intrinsics, pose))
+}
+
+/// `x ~ K [R | t] X` of each world point (the library's one projection function).
+pub fn project(view: &View, points: &[[f64; 3]]) -> Vec<[f64; 2]> {
+    points
+        .iter()
+        .map(|&p| view.project(DVec3::from(p)).to_array())
+        .collect()
+}
+
+/// The phantom as `spinedrr render --phantom LEVELS` builds it.
+pub struct PhantomParts {
+    /// `(mesh, μ mm⁻¹, object)` of the render scene (differential μ of nested surfaces).
+    pub scene: Vec<SceneMesh>,
+    /// Landmarks named as `spinedrr compare --landmarks landmarks.json` names them (`LEVEL/name`).
+    pub landmarks: Vec<Landmark>,
+}
+
+/// Builds the phantom and its render scene (the CLI's `render --phantom` path) and its landmarks,
+/// through `landmarks.json`'s text as `spinedrr phantom` writes and `spinedrr compare` reads it.
+pub fn phantom(levels: &str, soft_tissue: bool, discs: bool) -> Result<PhantomParts> {
+    let opts = PhantomOptions {
+        levels: parse_levels(levels)?,
+        soft_tissue,
+        discs,
+        ..PhantomOptions::default()
+    };
+    let p = build_phantom(&opts)?;
+    let scene = spinedrr::render::phantom_scene(&p)?;
+    let json = landmarks_to_json(&p.landmarks())?;
+    let landmarks = spinedrr::analysis::parse_landmarks(&json, "phantom landmarks")?;
+    Ok(PhantomParts {
+        scene: scene.meshes,
+        landmarks,
+    })
+}
+
+pub fn read_mesh(path: &Path) -> Result<TriMesh> {
+    spinedrr::anatomy::read_mesh(path)
+}
+
+/// A mesh from arrays, checked as a render scene checks it.
+pub fn mesh(
+    name: &str,
+    vertices: &[[f64; 3]],
+    faces: &[[u32; 3]],
+    labels: Option<Vec<u8>>,
+) -> Result<TriMesh> {
+    let mut m = TriMesh::new(
+        name,
+        vertices.iter().map(|&v| DVec3::from(v)).collect(),
+        faces.to_vec(),
+    );
+    if let Some(l) = labels {
+        m.labels = l;
+    }
+    m.validate(&format!("mesh '{name}'"))?;
+    Ok(m)
+}
+
+pub fn backend(name: &str) -> Result<Backend> {
+    match name {
+        "raster" => Ok(Backend::Raster),
+        "embree" => Ok(Backend::Embree),
+        "bvh" => Ok(Backend::Bvh),
+        other => Err(Error::invalid(
+            "backend",
+            format!("unknown backend '{other}' (accepted: raster, embree, bvh)"),
+        )),
+    }
+}
+
+/// A [`ThicknessRenderer`] built by [`Backend::renderer`], which can move between threads.
+pub struct Renderer(ThicknessRenderer);
+
+// SAFETY: `ThicknessRenderer` is `Sync` but not `Send` only because its tracer is a
+// `Box<dyn HitTracer>` whose trait has no `Send` bound. `Backend::renderer` stores one of the
+// library's own tracers there, `EmbreeTracer` (`Send`: its Embree handles are `unsafe impl Send`,
+// and Embree releases objects from any thread) or `BvhTracer` (plain data), so moving or dropping
+// the renderer on another thread is sound. (A `Send` bound on `HitTracer` would remove this impl.)
+unsafe impl Send for Renderer {}
+
+/// What one render returns: the line integral and the outputs asked for.
+pub struct Rendered {
+    pub image: ImageF32,
+    pub depth: Option<ImageF32>,
+    /// The silhouettes the CLI writes with `--masks`: the union, per object, per structure present.
+    pub masks: Option<RenderedMasks>,
+    /// Rays whose crossings did not pair even after retracing (the CLI warns about them).
+    pub rays_unrepaired: u64,
+    /// The render's counters and time, as the sidecar's `stats` entry.
+    pub stats: serde_json::Value,
+}
+
+pub struct RenderedMasks {
+    pub all: Vec<bool>,
+    pub objects: Vec<(String, Vec<bool>)>,
+    pub structures: Vec<(String, Vec<bool>)>,
+}
+
+impl Renderer {
+    /// The scene and backend of `spinedrr render --mesh …` / `--phantom …`.
+    pub fn new(meshes: Vec<SceneMesh>, backend: Backend) -> Result<Self> {
+        Ok(Renderer(backend.renderer(RenderScene::new(meshes)?)?))
+    }
+
+    pub fn backend_name(&self) -> &'static str {
+        self.0.backend_name()
+    }
+
+    pub fn objects(&self) -> Vec<String> {
+        self.0.scene().objects.clone()
+    }
+
+    pub fn open_meshes(&self) -> Vec<String> {
+        self.0.scene().open_meshes.clone()
+    }
+
+    /// One render, with the options and mask selection of `spinedrr render [--masks] [--depth]`.
+    pub fn render(&self, view: &View, masks: bool, depth: bool) -> Result<Rendered> {
+        let opts = ThicknessOptions {
+            masks,
+            depth,
+            ..ThicknessOptions::default()
+        };
+        let drr = self.0.render(view, &opts)?;
+        let masks = match drr.masks.as_ref() {
+            Some(m) => Some(RenderedMasks {
+                all: m.union(),
+                objects: (drr.objects.iter().enumerate())
+                    .map(|(i, name)| (name.clone(), m.object(i)))
+                    .collect(),
+                structures: Structure::ALL
+                    .into_iter()
+                    .filter(|&s| s != Structure::Unlabelled)
+                    .map(|s| (s.name().to_string(), m.structure(s)))
+                    .filter(|(_, mask)| mask.iter().any(|&b| b))
+                    .collect(),
+            }),
+            None => None,
+        };
+        Ok(Rendered {
+            image: drr.line_integral,
+            depth: drr.depth,
+            masks,
+            rays_unrepaired: drr.stats.rays_unrepaired,
+            stats: serde_json::to_value(drr.stats).map_err(|e| Error::encode("render stats", e))?,
+        })
+    }
+}
+
+/// A CT DRR as `spinedrr render --ct` renders it: volume, optional voxel mask, method, μ_water, step.
+pub fn render_ct(
+    ct: &CtVolume,
+    keep: Option<Vec<bool>>,
+    method: &str,
+    mu_water: f64,
+    step_mm: Option<f64>,
+    view: &View,
+) -> Result<ImageF32> {
+    let method: VolumeMethod = method.parse()?;
+    let mask = match keep {
+        Some(keep) => Some(
+            VoxelMask::from_keep(ct, keep)
+                .ok_or_else(|| Error::invalid("mask", "keeps no voxel"))?,
+        ),
+        None => None,
+    };
+    let opts = VolumeRenderOptions {
+        method,
+        mu_water,
+        step_mm,
+    };
+    let renderer = VolumeRenderer::new(ct, &opts, mask.as_ref())?;
+    view.intrinsics.validate()?;
+    Ok(renderer.render(view))
+}
+
+pub fn ct_volume(
+    dims: [usize; 3],
+    values: Vec<f32>,
+    affine_rows: [[f64; 4]; 4],
+) -> Result<CtVolume> {
+    let cols = glam::DMat4::from_cols_array_2d(&affine_rows).transpose();
+    CtVolume::new(dims, values, cols)
+}
+
+/// Every metric of `spinedrr compare`, as the `image`, `silhouettes` and `landmarks` entries of its
+/// `metrics.json`.
+pub fn compare(
+    reference: &ImageF32,
+    perturbed: &ImageF32,
+    masks: &[MaskPair],
+    landmarks: &[Landmark],
+    views: Option<(&View, &View)>,
+) -> Result<serde_json::Value> {
+    let c = spinedrr::analysis::compare(reference, perturbed, masks, landmarks, views)?;
+    let enc = |e: serde_json::Error| Error::encode("comparison", e);
+    Ok(serde_json::json!({
+        "image": serde_json::to_value(&c.image).map_err(enc)?,
+        "silhouettes": serde_json::to_value(&c.silhouettes).map_err(enc)?,
+        "landmarks": serde_json::to_value(&c.landmarks).map_err(enc)?,
+    }))
+}
+
+pub fn landmark(name: String, p: [f64; 3]) -> Landmark {
+    Landmark {
+        name,
+        position: DVec3::from(p),
+    }
+}
+
+/// The options of `spinedrr register` besides the problem.
+pub struct RegisterArgs {
+    pub method: String,
+    pub views: Vec<String>,
+    pub noise_px: f64,
+    pub seed: u64,
+    pub init_rot_deg: Option<f64>,
+    pub init_trans_mm: Option<f64>,
+    pub max_iterations: usize,
+}
+
+/// `spinedrr register` on a problem JSON document: the same steps (view selection, noise, initial
+/// pose from the truth) and the same output record as its `R.json`.
+///
+/// Seam: these steps live in `src/cli/register.rs` today; when the library grows one function for
+/// them, this body becomes that call.
+pub fn register(problem_json: &str, a: &RegisterArgs) -> Result<serde_json::Value> {
+    let method = Method::parse(&a.method)?;
+    let loaded = LoadedProblem::from_json_str(problem_json, "problem")?;
+    let mut problem = loaded.problem;
+    if !a.views.is_empty() {
+        problem = problem.select_views(&a.views)?;
+    }
+    if !(a.noise_px.is_finite() && a.noise_px >= 0.0) {
+        return Err(Error::invalid(
+            "noise_px",
+            format!("must be a non-negative number, got {}", a.noise_px),
+        ));
+    }
+    if a.noise_px > 0.0 {
+        problem = add_pixel_noise(&problem, a.noise_px, a.seed);
+    }
+    let mut init = loaded.init;
+    if a.init_rot_deg.is_some() || a.init_trans_mm.is_some() {
+        let Some(truth) = loaded.truth else {
+            return Err(Error::invalid(
+                "init_rot_deg/init_trans_mm",
+                "they perturb the truth, but the problem has no \"truth\"",
+            ));
+        };
+        let (deg, mm) = (
+            a.init_rot_deg.unwrap_or(0.0),
+            a.init_trans_mm.unwrap_or(0.0),
+        );
+        if !(deg.is_finite() && mm.is_finite()) {
+            return Err(Error::invalid(
+                "init_rot_deg/init_trans_mm",
+                "must be finite",
+            ));
+        }
+        let centre = truth.apply(model_centroid(&problem));
+        init = Some(perturb_pose(&truth, deg, mm, centre, a.seed));
+    }
+    let opts = RegistrationOptions {
+        init,
+        max_iterations: a.max_iterations,
+        ..Default::default()
+    };
+    let r = spinedrr::registration::register(&problem, method, &opts)?;
+    let mut out = serde_json::json!({
+        "R": r.pose.rotation_rows(),
+        "t": r.pose.translation.to_array(),
+        "residual_px": r.residual_px,
+        "iterations": r.iterations,
+        "converged": r.converged,
+        "method": a.method,
+        "views": problem.views.iter().map(|v| v.view.name.clone()).collect::<Vec<_>>(),
+    });
+    if let Some(truth) = loaded.truth {
+        let e = pose_errors(&r.pose, &truth);
+        out["rot_err_deg"] = serde_json::json!(e.rot_err_deg);
+        out["trans_err_mm"] = serde_json::json!(e.trans_err_mm);
+    }
+    Ok(out)
+}
+
+/// Shared, immutable mesh handle (render scenes hold meshes by `Arc`).
+pub type MeshRef = Arc<TriMesh>;
