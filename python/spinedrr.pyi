@@ -120,6 +120,9 @@ def render_ct(
 ) -> F32:
     """CT DRR of a nibabel-style (i, j, k) HU array with its 4 × 4 index → world affine."""
 
+def intensity(line_integral: F32, i0: float) -> F32:
+    """``I0 · exp(−L)`` of a line-integral image, as ``spinedrr render --intensity I0`` writes it."""
+
 def compare(
     reference: F32, perturbed: F32, masks: Mapping[str, tuple[Bool, Bool]] | None = None,
     landmarks: Mapping[str, Sequence[float] | F64] | None = None, views: tuple[View, View] | None = None,

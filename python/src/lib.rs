@@ -34,7 +34,7 @@ mod render;
 #[pyo3(name = "spinedrr")]
 fn spinedrr_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", lib_bridge::VERSION)?;
-    m.add("MU_WATER_PER_MM", lib_bridge::MU_WATER_70KEV)?;
+    m.add("MU_WATER_PER_MM", lib_bridge::MU_WATER_PER_MM)?;
     m.add_class::<geometry::PyCArm>()?;
     m.add_class::<geometry::PyView>()?;
     m.add_class::<geometry::PyPerturbation>()?;
@@ -45,6 +45,7 @@ fn spinedrr_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(anatomy::read_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_ct, m)?)?;
+    m.add_function(wrap_pyfunction!(render::intensity, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::compare, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::register, m)?)?;
     Ok(())

@@ -18,11 +18,11 @@ use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer
 use spinedrr::render::{RenderScene, ThicknessOptions, ThicknessRenderer};
 
 pub use spinedrr::analysis::{Landmark, MaskPair};
+pub use spinedrr::anatomy::MU_WATER_PER_MM;
 pub use spinedrr::anatomy::TriMesh;
 pub use spinedrr::anatomy::ct::CtVolume;
 pub use spinedrr::geometry::{CArm, Intrinsics, Perturbation, RigidTransform, View};
 pub use spinedrr::io::ImageF32;
-pub use spinedrr::render::volume::MU_WATER_70KEV;
 pub use spinedrr::render::{Backend, SceneMesh};
 pub use spinedrr::{Error, Result, VERSION};
 
@@ -90,6 +90,11 @@ pub fn phantom(levels: &str, soft_tissue: bool, discs: bool) -> Result<PhantomPa
     })
 }
 
+/// `I0 · exp(−L)` of a line-integral image, as `spinedrr render --intensity I0` writes it.
+pub fn intensity(line_integral: &ImageF32, i0: f64) -> Result<ImageF32> {
+    Ok(spinedrr::io::DrrValues::new(Some(i0))?.apply(line_integral))
+}
+
 pub fn read_mesh(path: &Path) -> Result<TriMesh> {
     spinedrr::anatomy::read_mesh(path)
 }
@@ -114,26 +119,11 @@ pub fn mesh(
 }
 
 pub fn backend(name: &str) -> Result<Backend> {
-    match name {
-        "raster" => Ok(Backend::Raster),
-        "embree" => Ok(Backend::Embree),
-        "bvh" => Ok(Backend::Bvh),
-        other => Err(Error::invalid(
-            "backend",
-            format!("unknown backend '{other}' (accepted: raster, embree, bvh)"),
-        )),
-    }
+    Backend::parse(name)
 }
 
-/// A [`ThicknessRenderer`] built by [`Backend::renderer`], which can move between threads.
+/// A [`ThicknessRenderer`] built by [`Backend::renderer`] (`Send + Sync`: it moves between threads).
 pub struct Renderer(ThicknessRenderer);
-
-// SAFETY: `ThicknessRenderer` is `Sync` but not `Send` only because its tracer is a
-// `Box<dyn HitTracer>` whose trait has no `Send` bound. `Backend::renderer` stores one of the
-// library's own tracers there, `EmbreeTracer` (`Send`: its Embree handles are `unsafe impl Send`,
-// and Embree releases objects from any thread) or `BvhTracer` (plain data), so moving or dropping
-// the renderer on another thread is sound. (A `Send` bound on `HitTracer` would remove this impl.)
-unsafe impl Send for Renderer {}
 
 /// What one render returns: the line integral and the outputs asked for.
 pub struct Rendered {

@@ -11,7 +11,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
 
 use crate::anatomy::PyMesh;
-use crate::arrays::{image_to_py, into_2d, matrix, untyped};
+use crate::arrays::{image, image_to_py, into_2d, matrix, untyped};
 use crate::errors::{IntoPy, json_to_py};
 use crate::geometry::PyView;
 use crate::lib_bridge as lib;
@@ -306,7 +306,7 @@ fn mask_values(obj: &Bound<'_, PyAny>, dims: [usize; 3]) -> PyResult<Vec<bool>> 
 /// ``"trilinear"``. μ(HU) = ``mu_water`` · max(0, 1 + HU/1000) mm⁻¹; ``step_mm`` is the trilinear step
 /// (capped at half the smallest spacing). Returns float32 H × W line integrals of μ.
 #[pyfunction]
-#[pyo3(signature = (hu, affine, view, mask=None, method="siddon", mu_water=lib::MU_WATER_70KEV, step_mm=None))]
+#[pyo3(signature = (hu, affine, view, mask=None, method="siddon", mu_water=lib::MU_WATER_PER_MM, step_mm=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render_ct<'py>(
     py: Python<'py>,
@@ -329,5 +329,20 @@ pub fn render_ct<'py>(
             lib::render_ct(&ct, keep, &method, mu_water, step_mm, &v)
         })
         .py_err()?;
+    image_to_py(py, img)
+}
+
+/// Transmitted intensity ``I0 · exp(−L)`` (Beer–Lambert) of a float32 H × W line-integral image ``L``
+/// (a ``render_mesh`` or ``render_ct`` result): what ``spinedrr render --intensity I0`` writes, bit for
+/// bit. ``i0`` is the unattenuated intensity (a positive number).
+#[pyfunction]
+#[pyo3(signature = (line_integral, i0))]
+pub fn intensity<'py>(
+    py: Python<'py>,
+    line_integral: &Bound<'py, PyAny>,
+    i0: f64,
+) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
+    let l = image(line_integral, "line_integral")?;
+    let img = py.detach(move || lib::intensity(&l, i0)).py_err()?;
     image_to_py(py, img)
 }

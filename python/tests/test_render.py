@@ -30,6 +30,17 @@ def test_phantom_render_equals_cli_tiff(cli, l3, carm, tmp_path, view_name, spec
     assert stats == cli_stats and stats["rays_traced"] > 0
 
 
+def test_intensity_equals_cli_intensity_tiff(cli, l3, carm, tmp_path):
+    expected = cli.render(tmp_path / "cli.tiff", "--phantom", "L3", "--view", "lat", "--intensity", "10000")
+    line_integral = spinedrr.render_mesh(l3.scene, carm.view("lat"))
+    image = spinedrr.intensity(line_integral, 1e4)
+    assert same_bits(image, expected)
+    # Beer–Lambert, independently: air pixels carry I0, the vertebra attenuates.
+    assert image.max() == np.float32(1e4) and image.min() < 1e4 * np.exp(-1.0)
+    with pytest.raises(ValueError, match="I0"):
+        spinedrr.intensity(line_integral, -1.0)
+
+
 @pytest.mark.parametrize("backend", ["raster", "embree", "bvh"])
 def test_mesh_files_render_equals_cli_with_masks_and_depth(cli, phantom_dir, carm, tmp_path, backend):
     cortical, cancellous = phantom_dir / "L3_cortical.stl", phantom_dir / "L3_cancellous.stl"

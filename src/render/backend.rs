@@ -6,7 +6,7 @@ use super::embree::EmbreeTracer;
 use super::scene::RenderScene;
 use super::thickness::ThicknessRenderer;
 use super::tracer::HitTracer;
-use crate::Result;
+use crate::{Error, Result};
 
 /// The ray-tracing backend of a thickness render.
 #[derive(
@@ -25,6 +25,25 @@ pub enum Backend {
 }
 
 impl Backend {
+    /// The backend named `name` as `--backend` and the study's `backend` key spell it (`raster`,
+    /// `embree`, `bvh`).
+    pub fn parse(name: &str) -> Result<Backend> {
+        use clap::ValueEnum;
+        Backend::from_str(name, false).map_err(|_| {
+            let accepted: Vec<String> = Backend::value_variants()
+                .iter()
+                .filter_map(|b| b.to_possible_value().map(|v| v.get_name().to_string()))
+                .collect();
+            Error::invalid(
+                "backend",
+                format!(
+                    "unknown backend '{name}' (accepted: {})",
+                    accepted.join(", ")
+                ),
+            )
+        })
+    }
+
     /// Builds a renderer for `scene` with this backend.
     pub fn renderer(self, scene: RenderScene) -> Result<ThicknessRenderer> {
         let tracer: Box<dyn HitTracer> = match self {
@@ -38,7 +57,7 @@ impl Backend {
 
 /// What the raster traces when it cannot rasterise (single rays, views with a vertex at or behind the
 /// source plane): Embree, or the reference BVH if Embree cannot take the scene.
-fn raster_fallback(scene: &RenderScene) -> Box<dyn HitTracer + Send> {
+fn raster_fallback(scene: &RenderScene) -> Box<dyn HitTracer> {
     match EmbreeTracer::new(scene) {
         Ok(embree) => Box::new(embree),
         Err(_) => Box::new(BvhTracer::new(scene)),

@@ -42,7 +42,7 @@ impl RayPacket {
 }
 
 /// A ray-tracing backend that reports every hit along each ray (no closest-hit culling).
-pub trait HitTracer: Sync {
+pub trait HitTracer: Send + Sync {
     /// Short name for reports (`embree`, `bvh`).
     fn name(&self) -> &'static str;
     /// Appends every hit of ray `i` of the packet to `hits[i]` (lists are cleared by the callee).

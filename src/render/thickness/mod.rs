@@ -34,7 +34,7 @@ use crate::geometry::View;
 use crate::io::ImageF32;
 
 /// Builds the tracer a rasterising renderer falls back to for single rays and unprojectable views.
-pub(crate) type FallbackTracer = fn(&RenderScene) -> Box<dyn HitTracer + Send>;
+pub(crate) type FallbackTracer = fn(&RenderScene) -> Box<dyn HitTracer>;
 
 /// A scene plus a backend, built once and rendered from any number of views.
 pub struct ThicknessRenderer {
@@ -51,7 +51,7 @@ enum Gather {
     /// the fallback tracer, built on first use.
     Raster {
         fallback: FallbackTracer,
-        tracer: OnceLock<Box<dyn HitTracer + Send>>,
+        tracer: OnceLock<Box<dyn HitTracer>>,
     },
 }
 
