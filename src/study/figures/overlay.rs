@@ -15,10 +15,12 @@ use crate::io::{ImageF32, read_tiff_f32};
 use crate::study::experiments::reference_image_path;
 use crate::study::schema::{Family, LandmarkRow};
 
-/// Magnification of displacement arrows (shifts are a few px on a 1000-px image).
-const OVERLAY_GAIN: f64 = 10.0;
+/// Candidate magnifications of the displacement arrows, largest first.
+const GAINS: [f64; 6] = [50.0, 20.0, 10.0, 5.0, 2.0, 1.0];
 const SIZE: (u32, u32) = (1000, 900);
 const LABEL_FONT: u32 = 14;
+/// The legend box (px): four entries of 20 px.
+const LEGEND_SIZE: (u32, u32) = (230, 92);
 
 /// One landmark in an overlay: name, reference, measured and predicted positions (px).
 struct Point {
@@ -63,41 +65,59 @@ pub fn landmark_overlays(out: &Path, rows: &[LandmarkRow], figs: &Path) -> Resul
                 .then(|| read_tiff_f32(&image_path))
                 .transpose()?;
             let file = figs.join(format!("landmark_overlay_{target}_{view}.png"));
+            let g = gain(&pts);
             let title = format!(
-                "{target} {view}: landmarks at focal Δf {df_max} px (arrows ×{OVERLAY_GAIN}){}",
+                "{target} {view}: landmarks at focal Δf {df_max} px (arrows ×{g}){}",
                 if drr.is_some() {
                     ""
                 } else {
                     " (no reference DRR found)"
                 }
             );
-            overlay_chart(&file, &title, &pts, drr.as_ref())?;
+            overlay_chart(&file, &title, &pts, g, drr.as_ref())?;
         }
     }
     Ok(())
 }
 
-/// `x + gain · (y − x)`.
-fn tip(x: (f64, f64), y: (f64, f64)) -> (f64, f64) {
-    (
-        x.0 + OVERLAY_GAIN * (y.0 - x.0),
-        x.1 + OVERLAY_GAIN * (y.1 - x.1),
-    )
+/// The arrow magnification: the largest of [`GAINS`] that keeps the longest arrow within a fifth of
+/// the landmarks' spread (1 when the shifts are already that large).
+fn gain(pts: &[Point]) -> f64 {
+    let (mut spread, mut longest) = (0.0f64, 0.0f64);
+    for p in pts {
+        for q in pts {
+            spread =
+                spread.max((p.reference.0 - q.reference.0).hypot(p.reference.1 - q.reference.1));
+        }
+        for y in [p.measured, p.predicted] {
+            longest = longest.max((y.0 - p.reference.0).hypot(y.1 - p.reference.1));
+        }
+    }
+    let limit = 0.2 * spread.max(50.0);
+    GAINS
+        .into_iter()
+        .find(|g| g * longest <= limit)
+        .unwrap_or(1.0)
+}
+
+/// `x + g · (y − x)`.
+fn tip(x: (f64, f64), y: (f64, f64), g: f64) -> (f64, f64) {
+    (x.0 + g * (y.0 - x.0), x.1 + g * (y.1 - x.1))
 }
 
 /// The detector window shown: every point and arrow tip with a margin, widened to the plot's aspect
 /// ratio `aspect` (width / height) so DRR pixels stay square.
-fn window(pts: &[Point], aspect: f64) -> ((f64, f64), (f64, f64)) {
+fn window(pts: &[Point], g: f64, aspect: f64) -> ((f64, f64), (f64, f64)) {
     let (mut u0, mut u1, mut v0, mut v1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for p in pts {
-        for (u, v) in [p.reference, p.measured, tip(p.reference, p.measured)] {
+        for (u, v) in [p.reference, p.measured, tip(p.reference, p.measured, g)] {
             (u0, u1, v0, v1) = (u0.min(u), u1.max(u), v0.min(v), v1.max(v));
         }
     }
     if u0 > u1 {
         (u0, u1, v0, v1) = (0.0, 1.0, 0.0, 1.0);
     }
-    let m = 0.15 * (u1 - u0).max(v1 - v0).max(40.0);
+    let m = 0.25 * (u1 - u0).max(v1 - v0).max(40.0);
     let (mut w, mut h) = (u1 - u0 + 2.0 * m, v1 - v0 + 2.0 * m);
     if w / h < aspect {
         w = h * aspect;
@@ -127,7 +147,13 @@ fn grey(l: f32, scale: f32) -> RGBColor {
     RGBColor(g, g, g)
 }
 
-fn overlay_chart(path: &Path, title: &str, pts: &[Point], drr: Option<&ImageF32>) -> Result<()> {
+fn overlay_chart(
+    path: &Path,
+    title: &str,
+    pts: &[Point],
+    g: f64,
+    drr: Option<&ImageF32>,
+) -> Result<()> {
     register_font()?;
     let mut buf = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
     {
@@ -139,7 +165,7 @@ fn overlay_chart(path: &Path, title: &str, pts: &[Point], drr: Option<&ImageF32>
             .map_err(plot_err)?;
         let (px, py) = probe.plotting_area().get_pixel_range();
         let aspect = f64::from(px.end - px.start) / f64::from(py.end - py.start);
-        let ((u0, u1), (v0, v1)) = window(pts, aspect);
+        let ((u0, u1), (v0, v1)) = window(pts, g, aspect);
         // v grows downward on the detector: the y axis runs from v1 (bottom) to v0 (top).
         let mut chart = builder(&root, title)
             .build_cartesian_2d(u0..u1, v1..v0)
@@ -153,8 +179,8 @@ fn overlay_chart(path: &Path, title: &str, pts: &[Point], drr: Option<&ImageF32>
             .draw()
             .map_err(plot_err)?;
         background(&root, &chart, drr)?;
-        markers_and_labels(&root, &mut chart, pts)?;
-        legend(&root, (px.start, py.start))?;
+        markers_and_labels(&root, &mut chart, pts, g)?;
+        legend(&root, (px.start, py.start), g)?;
         root.present().map_err(plot_err)?;
     }
     encode_png_sized(path, buf, SIZE)
@@ -202,6 +228,7 @@ fn markers_and_labels(
     root: &DrawingArea<BitMapBackend, Shift>,
     chart: &mut Chart,
     pts: &[Point],
+    g: f64,
 ) -> Result<()> {
     let spec = chart.as_coord_spec().clone();
     let to_px = |p: (f64, f64)| {
@@ -210,7 +237,7 @@ fn markers_and_labels(
     };
     let mut obstacles = Vec::new();
     for p in pts {
-        let (a, b) = (to_px(p.reference), to_px(tip(p.reference, p.measured)));
+        let (a, b) = (to_px(p.reference), to_px(tip(p.reference, p.measured, g)));
         for k in 0..=10 {
             let s = f64::from(k) / 10.0;
             let q = (a.0 + s * (b.0 - a.0), a.1 + s * (b.1 - a.1));
@@ -218,21 +245,21 @@ fn markers_and_labels(
         }
         obstacles.push(PixelBox::around(to_px(p.measured), 12.0, 12.0));
         obstacles.push(PixelBox::around(
-            to_px(tip(p.reference, p.predicted)),
+            to_px(tip(p.reference, p.predicted, g)),
             14.0,
             14.0,
         ));
     }
     for p in pts {
         let arrow = PathElement::new(
-            vec![p.reference, tip(p.reference, p.measured)],
+            vec![p.reference, tip(p.reference, p.measured, g)],
             MEAS_COLOUR.stroke_width(2),
         );
         chart
             .draw_series(std::iter::once(arrow))
             .map_err(plot_err)?;
         let cross = Cross::new(
-            tip(p.reference, p.predicted),
+            tip(p.reference, p.predicted, g),
             6,
             PRED_COLOUR.stroke_width(2),
         );
@@ -257,6 +284,13 @@ fn markers_and_labels(
         x1: f64::from(px.end),
         y1: f64::from(py.end),
     };
+    // The legend sits in the plot's top-left corner (see [`legend`]).
+    obstacles.push(PixelBox {
+        x0: bounds.x0,
+        y0: bounds.y0,
+        x1: bounds.x0 + f64::from(8 + LEGEND_SIZE.0),
+        y1: bounds.y0 + f64::from(8 + LEGEND_SIZE.1),
+    });
     let anchors: Vec<(f64, f64)> = pts.iter().map(|p| to_px(p.reference)).collect();
     let boxes = place_labels(&anchors, &sizes, &obstacles, bounds);
     for ((p, b), a) in pts.iter().zip(&boxes).zip(&anchors) {
@@ -286,16 +320,16 @@ fn markers_and_labels(
 }
 
 /// What the marks mean, in a box at the plot's top-left corner.
-fn legend(root: &DrawingArea<BitMapBackend, Shift>, (x, y): (i32, i32)) -> Result<()> {
+fn legend(root: &DrawingArea<BitMapBackend, Shift>, (x, y): (i32, i32), g: f64) -> Result<()> {
     let entries = [
-        ("reference position", REF_COLOUR),
-        ("measured, perturbed K", MEAS_COLOUR),
-        ("shift ×10 (arrow)", MEAS_COLOUR),
-        ("H·x predicted (×10)", PRED_COLOUR),
+        ("reference position".to_string(), REF_COLOUR),
+        ("measured, perturbed K".to_string(), MEAS_COLOUR),
+        (format!("measured shift ×{g} (arrow)"), MEAS_COLOUR),
+        (format!("H·x predicted (×{g})"), PRED_COLOUR),
     ];
     let (x, y) = (x + 8, y + 8);
     root.draw(&Rectangle::new(
-        [(x, y), (x + 210, y + 12 + 20 * entries.len() as i32)],
+        [(x, y), (x + LEGEND_SIZE.0 as i32, y + LEGEND_SIZE.1 as i32)],
         WHITE.mix(0.85).filled(),
     ))
     .map_err(plot_err)?;
@@ -313,8 +347,46 @@ fn legend(root: &DrawingArea<BitMapBackend, Shift>, (x, y): (i32, i32)) -> Resul
         }
         .map_err(plot_err)?;
         let style = ("sans-serif", LABEL_FONT).into_font().color(&BLACK);
-        root.draw(&Text::new(label.to_string(), (x + 34, cy - 8), style))
+        root.draw(&Text::new(label.clone(), (x + 34, cy - 8), style))
             .map_err(plot_err)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(u: f64, shift: f64) -> Point {
+        Point {
+            name: String::new(),
+            reference: (u, 100.0),
+            measured: (u + shift, 100.0),
+            predicted: (u + shift, 100.0),
+        }
+    }
+
+    #[test]
+    fn arrows_are_magnified_to_a_fifth_of_the_spread_at_most() {
+        // Spread 400 px → arrows up to 80 px: a 3-px shift gets ×20 (60 px), a 30-px shift ×2 (60 px),
+        // a 100-px shift is drawn at its size.
+        for (shift, g) in [(3.0, 20.0), (30.0, 2.0), (100.0, 1.0)] {
+            assert_eq!(
+                gain(&[point(0.0, shift), point(400.0, 0.0)]),
+                g,
+                "shift {shift}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_window_holds_every_arrow_at_the_plot_aspect() {
+        let pts = [point(100.0, 10.0), point(300.0, -5.0)];
+        let ((u0, u1), (v0, v1)) = window(&pts, 5.0, 1.5);
+        assert!(((u1 - u0) / (v1 - v0) - 1.5).abs() < 1e-12);
+        for p in &pts {
+            let t = tip(p.reference, p.measured, 5.0);
+            assert!(u0 < t.0 && t.0 < u1 && u0 < p.reference.0 && v0 < 100.0 && 100.0 < v1);
+        }
+    }
 }
