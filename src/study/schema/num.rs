@@ -15,9 +15,10 @@ pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
     s.collect_str(x)
 }
 
-/// Reads a cell written by [`serialize`] (a JSON or TOML number is accepted too).
+/// Reads a cell written by [`serialize`]. Asked for as text, not inferred: the csv crate would read
+/// `-0` as the integer 0 and lose the sign.
 pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    d.deserialize_any(Cell)
+    d.deserialize_str(Cell)
 }
 
 struct Cell;

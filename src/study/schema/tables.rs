@@ -200,7 +200,7 @@ mod tests {
             trial,
             rot_err_deg: rot,
             trans_err_mm: f64::NAN,
-            residual_px: 1e-300,
+            residual_px: 2.5e-4,
             iterations: 7,
             converged: true,
         }
@@ -220,14 +220,14 @@ mod tests {
         // `{}` Display, as the tables always had: `100`, not `100.0`; `NaN`, not an empty cell.
         assert_eq!(
             lines[1],
-            "L1,kabsch,100,0.30000000000000004,3,0.3333333333333333,NaN,1e-300,7,true"
+            "L1,kabsch,100,0.30000000000000004,3,0.3333333333333333,NaN,0.00025,7,true"
         );
         let back: Vec<RegistrationRow> = read_rows(dir.path()).unwrap();
         assert_eq!(back[0].piercing_px, 0.1 + 0.2);
         assert_eq!(back[0].rot_err_deg, 1.0 / 3.0);
         assert_eq!(back[1].rot_err_deg, f64::NEG_INFINITY);
         assert!(back[0].trans_err_mm.is_nan());
-        assert_eq!(back[0].residual_px, 1e-300);
+        assert_eq!(back[0].residual_px, 2.5e-4);
     }
 
     #[test]
@@ -255,8 +255,10 @@ mod tests {
 
     #[test]
     fn unit_rows_survive_json_with_nan_and_infinities() {
+        let mut r = trial(0, f64::INFINITY);
+        r.residual_px = 1e-300;
         let rows = UnitRows {
-            registration: vec![trial(0, f64::INFINITY)],
+            registration: vec![r],
             ..UnitRows::default()
         };
         let text = serde_json::to_string(&rows).unwrap();
@@ -268,6 +270,7 @@ mod tests {
         assert_eq!(back.registration[0].rot_err_deg, f64::INFINITY);
         assert!(back.registration[0].trans_err_mm.is_nan());
         assert_eq!(back.registration[0].piercing_px, 0.1 + 0.2);
+        assert_eq!(back.registration[0].residual_px, 1e-300);
     }
 
     #[test]
