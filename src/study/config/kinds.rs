@@ -192,7 +192,13 @@ pub mod label_convention {
     ) -> std::result::Result<LabelConvention, D::Error> {
         let s = String::deserialize(d)?;
         s.parse::<LabelConvention>()
-            .map_err(|e| Error::invalid("anatomy.ct.labels", e.to_string()))
+            .map_err(|e| {
+                let message = match e {
+                    Error::Invalid { message, .. } => message,
+                    other => other.to_string(),
+                };
+                Error::invalid("anatomy.ct.labels", message)
+            })
             .map_err(serde::de::Error::custom)
     }
 }
@@ -220,6 +226,19 @@ mod tests {
         let e = "proj".parse::<Experiment>().unwrap_err().to_string();
         assert!(e.contains("experiments") && e.contains("landmarks"), "{e}");
         assert_eq!(RegistrationMethod::Kabsch.views(), ["ap", "lat"]);
+        #[derive(Debug, Deserialize)]
+        struct Ct {
+            #[serde(with = "label_convention")]
+            #[allow(dead_code)]
+            labels: LabelConvention,
+        }
+        let e = toml::from_str::<Ct>("labels = \"foo\"")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("invalid anatomy.ct.labels: unknown label convention"),
+            "{e}"
+        );
         assert_eq!(
             RegistrationMethod::OpencvLat.solver(),
             Method::parse("opencv").unwrap()

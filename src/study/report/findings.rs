@@ -7,10 +7,13 @@ use super::paper::PaperResults;
 use super::{ap_joint_dice_min, paper_ranges, projection_row, summary_range};
 use crate::study::config::RegistrationMethod;
 use crate::study::figures::distinct;
-use crate::study::schema::{Family, LandmarkRow, ProjectionRow, StructureRow, StudyTables};
+use crate::study::schema::{
+    Family, LandmarkRow, ProjectionRow, RegistrationSummaryRow, StructureRow, StudyTables, TableRow,
+};
 
-/// A Markdown link to `tables/<name>.csv`.
-fn table(name: &str) -> String {
+/// A Markdown link to the table of rows `R`.
+fn table<R: TableRow>() -> String {
+    let name = R::TABLE;
     format!("[{name}.csv](tables/{name}.csv)")
 }
 
@@ -42,7 +45,7 @@ fn lat_over_ap(dfs: &[f64], of: impl Fn(&str, f64) -> Option<f64>, unit: &str) -
         .filter_map(|&df| {
             let (ap, lat) = (of("ap", df)?, of("lat", df)?);
             let ratio = if ap > 0.0 {
-                format!("{:.1}", lat / ap)
+                format!("{:.2}", lat / ap)
             } else {
                 "∞".into()
             };
@@ -68,7 +71,7 @@ fn landmark_ratio(rows: &[LandmarkRow]) -> Option<String> {
     let text = lat_over_ap(&dfs, of, " px")?;
     Some(format!(
         "Mean landmark shift under a pure focal error, over every target and landmark — {text} ({}, {}).",
-        table("landmarks"),
+        table::<LandmarkRow>(),
         figure("landmark_shift_vs_df.png")
     ))
 }
@@ -88,7 +91,7 @@ fn dice_ratio(rows: &[ProjectionRow]) -> Option<String> {
     Some(format!(
         "Silhouette loss 1 − Dice under a pure focal error, mean over targets — {text} ({}; the joint \
 schedule in {}).",
-        table("projection"),
+        table::<ProjectionRow>(),
         figure("dice_vs_perturbation.png")
     ))
 }
@@ -123,7 +126,7 @@ views) and the least sensitive {} ({:.3}) ({}, e.g. {}).",
         most.1,
         least.0,
         least.1,
-        table("structures"),
+        table::<StructureRow>(),
         figure(&format!("structures_dice_{first}_{view}.png"))
     ))
 }
@@ -146,7 +149,7 @@ fn registration(t: &StudyTables, first: &str) -> Option<String> {
             "Registration bias over Δf > 0 (means over trials, every target and piercing shift): {} \
 ({}, {}).",
             parts.join("; "),
-            table("registration_summary"),
+            table::<RegistrationSummaryRow>(),
             figure(&format!("registration_{first}_rot.png"))
         )
     })
@@ -167,7 +170,7 @@ AP Dice cannot come from this pinhole model, and we report what the model gives 
             s.lat_dice.at_df_500,
             ap_joint_dice_min(&t.projection, first).map_or("n/a".into(), |v| format!("{v:.3}")),
             s.ap_dice_min,
-            table("projection"),
+            table::<ProjectionRow>(),
             figure("dice_vs_perturbation.png")
         ));
     }
@@ -192,7 +195,7 @@ LAT {lat:.2} px; the paper's table gives AP {:.2}, LAT {:.2} px without stating 
 disagrees with its table), so only the LAT > AP ordering is comparable ({}, {}).",
             paper.mean_landmark_shift(0),
             paper.mean_landmark_shift(1),
-            table("landmarks"),
+            table::<LandmarkRow>(),
             figure(&format!("landmark_overlay_{first}_lat.png"))
         ));
     }
@@ -218,7 +221,7 @@ the true K and solve with the perturbed one, so the error is the calibration err
 of p px moves the solution sideways by about z·p/f, which at p = 50 px dominates our translation ranges \
 ({}, {}).",
             reg.join("; "),
-            table("registration_summary"),
+            table::<RegistrationSummaryRow>(),
             figure(&format!("registration_{first}_trans.png"))
         ));
     }
