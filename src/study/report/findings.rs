@@ -96,7 +96,7 @@ schedule in {}).",
     ))
 }
 
-fn structures(rows: &[StructureRow], first: &str) -> Option<String> {
+fn structures_finding(rows: &[StructureRow], first: &str) -> Option<String> {
     let df = rows
         .iter()
         .filter(|r| r.family == Family::Focal)
@@ -188,11 +188,21 @@ AP Dice cannot come from this pinhole model, and we report what the model gives 
                 .map(|r| r.shift_px),
         )
     };
+    let matched = distinct(
+        t.landmarks
+            .iter()
+            .filter(|r| r.target == first && paper.landmark_shift_px.contains_key(&r.landmark))
+            .map(|r| r.landmark.as_str()),
+    )
+    .len();
     if let (Some(ap), Some(lat)) = (shift("ap"), shift("lat")) {
         out.push(format!(
-            "Over the paper's six landmarks of {first} at focal Δf 100 px our mean shift is AP {ap:.2} px, \
-LAT {lat:.2} px; the paper's table gives AP {:.2}, LAT {:.2} px without stating its Δf (and its text \
-disagrees with its table), so only the LAT > AP ordering is comparable ({}, {}).",
+            "Over the {matched} of the paper's {} landmarks that {first} has, at focal Δf 100 px our mean \
+shift is AP {ap:.2} px, \
+LAT {lat:.2} px; the paper's table gives AP {:.2}, LAT {:.2} px (mean of all its landmarks) without \
+stating its Δf (and its text disagrees with its table), so only the LAT > AP ordering is comparable \
+({}, {}).",
+            paper.landmark_shift_px.len(),
             paper.mean_landmark_shift(0),
             paper.mean_landmark_shift(1),
             table::<LandmarkRow>(),
@@ -233,7 +243,7 @@ pub fn section(md: &mut String, t: &StudyTables, paper: &PaperResults, first: &s
     let items: Vec<String> = [
         landmark_ratio(&t.landmarks),
         dice_ratio(&t.projection),
-        structures(&t.structures, first),
+        structures_finding(&t.structures, first),
         registration(t, first),
     ]
     .into_iter()
@@ -248,4 +258,84 @@ pub fn section(md: &mut String, t: &StudyTables, paper: &PaperResults, first: &s
         let _ = writeln!(md, "- {i}");
     }
     let _ = writeln!(md);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn landmark(view: &str, df: f64, shift: f64) -> LandmarkRow {
+        LandmarkRow {
+            target: "L1".into(),
+            view: view.into(),
+            family: Family::Focal,
+            df_px: df,
+            dcx_px: 0.0,
+            dcy_px: 0.0,
+            landmark: "center".into(),
+            ref_u_px: 0.0,
+            ref_v_px: 0.0,
+            meas_u_px: shift,
+            meas_v_px: 0.0,
+            shift_px: shift,
+            pred_u_px: shift,
+            pred_v_px: 0.0,
+            pred_shift_px: shift,
+            pred_error_px: 0.0,
+        }
+    }
+
+    fn structure(view: &str, name: &str, dice: f64) -> StructureRow {
+        StructureRow {
+            target: "L1".into(),
+            view: view.into(),
+            family: Family::Focal,
+            df_px: 500.0,
+            dcx_px: 0.0,
+            dcy_px: 0.0,
+            structure: name.into(),
+            dice,
+            iou: dice,
+        }
+    }
+
+    #[test]
+    fn findings_state_the_ratios_and_extremes_of_the_tables() {
+        // AP shifts 1 and 2 px average to 1.5; LAT 6 px → LAT/AP 4.
+        let landmarks = vec![
+            landmark("ap", 100.0, 1.0),
+            landmark("ap", 100.0, 2.0),
+            landmark("lat", 100.0, 6.0),
+        ];
+        let text = landmark_ratio(&landmarks).unwrap();
+        assert!(
+            text.contains("Δf 100 px: AP 1.500 px, LAT 6.000 px (LAT/AP 4.00)"),
+            "{text}"
+        );
+        assert!(text.contains("(tables/landmarks.csv)"), "{text}");
+        // Body loses 0.1 (mean of 0.05 and 0.15), pedicle 0.4: most sensitive pedicle, least body.
+        let structures = vec![
+            structure("ap", "body", 0.95),
+            structure("lat", "body", 0.85),
+            structure("ap", "pedicle_left", 0.6),
+        ];
+        let text = structures_finding(&structures, "L1").unwrap();
+        assert!(
+            text.contains("most sensitive structure is pedicle_left (mean 1 − Dice 0.400")
+                && text.contains("least sensitive body (0.100)")
+                && text.contains("structures_dice_L1_ap.png"),
+            "{text}"
+        );
+        let mut md = String::new();
+        let t = StudyTables {
+            landmarks,
+            structures,
+            ..StudyTables::default()
+        };
+        section(&mut md, &t, &PaperResults::embedded().unwrap(), "L1");
+        assert!(
+            md.starts_with("## Findings\n\n- Mean landmark shift"),
+            "{md}"
+        );
+    }
 }
