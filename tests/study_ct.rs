@@ -14,7 +14,9 @@ use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
 use spinedrr::anatomy::vertebra::Level;
 use spinedrr::anatomy::{Landmarks, PhantomOptions, build_phantom, write_landmarks};
-use spinedrr::study::tables::Table;
+use spinedrr::study::StudyTables;
+use spinedrr::study::config::RegistrationMethod;
+use spinedrr::study::schema::{Family, ProjectionRow};
 
 mod common;
 use common::Spinedrr;
@@ -111,8 +113,9 @@ levels = [\"L1\", \"L2\"]\nsegment = true\n\
     .1
 }
 
-fn table(name: &str) -> Table {
-    Table::read(&study_out().join("tables").join(format!("{name}.csv"))).expect("table")
+fn tables() -> &'static StudyTables {
+    static T: OnceLock<StudyTables> = OnceLock::new();
+    T.get_or_init(|| StudyTables::load(study_out()).expect("tables"))
 }
 
 const TARGETS: [&str; 4] = ["syn-L1", "syn-L2", "syn-segment", "given-id31"];
@@ -120,15 +123,12 @@ const TARGETS: [&str; 4] = ["syn-L1", "syn-L2", "syn-segment", "given-id31"];
 #[test]
 fn every_ct_target_has_rows_figures_and_a_report_section() {
     let out = study_out();
-    let lm = table("landmarks");
-    let proj = table("projection");
+    let lm = &tables().landmarks;
+    let proj = &tables().projection;
     for t in TARGETS {
+        assert!(lm.iter().any(|r| r.target == t), "no landmark rows for {t}");
         assert!(
-            lm.rows.iter().any(|r| r[0] == t),
-            "no landmark rows for {t}"
-        );
-        assert!(
-            proj.rows.iter().any(|r| r[0] == t),
+            proj.iter().any(|r| r.target == t),
             "no projection rows for {t}"
         );
         for f in [
@@ -144,14 +144,12 @@ fn every_ct_target_has_rows_figures_and_a_report_section() {
     }
     // The landmark file's names are used as given; the segment's are prefixed with the level.
     assert!(
-        lm.rows
-            .iter()
-            .any(|r| r[0] == "given-id31" && r[6] == "given_spinous_tip")
+        lm.iter()
+            .any(|r| r.target == "given-id31" && r.landmark == "given_spinous_tip")
     );
     assert!(
-        lm.rows
-            .iter()
-            .any(|r| r[0] == "syn-segment" && r[6] == "L2/spinous_tip")
+        lm.iter()
+            .any(|r| r.target == "syn-segment" && r.landmark == "L2/spinous_tip")
     );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("CT volume DRR") && report.contains("registration_syn-L2_rot.png"));
@@ -166,17 +164,13 @@ fn every_ct_target_has_rows_figures_and_a_report_section() {
 fn each_target_is_centred_where_the_ap_view_aims() {
     // The AP central ray passes through the world origin, where each target's body centre is moved:
     // its marker lands on the principal point ((1024 / 2 + 0.5) / 2 − 0.5 = 255.5 after 2× binning).
-    let lm = table("landmarks");
+    let lm = &tables().landmarks;
     for t in ["syn-L1", "syn-L2", "given-id31"] {
         let r = lm
-            .rows
             .iter()
-            .find(|r| r[0] == t && r[1] == "ap" && r[6] == "center")
+            .find(|r| r.target == t && r.view == "ap" && r.landmark == "center")
             .unwrap_or_else(|| panic!("no AP center row for {t}"));
-        let (u, v) = (
-            lm.num(r, "ref_u_px").unwrap(),
-            lm.num(r, "ref_v_px").unwrap(),
-        );
+        let (u, v) = (r.ref_u_px, r.ref_v_px);
         assert!(
             (u - 255.5).abs() < 0.05 && (v - 255.5).abs() < 0.05,
             "{t}: center at ({u}, {v})"
@@ -186,20 +180,20 @@ fn each_target_is_centred_where_the_ap_view_aims() {
 
 #[test]
 fn ct_landmarks_obey_the_homography_law_and_the_piercing_shift() {
-    let t = table("landmarks");
+    let t = &tables().landmarks;
     let (mut n, mut off_detector) = (0, 0);
-    for r in &t.rows {
-        let e = t.num(r, "pred_error_px").unwrap();
+    for r in t {
+        let e = r.pred_error_px;
         if e.is_nan() {
             // A marker pushed off the detector (the segment in LAT at Δf 500) is recorded as NaN.
-            assert_eq!(r[0], "syn-segment", "{r:?}");
+            assert_eq!(r.target, "syn-segment", "{r:?}");
             off_detector += 1;
             continue;
         }
         assert!(e <= 0.05, "{r:?}: measured − H·x = {e} px");
-        if t.str(r, "family").unwrap() == "piercing" {
-            let du = t.num(r, "meas_u_px").unwrap() - t.num(r, "ref_u_px").unwrap();
-            let dv = t.num(r, "meas_v_px").unwrap() - t.num(r, "ref_v_px").unwrap();
+        if r.family == Family::Piercing {
+            let du = r.meas_u_px - r.ref_u_px;
+            let dv = r.meas_v_px - r.ref_v_px;
             assert!(
                 (du - 50.0).abs() < 1e-6 && (dv - 50.0).abs() < 1e-6,
                 "{r:?}"
@@ -209,45 +203,60 @@ fn ct_landmarks_obey_the_homography_law_and_the_piercing_shift() {
     }
     assert!(n > 0, "no piercing rows");
     assert!(
-        off_detector * 10 < t.rows.len(),
+        off_detector * 10 < t.len(),
         "{off_detector} of {} rows off the detector",
-        t.rows.len()
+        t.len()
     );
     // Focal shifts grow with Δf for every landmark off the central ray.
-    for r in t.rows.iter().filter(|r| r[2] == "focal" && r[3] == "500") {
+    for r in t
+        .iter()
+        .filter(|r| r.family == Family::Focal && r.df_px == 500.0)
+    {
         let small = t
-            .rows
             .iter()
             .find(|s| {
-                s[0] == r[0] && s[1] == r[1] && s[2] == "focal" && s[3] == "100" && s[6] == r[6]
+                s.target == r.target
+                    && s.view == r.view
+                    && s.family == Family::Focal
+                    && s.df_px == 100.0
+                    && s.landmark == r.landmark
             })
             .expect("Δf 100 row");
-        let (s1, s5) = (
-            t.num(small, "shift_px").unwrap(),
-            t.num(r, "shift_px").unwrap(),
-        );
+        let (s1, s5) = (small.shift_px, r.shift_px);
         assert!(s5 > s1 || s5 < 0.05 || s5.is_nan(), "{r:?}: {s1} → {s5}");
     }
 }
 
 #[test]
 fn silhouette_and_volume_drr_similarity_fall_with_focal_offset() {
-    let t = table("projection");
+    let t = &tables().projection;
+    type Col = fn(&ProjectionRow) -> f64;
+    let cols: [(&str, Col); 5] = [
+        ("dice", |r| r.dice),
+        ("iou", |r| r.iou),
+        ("ncc", |r| r.ncc),
+        ("ssim", |r| r.ssim),
+        ("gradient_correlation", |r| r.gradient_correlation),
+    ];
     for target in TARGETS {
         for view in ["ap", "lat"] {
-            let at = |df: &str, col: &str| {
+            let at = |df: f64, col: Col| {
                 let r = t
-                    .rows
                     .iter()
-                    .find(|r| r[0] == target && r[1] == view && r[2] == "focal" && r[3] == df)
+                    .find(|r| {
+                        r.target == target
+                            && r.view == view
+                            && r.family == Family::Focal
+                            && r.df_px == df
+                    })
                     .unwrap_or_else(|| panic!("{target} {view} Δf {df}"));
-                t.num(r, col).unwrap()
+                col(r)
             };
-            for col in ["dice", "iou", "ncc", "ssim", "gradient_correlation"] {
-                let (a, b) = (at("100", col), at("500", col));
+            for (col, value) in cols {
+                let (a, b) = (at(100.0, value), at(500.0, value));
                 assert!(b < a && a < 1.0, "{target} {view} {col}: {a} → {b}");
             }
-            let (h1, h5) = (at("100", "hausdorff_px"), at("500", "hausdorff_px"));
+            let (h1, h5) = (at(100.0, |r| r.hausdorff_px), at(500.0, |r| r.hausdorff_px));
             assert!(h5 > h1 && h1 > 0.0, "{target} {view} Hausdorff {h1} → {h5}");
         }
     }
@@ -255,16 +264,15 @@ fn silhouette_and_volume_drr_similarity_fall_with_focal_offset() {
 
 #[test]
 fn ct_registration_is_exact_with_the_true_k_and_degrades_with_focal_offset() {
-    let t = table("registration_summary");
+    let t = &tables().registration_summary;
     for target in TARGETS {
-        for m in ["kabsch", "direct-ap+lat"] {
+        for m in [RegistrationMethod::Kabsch, RegistrationMethod::DirectApLat] {
             let cell = |df: f64| {
                 let r = t
-                    .rows
                     .iter()
-                    .find(|r| r[0] == target && r[1] == m && t.num(r, "df_px").unwrap() == df)
+                    .find(|r| r.target == target && r.method == m && r.df_px == df)
                     .unwrap_or_else(|| panic!("{target} {m} Δf {df}"));
-                t.num(r, "trans_err_mm_mean").unwrap()
+                r.trans_err_mm_mean
             };
             assert!(cell(0.0) < 1e-6, "{target} {m}: error with the true K");
             assert!(
@@ -279,18 +287,29 @@ fn ct_registration_is_exact_with_the_true_k_and_degrades_with_focal_offset() {
 fn ct_level_agrees_with_the_phantom_level_it_was_voxelized_from() {
     // Two renderers on one anatomy: the label surface vs the phantom's mesh for silhouettes, the CT
     // volume DRR (Siddon) vs the thickness DRR for image similarity. They differ by the 1 mm voxels only.
-    let t = table("projection");
+    let t = &tables().projection;
+    type Col = fn(&ProjectionRow) -> f64;
+    let cols: [(&str, f64, Col); 4] = [
+        ("dice", 0.02, |r| r.dice),
+        ("iou", 0.03, |r| r.iou),
+        ("ncc", 0.03, |r| r.ncc),
+        ("ssim", 0.03, |r| r.ssim),
+    ];
     for view in ["ap", "lat"] {
-        for df in ["100", "500"] {
+        for df in [100.0, 500.0] {
             let row = |target: &str| {
-                t.rows
-                    .iter()
-                    .find(|r| r[0] == target && r[1] == view && r[2] == "focal" && r[3] == df)
+                t.iter()
+                    .find(|r| {
+                        r.target == target
+                            && r.view == view
+                            && r.family == Family::Focal
+                            && r.df_px == df
+                    })
                     .unwrap_or_else(|| panic!("{target} {view} Δf {df}"))
             };
             let (ct, ph) = (row("syn-L1"), row("L1"));
-            for (col, tol) in [("dice", 0.02), ("iou", 0.03), ("ncc", 0.03), ("ssim", 0.03)] {
-                let (a, b) = (t.num(ct, col).unwrap(), t.num(ph, col).unwrap());
+            for (col, tol, value) in cols {
+                let (a, b) = (value(ct), value(ph));
                 assert!(
                     (a - b).abs() < tol,
                     "{view} Δf {df} {col}: CT {a} vs phantom {b}"

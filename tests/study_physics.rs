@@ -6,7 +6,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use spinedrr::study::tables::Table;
+use spinedrr::study::StudyTables;
+use spinedrr::study::config::RegistrationMethod;
+use spinedrr::study::schema::{Family, LandmarkRow};
 
 mod common;
 use common::Spinedrr;
@@ -26,22 +28,26 @@ fn quick_out() -> &'static Path {
     .1
 }
 
-fn table(name: &str) -> Table {
-    Table::read(&quick_out().join("tables").join(format!("{name}.csv"))).expect("table")
+fn tables() -> &'static StudyTables {
+    static T: OnceLock<StudyTables> = OnceLock::new();
+    T.get_or_init(|| StudyTables::load(quick_out()).expect("tables"))
 }
 
 #[test]
 fn quick_study_writes_every_table_figure_and_report() {
     let out = quick_out();
-    for t in [
-        "projection",
-        "structures",
-        "landmarks",
-        "registration",
-        "registration_summary",
+    let t = StudyTables::load(out).expect("tables");
+    for (name, n) in [
+        ("projection", t.projection.len()),
+        ("structures", t.structures.len()),
+        ("landmarks", t.landmarks.len()),
+        ("registration", t.registration.len()),
+        ("registration_summary", t.registration_summary.len()),
     ] {
-        let t = Table::read(&out.join(format!("tables/{t}.csv"))).expect("table");
-        assert!(!t.rows.is_empty());
+        assert!(
+            out.join(format!("tables/{name}.csv")).is_file() && n > 0,
+            "{name}"
+        );
     }
     let mut figures = vec![
         "dice_vs_perturbation.png".to_string(),
@@ -84,17 +90,12 @@ fn quick_study_writes_every_table_figure_and_report() {
 }
 
 /// Per (view, landmark): Δf → measured shift, focal family.
-fn focal_shifts(t: &Table) -> BTreeMap<(String, String), Vec<(f64, f64)>> {
+fn focal_shifts(t: &[LandmarkRow]) -> BTreeMap<(String, String), Vec<(f64, f64)>> {
     let mut m: BTreeMap<(String, String), Vec<(f64, f64)>> = BTreeMap::new();
-    for r in &t.rows {
-        if t.str(r, "family").unwrap() == "focal" {
-            let key = (
-                t.str(r, "view").unwrap().to_string(),
-                t.str(r, "landmark").unwrap().to_string(),
-            );
-            m.entry(key)
-                .or_default()
-                .push((t.num(r, "df_px").unwrap(), t.num(r, "shift_px").unwrap()));
+    for r in t {
+        if r.family == Family::Focal {
+            let key = (r.view.clone(), r.landmark.clone());
+            m.entry(key).or_default().push((r.df_px, r.shift_px));
         }
     }
     m
@@ -102,8 +103,8 @@ fn focal_shifts(t: &Table) -> BTreeMap<(String, String), Vec<(f64, f64)>> {
 
 #[test]
 fn landmark_shifts_grow_with_focal_offset() {
-    let t = table("landmarks");
-    let shifts = focal_shifts(&t);
+    let t = &tables().landmarks;
+    let shifts = focal_shifts(t);
     assert!(!shifts.is_empty());
     for ((view, name), mut v) in shifts {
         v.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -123,25 +124,21 @@ fn landmark_shifts_grow_with_focal_offset() {
 
 #[test]
 fn measured_landmark_shifts_equal_the_homography_prediction() {
-    let t = table("landmarks");
-    for r in &t.rows {
-        let e = t.num(r, "pred_error_px").unwrap();
+    let t = &tables().landmarks;
+    for r in t {
+        let e = r.pred_error_px;
         assert!(e <= 0.05, "{r:?}: measured − H·x = {e} px");
     }
 }
 
 #[test]
 fn piercing_shift_moves_every_landmark_by_exactly_the_shift() {
-    let t = table("landmarks");
+    let t = &tables().landmarks;
     let mut n = 0;
-    for r in t
-        .rows
-        .iter()
-        .filter(|r| t.str(r, "family").unwrap() == "piercing")
-    {
-        let du = t.num(r, "meas_u_px").unwrap() - t.num(r, "ref_u_px").unwrap();
-        let dv = t.num(r, "meas_v_px").unwrap() - t.num(r, "ref_v_px").unwrap();
-        let (cx, cy) = (t.num(r, "dcx_px").unwrap(), t.num(r, "dcy_px").unwrap());
+    for r in t.iter().filter(|r| r.family == Family::Piercing) {
+        let du = r.meas_u_px - r.ref_u_px;
+        let dv = r.meas_v_px - r.ref_v_px;
+        let (cx, cy) = (r.dcx_px, r.dcy_px);
         assert!(
             (du - cx).abs() < 1e-6 && (dv - cy).abs() < 1e-6,
             "{r:?}: moved ({du}, {dv})"
@@ -153,18 +150,15 @@ fn piercing_shift_moves_every_landmark_by_exactly_the_shift() {
 
 #[test]
 fn lat_is_more_sensitive_than_ap() {
-    let lm = table("landmarks");
-    let proj = table("projection");
+    let lm = &tables().landmarks;
+    let proj = &tables().projection;
     for df in [100.0, 500.0] {
         let mean_shift = |view: &str| {
             let v: Vec<f64> = lm
-                .rows
                 .iter()
-                .filter(|r| {
-                    lm.str(r, "family").unwrap() == "focal" && lm.str(r, "view").unwrap() == view
-                })
-                .filter(|r| lm.num(r, "df_px").unwrap() == df)
-                .map(|r| lm.num(r, "shift_px").unwrap())
+                .filter(|r| r.family == Family::Focal && r.view == view)
+                .filter(|r| r.df_px == df)
+                .map(|r| r.shift_px)
                 .collect();
             v.iter().sum::<f64>() / v.len() as f64
         };
@@ -174,15 +168,10 @@ fn lat_is_more_sensitive_than_ap() {
         );
         let dice = |view: &str| {
             let r = proj
-                .rows
                 .iter()
-                .find(|r| {
-                    proj.str(r, "family").unwrap() == "focal"
-                        && proj.str(r, "view").unwrap() == view
-                        && proj.num(r, "df_px").unwrap() == df
-                })
+                .find(|r| r.family == Family::Focal && r.view == view && r.df_px == df)
                 .expect("row");
-            proj.num(r, "dice").unwrap()
+            r.dice
         };
         assert!(dice("lat") < dice("ap"), "Δf {df}: LAT Dice ≥ AP Dice");
         assert!(
@@ -194,28 +183,20 @@ fn lat_is_more_sensitive_than_ap() {
 
 #[test]
 fn registration_is_exact_at_zero_perturbation_and_degrades_with_focal_offset() {
-    let t = table("registration_summary");
-    let cell = |method: &str, df: f64| {
+    let t = &tables().registration_summary;
+    let cell = |method: RegistrationMethod, df: f64| {
         let r = t
-            .rows
             .iter()
-            .find(|r| {
-                t.str(r, "method").unwrap() == method
-                    && t.num(r, "df_px").unwrap() == df
-                    && t.num(r, "piercing_px").unwrap() == 0.0
-            })
+            .find(|r| r.method == method && r.df_px == df && r.piercing_px == 0.0)
             .unwrap_or_else(|| panic!("no {method} Δf {df}"));
-        (
-            t.num(r, "rot_err_deg_mean").unwrap(),
-            t.num(r, "trans_err_mm_mean").unwrap(),
-        )
+        (r.rot_err_deg_mean, r.trans_err_mm_mean)
     };
     for m in [
-        "direct-ap",
-        "direct-lat",
-        "direct-ap+lat",
-        "kabsch",
-        "opencv-ap",
+        RegistrationMethod::DirectAp,
+        RegistrationMethod::DirectLat,
+        RegistrationMethod::DirectApLat,
+        RegistrationMethod::Kabsch,
+        RegistrationMethod::OpencvAp,
     ] {
         let (rot, trans) = cell(m, 0.0);
         assert!(
@@ -228,7 +209,7 @@ fn registration_is_exact_at_zero_perturbation_and_degrades_with_focal_offset() {
             t5 > t1 && t1 > 1e-3,
             "{m}: translation error does not grow ({t1} → {t5})"
         );
-        if m == "kabsch" || m == "direct-ap+lat" {
+        if m == RegistrationMethod::Kabsch || m == RegistrationMethod::DirectApLat {
             assert!(
                 r5 > r1 && r1 > 1e-4,
                 "{m}: rotation error does not grow ({r1} → {r5})"

@@ -1,6 +1,7 @@
 //! Determinism and resumption of `spinedrr study`: an interrupted run continued gives the same bytes as
 //! an uninterrupted one, 1 and 2 threads give the same bytes, and a bad config fails before any work.
 
+use spinedrr::study::config::{Experiment, RegistrationMethod};
 use std::path::Path;
 use std::process::Output;
 
@@ -120,8 +121,8 @@ fn example_config_parses() {
 fn trial_chunking_does_not_change_registration_results() {
     let dir = tempfile::tempdir().expect("temp dir");
     let mut cfg = spinedrr::study::StudyConfig::quick();
-    cfg.experiments = vec!["registration".into()];
-    cfg.registration.methods = vec!["direct-ap+lat".into(), "kabsch".into()];
+    cfg.experiments = vec![Experiment::Registration];
+    cfg.registration.methods = vec![RegistrationMethod::DirectApLat, RegistrationMethod::Kabsch];
     let run = |per_unit: usize, name: &str| {
         let mut c = cfg.clone();
         c.registration.trials_per_unit = per_unit;

@@ -1,9 +1,12 @@
 //! The sensitivity study: a config, independent work units run in parallel and resumably, CSV tables,
 //! figures and a Markdown report.
 //!
-//! `config` (TOML, defaults = the paper), `units` (the work units and their rows), `runner` (parallel,
-//! deterministic, resumable execution), `experiments` (what a unit computes), `tables` (CSV),
-//! `figures` (plotters), `report` (Markdown with the paper's numbers beside ours).
+//! `config` (TOML parsed once into typed values, defaults = the paper), `units` (the work units),
+//! `schema` (the typed table rows, CSV via the `csv` crate), `runner` (parallel, deterministic,
+//! resumable execution), `experiments` (what a unit computes), `figures` (plotters), `report` (Markdown
+//! findings with the paper's numbers beside ours), `timings` (where an invocation's time went).
+//!
+//! Data flows one way: config → units → experiments → rows (unit files) → tables → figures, report.
 
 pub mod config;
 pub mod experiments;
@@ -11,9 +14,10 @@ pub mod figures;
 pub mod report;
 pub mod report_html;
 pub mod runner;
-pub mod tables;
+pub mod schema;
 pub mod timings;
 pub mod units;
 
 pub use config::StudyConfig;
 pub use runner::{RunOptions, RunSummary, run_study};
+pub use schema::StudyTables;

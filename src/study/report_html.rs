@@ -1,5 +1,6 @@
 //! `report.html`: the Markdown report rendered as one self-contained page (figures embedded as base64
-//! PNG data URIs, tables as HTML tables), so it can be mailed or archived as a single file.
+//! PNG data URIs, tables as HTML tables), so it can be mailed or archived as a single file. Writing to a
+//! `String` cannot fail, so `writeln!` results are discarded.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -39,6 +40,30 @@ fn link(item: &str) -> Option<(&str, &str)> {
     Some((item.get(1..close)?, item.get(close + 2..item.len() - 1)?))
 }
 
+/// `text` escaped, with inline Markdown links `[a](b)` as `<a href="b">a</a>`.
+fn inline(text: &str) -> String {
+    let mut h = String::new();
+    let mut rest = text;
+    while let Some(open) = rest.find('[') {
+        let Some((label, target, len)) = rest[open..].find("](").and_then(|close| {
+            let after = &rest[open + close + 2..];
+            let end = after.find(')')?;
+            Some((
+                &rest[open + 1..open + close],
+                &after[..end],
+                close + 2 + end + 1,
+            ))
+        }) else {
+            break;
+        };
+        h.push_str(&escape(&rest[..open]));
+        let _ = write!(h, "<a href=\"{}\">{}</a>", escape(target), escape(label));
+        rest = &rest[open + len..];
+    }
+    h.push_str(&escape(rest));
+    h
+}
+
 fn table_row(line: &str, cell: &str) -> String {
     let cells: Vec<String> = line
         .trim_matches('|')
@@ -62,9 +87,9 @@ td,th{border:1px solid #999;padding:2px 8px}img{max-width:100%}</style></head><b
             in_table = false;
         }
         if let Some(t) = line.strip_prefix("## ") {
-            writeln!(h, "<h2>{}</h2>", escape(t)).map_err(fmt_err)?;
+            let _ = writeln!(h, "<h2>{}</h2>", escape(t));
         } else if let Some(t) = line.strip_prefix("# ") {
-            writeln!(h, "<h1>{}</h1>", escape(t)).map_err(fmt_err)?;
+            let _ = writeln!(h, "<h1>{}</h1>", escape(t));
         } else if line.starts_with("|---") {
             continue;
         } else if line.starts_with('|') {
@@ -78,7 +103,7 @@ td,th{border:1px solid #999;padding:2px 8px}img{max-width:100%}</style></head><b
         } else if let Some(item) = line.strip_prefix("- ") {
             list_item(&mut h, item, out)?;
         } else if !line.trim().is_empty() {
-            writeln!(h, "<p>{}</p>", escape(line)).map_err(fmt_err)?;
+            let _ = writeln!(h, "<p>{}</p>", inline(line));
         }
     }
     if in_table {
@@ -93,27 +118,26 @@ fn list_item(h: &mut String, item: &str, out: &Path) -> Result<()> {
         Some((text, target)) if item.starts_with('!') => {
             let path = out.join(target);
             let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-            writeln!(
+            let _ = writeln!(
                 h,
                 "<figure><img alt=\"{0}\" src=\"data:image/png;base64,{1}\"><figcaption>{0}</figcaption></figure>",
                 escape(text),
                 base64(&bytes)
-            )
-            .map_err(fmt_err)
+            );
         }
-        Some((text, target)) => writeln!(
-            h,
-            "<p><a href=\"{}\">{}</a></p>",
-            escape(target),
-            escape(text)
-        )
-        .map_err(fmt_err),
-        None => writeln!(h, "<p>{}</p>", escape(item)).map_err(fmt_err),
+        Some((text, target)) if item.starts_with('[') && item.ends_with(')') => {
+            let _ = writeln!(
+                h,
+                "<p><a href=\"{}\">{}</a></p>",
+                escape(target),
+                escape(text)
+            );
+        }
+        _ => {
+            let _ = writeln!(h, "<p>• {}</p>", inline(item));
+        }
     }
-}
-
-fn fmt_err(e: std::fmt::Error) -> Error {
-    Error::Numerical(format!("formatting the HTML report: {e}"))
+    Ok(())
 }
 
 /// Writes `out/report.html` from `out/report.md`.
@@ -126,7 +150,16 @@ pub fn write(out: &Path) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::base64;
+    use super::{base64, inline};
+
+    #[test]
+    fn inline_links_become_anchors_and_text_is_escaped() {
+        assert_eq!(
+            inline("a < b ([t.csv](tables/t.csv), [f](figures/f.png))."),
+            "a &lt; b (<a href=\"tables/t.csv\">t.csv</a>, <a href=\"figures/f.png\">f</a>)."
+        );
+        assert_eq!(inline("no [link here"), "no [link here");
+    }
 
     #[test]
     fn base64_matches_rfc4648_test_vectors() {

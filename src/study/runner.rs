@@ -1,11 +1,10 @@
 //! Parallel, deterministic, resumable execution of a study's work units.
 //!
-//! Each unit's CSV lines go atomically to `out/units/<id>.json`, tagged with the config fingerprint; a
+//! Each unit's typed rows go atomically to `out/units/<id>.json`, tagged with the config fingerprint; a
 //! unit whose file exists with the same fingerprint is skipped (resume). Tables, figures and the report
 //! are assembled only once every unit is present, in the fixed unit order, so their bytes do not depend
 //! on the thread count or on interruptions.
 
-use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -14,9 +13,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::config::StudyConfig;
-use super::experiments::{Context, ct};
-use super::tables::{TABLES, summarize_registration, unit_lines, write_table};
-use super::timings::{Phase, TimingRow, Timings, to_csv};
+use super::experiments::{self, Context};
+use super::schema::StudyTables;
+use super::timings::{Phase, RunFacts, TimingRow, Timings, to_csv};
 use super::units::{Unit, UnitFile, derive_seed, enumerate_units};
 use super::{figures, report, report_html};
 use crate::io::write_atomic_bytes;
@@ -48,9 +47,12 @@ pub struct RunSummary {
 
 /// The fingerprint of a config: FNV-1a over its canonical TOML.
 pub fn fingerprint(cfg: &StudyConfig) -> Result<String> {
-    let text = toml::to_string(cfg)
-        .map_err(|e| Error::Numerical(format!("serialising the study config: {e}")))?;
-    Ok(format!("{:016x}", derive_seed(0, &text, 0)))
+    Ok(format!("{:016x}", derive_seed(0, &config_toml(cfg)?, 0)))
+}
+
+/// The config's canonical TOML (`study.toml`, and what the fingerprint hashes).
+fn config_toml(cfg: &StudyConfig) -> Result<String> {
+    toml::to_string(cfg).map_err(|e| Error::encode("the study config", e))
 }
 
 fn unit_path(out: &Path, id: &str) -> PathBuf {
@@ -90,22 +92,19 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     };
     let pool = thread_pool(opts.threads)?;
     let build_start = Instant::now();
-    let ct_inputs = if todo.is_empty() {
-        Vec::new()
+    let inputs = if todo.is_empty() {
+        experiments::Inputs::default()
     } else {
-        timings.time(Phase::Anatomy, 0, || ct::load_inputs(cfg))?
+        timings.time(Phase::Anatomy, 0, || experiments::load_inputs(cfg))?
     };
     let mut build_wall = build_start.elapsed();
-    for d in ["units", "tables", "figures"] {
+    for d in ["units", "tables", "figures", experiments::REFERENCES_DIR] {
         create_dir(&opts.out.join(d))?;
     }
-    let config_text = toml::to_string(cfg)
-        .map_err(|e| Error::Numerical(format!("serialising the study config: {e}")))?;
-    write_atomic_bytes(&opts.out.join("study.toml"), config_text.as_bytes())?;
+    write_atomic_bytes(&opts.out.join("study.toml"), config_toml(cfg)?.as_bytes())?;
     if !todo.is_empty() {
         let t0 = Instant::now();
-        let figures_dir = opts.out.join("figures");
-        let mut ctx = Context::build(cfg, ct_inputs, figures_dir, timings.clone(), &pool)?;
+        let mut ctx = Context::build(cfg, inputs, &opts.out, timings.clone(), &pool)?;
         build_wall += t0.elapsed();
         timings.add(Phase::Build, build_wall, ctx.targets.len() as u64);
         let t0 = Instant::now();
@@ -121,19 +120,21 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         ran_units: todo.len(),
     };
     if complete {
-        timings.time(Phase::Tables, super::tables::TABLES.len() as u64, || {
-            assemble(&opts.out, &units, &fp)
-        })?;
-        let n_figures = timings.time(Phase::Figures, 0, || figures::write_all(&opts.out))?;
+        let t0 = Instant::now();
+        let tables = assemble(&opts.out, &units, &fp)?;
+        let n_tables = tables.write(&opts.out.join("tables"))?;
+        timings.add(Phase::Tables, t0.elapsed(), n_tables as u64);
+        let n_figures =
+            timings.time(Phase::Figures, 0, || figures::write_all(&opts.out, &tables))?;
         timings.add(Phase::Figures, std::time::Duration::ZERO, n_figures as u64);
         let rows = timings.rows(start.elapsed());
         timings.time(Phase::Report, 2, || -> Result<()> {
-            report::write(&opts.out, cfg, &rows, &run)?;
+            report::write(&opts.out, cfg, &tables, &rows, &run)?;
             report_html::write(&opts.out)
         })?;
     }
     let rows = timings.rows(start.elapsed());
-    write_atomic_bytes(&opts.out.join("timings.csv"), to_csv(&rows).as_bytes())?;
+    write_atomic_bytes(&opts.out.join("timings.csv"), &to_csv(&rows)?)?;
     Ok(RunSummary {
         total_units: units.len(),
         skipped_units: skipped,
@@ -141,14 +142,6 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         complete,
         timings: rows,
     })
-}
-
-/// Facts about one invocation that the report states beside its timings.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RunFacts {
-    pub threads: usize,
-    pub total_units: usize,
-    pub ran_units: usize,
 }
 
 /// The worker pool of a run (`threads` workers, or rayon's default).
@@ -159,7 +152,7 @@ fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     }
     builder
         .build()
-        .map_err(|e| Error::invalid("threads", e.to_string()))
+        .map_err(|e| Error::Resource(format!("building a pool of worker threads: {e}")))
 }
 
 fn run_units(
@@ -181,11 +174,10 @@ fn run_units(
                     let file = UnitFile {
                         id: u.id(),
                         fingerprint: fp.to_string(),
-                        tables: unit_lines(&rows),
+                        rows,
                     };
-                    let text = serde_json::to_string(&file).map_err(|e| {
-                        Error::Numerical(format!("serialising unit {}: {e}", u.id()))
-                    })?;
+                    let text = serde_json::to_string(&file)
+                        .map_err(|e| Error::encode(format!("unit {}", u.id()), e))?;
                     write_atomic_bytes(&unit_path(&opts.out, &u.id()), text.as_bytes())
                 })?;
                 if let Some(b) = &bar {
@@ -214,25 +206,16 @@ fn progress_bar(wanted: bool, n: usize) -> Option<indicatif::ProgressBar> {
     Some(bar)
 }
 
-/// Concatenates every unit's lines, in unit order, into `tables/*.csv`.
-fn assemble(out: &Path, units: &[Unit], fp: &str) -> Result<()> {
-    let mut tables: BTreeMap<String, Vec<String>> = BTreeMap::new();
-    for u in units {
-        let path = unit_path(out, &u.id());
-        let f = load_unit(&path, fp)
-            .ok_or_else(|| Error::format(&path, "unit result missing or from another config"))?;
-        for (name, lines) in f.tables {
-            tables.entry(name).or_default().extend(lines);
-        }
-    }
-    let dir = out.join("tables");
-    for name in TABLES {
-        if let Some(lines) = tables.get(name) {
-            write_table(&dir, name, lines)?;
-        }
-    }
-    if tables.contains_key("registration") {
-        summarize_registration(&dir)?;
-    }
-    Ok(())
+/// Every unit's rows, in unit order, as the study's tables.
+fn assemble(out: &Path, units: &[Unit], fp: &str) -> Result<StudyTables> {
+    let rows = units
+        .iter()
+        .map(|u| {
+            let path = unit_path(out, &u.id());
+            load_unit(&path, fp)
+                .map(|f| f.rows)
+                .ok_or_else(|| Error::format(&path, "unit result missing or from another config"))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(StudyTables::from_units(rows))
 }

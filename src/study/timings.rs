@@ -8,9 +8,10 @@
 //! meanwhile; their time goes to their own phases, not to the render that was waiting. Written to `timings.csv` beside the report (not under `tables/`: timings are a
 //! property of the run, not of the data, and differ from run to run).
 
-use std::fmt::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
+
+use serde::Serialize;
 
 use crate::{Error, Result};
 
@@ -103,6 +104,14 @@ thread_local! {
 pub struct Timings {
     nanos: [AtomicU64; 13],
     counts: [AtomicU64; 13],
+}
+
+/// Facts about one invocation that the report states beside its timings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RunFacts {
+    pub threads: usize,
+    pub total_units: usize,
+    pub ran_units: usize,
 }
 
 /// One line of the timing table.
@@ -205,24 +214,39 @@ impl Timings {
     }
 }
 
-/// `timings.csv`: `phase,clock,seconds,count,count_of`.
-pub fn to_csv(rows: &[TimingRow]) -> String {
-    let mut s = String::from("phase,clock,seconds,count,count_of\n");
+/// One line of `timings.csv`: `phase,clock,seconds,count,count_of` (seconds to the millisecond).
+#[derive(Serialize)]
+struct TimingCsvRow<'a> {
+    phase: &'a str,
+    clock: &'a str,
+    #[serde(serialize_with = "millis")]
+    seconds: f64,
+    count: u64,
+    count_of: &'a str,
+}
+
+fn millis<S: serde::Serializer>(x: &f64, s: S) -> std::result::Result<S::Ok, S::Error> {
+    s.collect_str(&format_args!("{x:.3}"))
+}
+
+/// `timings.csv`, through the csv crate.
+pub fn to_csv(rows: &[TimingRow]) -> Result<Vec<u8>> {
+    let mut w = csv::Writer::from_writer(Vec::new());
     for r in rows {
-        s.push_str(&format!(
-            "{},{},{:.3},{},{}\n",
-            r.phase.trim(),
-            r.clock,
-            r.seconds,
-            r.count,
-            r.unit
-        ));
+        w.serialize(TimingCsvRow {
+            phase: r.phase.trim(),
+            clock: r.clock,
+            seconds: r.seconds,
+            count: r.count,
+            count_of: r.unit,
+        })
+        .map_err(|e| Error::encode("timings.csv", e))?;
     }
-    s
+    w.into_inner().map_err(|e| Error::encode("timings.csv", e))
 }
 
 /// A Markdown table of `rows` (used by the report and by `--timings`).
-pub fn to_markdown(rows: &[TimingRow]) -> Result<String> {
+pub fn to_markdown(rows: &[TimingRow]) -> String {
     let mut s = String::from("| phase | clock | seconds | count |\n|---|---|---|---|\n");
     for r in rows {
         let count = if r.unit.is_empty() {
@@ -230,16 +254,14 @@ pub fn to_markdown(rows: &[TimingRow]) -> Result<String> {
         } else {
             format!("{} {}", r.count, r.unit)
         };
-        writeln!(
-            s,
-            "| {} | {} | {:.2} | {count} |",
+        s.push_str(&format!(
+            "| {} | {} | {:.2} | {count} |\n",
             r.phase.replace("  ", "↳ "),
             r.clock,
             r.seconds
-        )
-        .map_err(|e| Error::Numerical(format!("formatting timings: {e}")))?;
+        ));
     }
-    Ok(s)
+    s
 }
 
 #[cfg(test)]
@@ -276,7 +298,7 @@ mod tests {
         let total = s(Phase::Registration) + s(Phase::RenderTarget) + s(Phase::UnitThreads);
         assert!((all.seconds - total).abs() < 1e-12 && all.count == 1);
         assert_eq!(rows.last().unwrap().seconds, 2.0);
-        let csv = to_csv(&rows);
+        let csv = String::from_utf8(to_csv(&rows).unwrap()).unwrap();
         assert_eq!(csv.lines().count(), rows.len() + 1);
         assert!(
             csv.contains("\nregistration,threads,0.1")

@@ -2,14 +2,15 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::config::StudyConfig;
+use super::config::{Experiment, RegistrationMethod, SEGMENT_TARGET, StudyConfig};
+use super::schema::{Family, UnitRows};
 use crate::Result;
 use crate::geometry::Perturbation;
 
-/// A projection perturbation with its family (`focal`, `piercing`, `joint`, `skew`, `scale`).
+/// A projection perturbation with its family.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NamedPerturbation {
-    pub family: &'static str,
+    pub family: Family,
     pub perturbation: Perturbation,
 }
 
@@ -25,7 +26,7 @@ pub enum Unit {
     /// Trials `first..first + count` of one registration cell.
     Registration {
         target: String,
-        method: String,
+        method: RegistrationMethod,
         df_px: f64,
         piercing_px: f64,
         first: usize,
@@ -96,7 +97,7 @@ pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
         })
     };
     for &df in &g.df_px {
-        push("focal", Perturbation::focal(df));
+        push(Family::Focal, Perturbation::focal(df));
     }
     let nonzero: Vec<f64> = g
         .piercing_px
@@ -105,11 +106,11 @@ pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
         .filter(|p| *p != 0.0)
         .collect();
     for &p in &nonzero {
-        push("piercing", Perturbation::piercing(p, p));
+        push(Family::Piercing, Perturbation::piercing(p, p));
     }
     for (&df, &p) in g.df_px.iter().zip(&nonzero) {
         push(
-            "joint",
+            Family::Joint,
             Perturbation {
                 df_px: df,
                 ..Perturbation::piercing(p, p)
@@ -118,7 +119,7 @@ pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
     }
     for &s in &g.skew_px {
         push(
-            "skew",
+            Family::Skew,
             Perturbation {
                 skew_px: s,
                 ..Perturbation::NONE
@@ -127,7 +128,7 @@ pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
     }
     for &sy in &g.pixel_scale {
         push(
-            "scale",
+            Family::Scale,
             Perturbation {
                 sy,
                 ..Perturbation::NONE
@@ -143,7 +144,7 @@ pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
 pub fn targets(cfg: &StudyConfig) -> Vec<String> {
     let mut t: Vec<String> = cfg.anatomy.levels.clone();
     if cfg.anatomy.segment && !t.is_empty() {
-        t.push("segment".into());
+        t.push(SEGMENT_TARGET.into());
     }
     t.extend(cfg.anatomy.meshes.iter().map(|m| m.name.clone()));
     for c in &cfg.anatomy.ct {
@@ -164,7 +165,7 @@ pub fn targets(cfg: &StudyConfig) -> Vec<String> {
 pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
     cfg.validate()?;
     let mut units = Vec::new();
-    if cfg.runs("projection") || cfg.runs("landmarks") {
+    if cfg.runs(Experiment::Projection) || cfg.runs(Experiment::Landmarks) {
         for target in targets(cfg) {
             for view in &cfg.geometry.views {
                 for p in projection_perturbations(cfg) {
@@ -177,7 +178,7 @@ pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
             }
         }
     }
-    if cfg.runs("registration") {
+    if cfg.runs(Experiment::Registration) {
         let r = &cfg.registration;
         for target in targets(cfg) {
             for method in &r.methods {
@@ -186,7 +187,7 @@ pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
                         for first in (0..r.trials).step_by(r.trials_per_unit) {
                             units.push(Unit::Registration {
                                 target: target.clone(),
-                                method: method.clone(),
+                                method: *method,
                                 df_px,
                                 piercing_px,
                                 first,
@@ -201,95 +202,12 @@ pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
     Ok(units)
 }
 
-/// Whole-object silhouette, contour and image-similarity metrics (table `projection.csv`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct ProjectionRow {
-    pub target: String,
-    pub view: String,
-    pub family: String,
-    pub df_px: f64,
-    pub dcx_px: f64,
-    pub dcy_px: f64,
-    pub skew_px: f64,
-    pub sy: f64,
-    pub dice: f64,
-    pub iou: f64,
-    pub chamfer_mean_px: f64,
-    pub hausdorff_px: f64,
-    pub hd95_px: f64,
-    pub edge_distance_mean_px: f64,
-    pub ncc: f64,
-    pub ssim: f64,
-    pub mutual_information_nats: f64,
-    pub gradient_correlation: f64,
-    pub mean_abs_diff_per_mm: f64,
-}
-
-/// Dice/IoU of one anatomical structure (table `structures.csv`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct StructureRow {
-    pub target: String,
-    pub view: String,
-    pub family: String,
-    pub df_px: f64,
-    pub dcx_px: f64,
-    pub dcy_px: f64,
-    pub structure: String,
-    pub dice: f64,
-    pub iou: f64,
-}
-
-/// One landmark measured from marker images, with the homography prediction (table `landmarks.csv`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct LandmarkRow {
-    pub target: String,
-    pub view: String,
-    pub family: String,
-    pub df_px: f64,
-    pub dcx_px: f64,
-    pub dcy_px: f64,
-    pub landmark: String,
-    pub ref_u_px: f64,
-    pub ref_v_px: f64,
-    pub meas_u_px: f64,
-    pub meas_v_px: f64,
-    pub shift_px: f64,
-    pub pred_u_px: f64,
-    pub pred_v_px: f64,
-    pub pred_shift_px: f64,
-    /// `‖x_meas − H x_ref‖`.
-    pub pred_error_px: f64,
-}
-
-/// One registration trial (table `registration.csv`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct RegistrationRow {
-    pub target: String,
-    pub method: String,
-    pub df_px: f64,
-    pub piercing_px: f64,
-    pub trial: usize,
-    pub rot_err_deg: f64,
-    pub trans_err_mm: f64,
-    pub residual_px: f64,
-    pub iterations: usize,
-    pub converged: bool,
-}
-
-/// Everything one unit produced.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct UnitRows {
-    pub projection: Vec<ProjectionRow>,
-    pub structures: Vec<StructureRow>,
-    pub landmarks: Vec<LandmarkRow>,
-    pub registration: Vec<RegistrationRow>,
-}
-
-/// The file `units/<id>.json`: the unit's CSV lines per table plus the config fingerprint they belong
-/// to. Lines, not numbers, so NaN survives and the assembled tables are byte-identical to a fresh run.
+/// The file `units/<id>.json`: the unit's typed rows plus the config fingerprint they belong to. Its
+/// f64 values are JSON strings in `{}` Display (`"0.1"`, `"NaN"`, `"-inf"`; see [`super::schema::num`]),
+/// so NaN and infinities survive and the assembled tables are byte-identical to a fresh run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct UnitFile {
     pub id: String,
     pub fingerprint: String,
-    pub tables: std::collections::BTreeMap<String, Vec<String>>,
+    pub rows: UnitRows,
 }

@@ -61,10 +61,7 @@ pub fn load_inputs(cfg: &StudyConfig) -> Result<Vec<CtInput>> {
 }
 
 fn load_input(c: &CtTarget) -> Result<CtInput> {
-    let conv: LabelConvention = c
-        .labels
-        .parse()
-        .map_err(|e: Error| Error::invalid("anatomy.ct.labels", e.to_string()))?;
+    let conv = c.labels;
     let levels: Vec<LevelSpec> = c
         .level_targets()?
         .into_iter()

@@ -1,20 +1,24 @@
 //! The experiments of a study: what one work unit computes. `Context` holds what the units share
 //! (C-arm, per-target renderers, marker renderers, landmarks), built once before the parallel loop.
+//!
+//! The runner sees this module's public face only: [`load_inputs`] (read and check input files before
+//! the output folder is touched), [`Context::build`], [`Context::prepare_references`], [`Context::run`].
 
-pub mod ct;
+mod ct;
 mod projection;
 mod registration;
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
-use super::config::{MeshTarget, StudyConfig};
+use super::config::{Experiment, MeshTarget, SEGMENT_TARGET, StudyConfig};
+use super::schema::UnitRows;
 use super::timings::{Phase, Timings};
-use super::units::{Unit, UnitRows, targets};
+use super::units::{Unit, targets};
 use crate::anatomy::{
     Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels, read_landmarks, read_mesh,
 };
@@ -24,6 +28,30 @@ use crate::render::volume::VolumeRenderer;
 use crate::render::{RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, phantom_scene};
 use crate::{Error, Result};
 use ct::CtInput;
+
+/// The folder of `out` that holds each (target, view)'s reference DRR (TIFF + JSON sidecar), the
+/// background of the landmark overlay figures.
+pub const REFERENCES_DIR: &str = "references";
+
+/// `out/references/<target>_<view>.tiff`: the reference DRR of `target` in `view`.
+pub fn reference_image_path(out: &Path, target: &str, view: &str) -> PathBuf {
+    out.join(REFERENCES_DIR)
+        .join(format!("{target}_{view}.tiff"))
+}
+
+/// The study's input files read and checked (CT volumes and label maps, their landmarks).
+#[derive(Default)]
+pub struct Inputs {
+    ct: Vec<CtInput>,
+}
+
+/// Reads and checks every input file the study needs beyond its config (labels present, grids match),
+/// so a bad input fails before any output is written.
+pub fn load_inputs(cfg: &StudyConfig) -> Result<Inputs> {
+    Ok(Inputs {
+        ct: ct::load_inputs(cfg)?,
+    })
+}
 
 /// A landmark marker: a small sphere rendered alone, so its blob centroid measures the landmark.
 pub struct Marker {
@@ -50,6 +78,8 @@ pub struct Context {
     pub targets: Vec<Target>,
     /// Where heatmap figures go.
     pub figures_dir: PathBuf,
+    /// The study's output folder (reference images go to [`reference_image_path`]).
+    pub out: PathBuf,
     /// One-thread pools for image metrics, whose parallel reductions would otherwise depend on the
     /// thread count (determinism): one per worker, so workers do not queue behind each other.
     metrics_pools: Vec<rayon::ThreadPool>,
@@ -69,12 +99,12 @@ pub struct Reference {
 }
 
 impl Context {
-    /// Builds the phantom, the mesh and CT targets (from inputs read by [`ct::load_inputs`]), the scenes
-    /// and the marker renderers; anatomy in parallel over targets on `pool`.
+    /// Builds the phantom, the mesh and CT targets (from inputs read by [`load_inputs`]), the scenes
+    /// and the marker renderers; anatomy in parallel over targets on `pool`. Products go under `out`.
     pub fn build(
         cfg: &StudyConfig,
-        ct_inputs: Vec<CtInput>,
-        figures_dir: PathBuf,
+        inputs: Inputs,
+        out: &Path,
         timings: Arc<Timings>,
         pool: &rayon::ThreadPool,
     ) -> Result<Context> {
@@ -99,14 +129,14 @@ impl Context {
             .cloned()
             .chain(
                 (cfg.anatomy.segment && !cfg.anatomy.levels.is_empty())
-                    .then(|| "segment".to_string()),
+                    .then(|| SEGMENT_TARGET.to_string()),
             )
             .collect();
         let phantoms = pool.install(|| {
             phantom_targets
                 .par_iter()
                 .map(|name| {
-                    let levels = if name == "segment" {
+                    let levels = if name == SEGMENT_TARGET {
                         cfg.levels()?
                     } else {
                         parse_levels(name)?
@@ -125,7 +155,7 @@ impl Context {
         for m in &cfg.anatomy.meshes {
             built.push(mesh_target(cfg, m, t)?);
         }
-        for input in ct_inputs {
+        for input in inputs.ct {
             built.extend(ct::build_targets(cfg, input, t, pool)?);
         }
         // The order of `targets(cfg)`, whatever the build order.
@@ -136,14 +166,15 @@ impl Context {
                 rayon::ThreadPoolBuilder::new()
                     .num_threads(1)
                     .build()
-                    .map_err(|e| Error::Numerical(format!("building a metrics thread pool: {e}")))
+                    .map_err(|e| Error::Resource(format!("building a metrics thread pool: {e}")))
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(Context {
             cfg: cfg.clone(),
             carm,
             targets: built,
-            figures_dir,
+            figures_dir: out.join("figures"),
+            out: out.to_path_buf(),
             metrics_pools,
             references: BTreeMap::new(),
             timings,
@@ -188,7 +219,7 @@ impl Context {
             .get(&(t.name.clone(), view.name.clone()))
             .cloned()
             .ok_or_else(|| {
-                Error::Numerical(format!(
+                Error::Internal(format!(
                     "no reference render of '{}' in view '{}' was prepared",
                     t.name, view.name
                 ))
@@ -240,7 +271,7 @@ fn build_target(
         name,
         renderer,
         sub.landmarks(),
-        name == "segment",
+        name == SEGMENT_TARGET,
         timings,
     )
 }
@@ -266,7 +297,7 @@ fn target_with_landmarks(
             landmarks.push((full, p));
         }
     }
-    let markers = if cfg.runs("landmarks") {
+    let markers = if cfg.runs(Experiment::Landmarks) {
         timings.time(Phase::Scene, landmarks.len() as u64, || {
             landmarks
                 .iter()

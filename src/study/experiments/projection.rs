@@ -9,11 +9,13 @@ use super::{Context, Reference, Target};
 use crate::Result;
 use crate::analysis::{MaskPair, abs_difference, blob_centroid, image_metrics, silhouette_metrics};
 use crate::anatomy::Structure;
-use crate::geometry::{View, apply_homography};
-use crate::io::ImageF32;
+use crate::geometry::{Perturbation, View, apply_homography};
+use crate::io::{ImageF32, Sidecar, sidecar_path, write_tiff_f32};
 use crate::render::{ThicknessDrr, ThicknessOptions};
+use crate::study::config::Experiment;
+use crate::study::schema::{Family, LandmarkRow, ProjectionRow, StructureRow, UnitRows};
 use crate::study::timings::Phase;
-use crate::study::units::{LandmarkRow, NamedPerturbation, ProjectionRow, StructureRow, UnitRows};
+use crate::study::units::NamedPerturbation;
 use glam::DVec2;
 
 /// Structures reported in `structures.csv`.
@@ -53,7 +55,7 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
             rows.structures = structures(t, view, np, a, &b)?;
             let q = &np.perturbation;
             let is_heatmap_df = ctx.cfg.heatmaps_df_px.contains(&q.df_px);
-            if np.family == "focal" && is_heatmap_df {
+            if np.family == Family::Focal && is_heatmap_df {
                 let diff = abs_difference(images.0, images.1)?;
                 let path = ctx.figures_dir.join(format!(
                     "heatmap_{}_{}_df{}.png",
@@ -65,16 +67,18 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
             Ok(())
         })?;
     }
-    if ctx.cfg.runs("landmarks") {
+    if ctx.cfg.runs(Experiment::Landmarks) {
         rows.landmarks = landmarks(ctx, t, view, &pv, np, &reference.markers)?;
     }
     Ok(rows)
 }
 
-/// The reference render (when the projection experiment runs) and reference marker centroids.
+/// The reference render (when the projection experiment runs) and reference marker centroids. When
+/// the landmark experiment runs, the reference DRR (the CT volume DRR for CT targets) is also written
+/// to [`super::reference_image_path`] as the background of the landmark overlay figure.
 pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
     let tm = &ctx.timings;
-    let drr = if ctx.cfg.runs("projection") {
+    let drr = if ctx.cfg.runs(Experiment::Projection) {
         Some(tm.time(Phase::RenderTarget, 1, || {
             t.renderer.render(view, &ThicknessOptions::with_masks())
         })?)
@@ -85,7 +89,8 @@ pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
         Some(v) if drr.is_some() => Some(tm.time(Phase::RenderVolume, 1, || v.render(view))),
         _ => None,
     };
-    let markers = if ctx.cfg.runs("landmarks") {
+    let markers = if ctx.cfg.runs(Experiment::Landmarks) {
+        write_reference_image(ctx, t, view, drr.as_ref(), volume_drr.as_ref())?;
         t.markers
             .iter()
             .map(|m| measure(ctx, m, view))
@@ -98,6 +103,41 @@ pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
         volume_drr,
         markers,
     })
+}
+
+/// Writes the reference image of `t` in `view` (TIFF + sidecar): the CT volume DRR when there is one,
+/// else the thickness DRR's line integral (rendered here when the projection experiment did not).
+fn write_reference_image(
+    ctx: &Context,
+    t: &Target,
+    view: &View,
+    drr: Option<&ThicknessDrr>,
+    volume_drr: Option<&ImageF32>,
+) -> Result<()> {
+    let rendered;
+    let (image, renderer) = match (volume_drr, drr) {
+        (Some(v), _) => (v, "ct-volume (Siddon)"),
+        (None, Some(d)) => (&d.line_integral, "thickness"),
+        (None, None) => {
+            rendered = ctx.timings.time(Phase::RenderTarget, 1, || {
+                t.renderer.render(view, &ThicknessOptions::image_only())
+            })?;
+            (&rendered.line_integral, "thickness")
+        }
+    };
+    let path = super::reference_image_path(&ctx.out, &t.name, view.name.as_str());
+    write_tiff_f32(&path, image)?;
+    let mut side = Sidecar::new(
+        "drr",
+        "line integral ∫μ dl (μ in 1/mm)",
+        view,
+        &Perturbation::NONE,
+    )?;
+    side.details.insert("renderer".into(), renderer.into());
+    side.details
+        .insert("backend".into(), ctx.cfg.geometry.backend_name().into());
+    side.details.insert("target".into(), t.name.clone().into());
+    side.write(&sidecar_path(&path))
 }
 
 /// Silhouette and contour metrics of the thickness renders' masks, image metrics of `images`.
@@ -123,7 +163,7 @@ fn whole_object(
     Ok(ProjectionRow {
         target: t.name.clone(),
         view: view.name.clone(),
-        family: np.family.to_string(),
+        family: np.family,
         df_px: q.df_px,
         dcx_px: q.dcx_px,
         dcy_px: q.dcy_px,
@@ -139,7 +179,7 @@ fn whole_object(
         ssim: im.ssim,
         mutual_information_nats: im.mutual_information_nats,
         gradient_correlation: im.gradient_correlation,
-        mean_abs_diff_per_mm: im.mean_abs_diff,
+        mean_abs_diff: im.mean_abs_diff,
     })
 }
 
@@ -161,7 +201,7 @@ fn structures(
         rows.push(StructureRow {
             target: t.name.clone(),
             view: view.name.clone(),
-            family: np.family.to_string(),
+            family: np.family,
             df_px: q.df_px,
             dcx_px: q.dcx_px,
             dcy_px: q.dcy_px,
@@ -227,7 +267,7 @@ fn landmarks(
         rows.push(LandmarkRow {
             target: t.name.clone(),
             view: view.name.clone(),
-            family: np.family.to_string(),
+            family: np.family,
             df_px: q.df_px,
             dcx_px: q.dcx_px,
             dcy_px: q.dcy_px,

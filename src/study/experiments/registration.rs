@@ -9,9 +9,9 @@ use crate::registration::{
     RegistrationOptions, RegistrationProblem, add_pixel_noise, model_centroid, perturb_pose,
     pose_errors, register,
 };
-use crate::study::config::method_spec;
+use crate::study::schema::{RegistrationRow, UnitRows};
 use crate::study::timings::Phase;
-use crate::study::units::{RegistrationRow, Unit, UnitRows, derive_seed};
+use crate::study::units::{Unit, derive_seed};
 
 /// Runs trials `first..first + count` of one registration cell.
 pub fn run(ctx: &Context, unit: &Unit) -> Result<UnitRows> {
@@ -27,8 +27,9 @@ pub fn run(ctx: &Context, unit: &Unit) -> Result<UnitRows> {
         return Ok(UnitRows::default());
     };
     let t = ctx.target(target)?;
-    let (solver, view_names) = method_spec(method)?;
-    let views = view_names
+    let solver = method.solver();
+    let views = method
+        .views()
         .iter()
         .map(|n| ctx.carm.view(n).cloned())
         .collect::<Result<Vec<View>>>()?;
@@ -82,7 +83,7 @@ pub fn run(ctx: &Context, unit: &Unit) -> Result<UnitRows> {
         };
         rows.registration.push(RegistrationRow {
             target: target.clone(),
-            method: method.clone(),
+            method: *method,
             df_px: *df_px,
             piercing_px: *piercing_px,
             trial,

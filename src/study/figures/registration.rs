@@ -4,38 +4,42 @@
 
 use std::path::Path;
 
-use super::{Panel, Series, panel_chart};
+use super::{Panel, Series, distinct, panel_chart};
 use crate::Result;
-use crate::study::tables::Table;
+use crate::study::config::RegistrationMethod;
+use crate::study::schema::RegistrationSummaryRow;
 
-/// The error quantities: (column stem, axis label, file tag).
-const QUANTITIES: [(&str, &str, &str); 3] = [
-    ("rot_err_deg", "rotation error (deg)", "rot"),
-    ("trans_err_mm", "translation error (mm)", "trans"),
-    ("residual_px", "reprojection residual (px)", "residual"),
+/// (mean, sd) of one error quantity of a summary row.
+type Quantity = fn(&RegistrationSummaryRow) -> (f64, f64);
+
+/// The error quantities: (mean and sd, axis label, file tag).
+const QUANTITIES: [(Quantity, &str, &str); 3] = [
+    (
+        |r| (r.rot_err_deg_mean, r.rot_err_deg_sd),
+        "rotation error (deg)",
+        "rot",
+    ),
+    (
+        |r| (r.trans_err_mm_mean, r.trans_err_mm_sd),
+        "translation error (mm)",
+        "trans",
+    ),
+    (
+        |r| (r.residual_px_mean, r.residual_px_sd),
+        "reprojection residual (px)",
+        "residual",
+    ),
 ];
 
-/// Values of `col` in order of first appearance.
-fn distinct(t: &Table, col: &str) -> Result<Vec<String>> {
-    let mut v: Vec<String> = Vec::new();
-    for r in &t.rows {
-        let s = t.str(r, col)?;
-        if !v.iter().any(|x| x == s) {
-            v.push(s.to_string());
-        }
-    }
-    Ok(v)
-}
-
 /// Writes `registration_<target>_<rot|trans|residual>.png` for every target of the summary table.
-pub fn registration_figures(t: &Table, figs: &Path) -> Result<()> {
-    let methods = distinct(t, "method")?;
-    for target in distinct(t, "target")? {
-        for (stem, label, tag) in QUANTITIES {
-            let panels = methods
+pub fn registration_figures(rows: &[RegistrationSummaryRow], figs: &Path) -> Result<()> {
+    let methods = distinct(rows.iter().map(|r| r.method));
+    for target in distinct(rows.iter().map(|r| r.target.as_str())) {
+        for (quantity, label, tag) in QUANTITIES {
+            let panels: Vec<Panel> = methods
                 .iter()
-                .map(|m| panel(t, &target, m, stem))
-                .collect::<Result<Vec<_>>>()?;
+                .map(|&m| panel(rows, target, m, quantity))
+                .collect();
             let file = figs.join(format!("registration_{target}_{tag}.png"));
             let title = format!("{target}: {label} vs focal offset, mean ± sd over trials");
             panel_chart(&file, &title, "focal offset Δf (px)", label, &panels, 3)?;
@@ -48,18 +52,22 @@ pub fn registration_figures(t: &Table, figs: &Path) -> Result<()> {
 type CellMean = (f64, f64, f64);
 
 /// One method's panel: a line per piercing shift.
-fn panel(t: &Table, target: &str, method: &str, stem: &str) -> Result<Panel> {
-    let (mean, sd) = (format!("{stem}_mean"), format!("{stem}_sd"));
+fn panel(
+    rows: &[RegistrationSummaryRow],
+    target: &str,
+    method: RegistrationMethod,
+    quantity: Quantity,
+) -> Panel {
     let mut by_piercing: Vec<(f64, Vec<CellMean>)> = Vec::new();
-    for r in &t.rows {
-        if t.str(r, "target")? != target || t.str(r, "method")? != method {
-            continue;
-        }
-        let p = t.num(r, "piercing_px")?;
-        let point = (t.num(r, "df_px")?, t.num(r, &mean)?, t.num(r, &sd)?);
-        match by_piercing.iter_mut().find(|(q, _)| *q == p) {
+    for r in rows
+        .iter()
+        .filter(|r| r.target == target && r.method == method)
+    {
+        let (mean, sd) = quantity(r);
+        let point = (r.df_px, mean, sd);
+        match by_piercing.iter_mut().find(|(q, _)| *q == r.piercing_px) {
             Some((_, pts)) => pts.push(point),
-            None => by_piercing.push((p, vec![point])),
+            None => by_piercing.push((r.piercing_px, vec![point])),
         }
     }
     by_piercing.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -74,8 +82,8 @@ fn panel(t: &Table, target: &str, method: &str, stem: &str) -> Result<Panel> {
             }
         })
         .collect();
-    Ok(Panel {
+    Panel {
         title: method.to_string(),
         series,
-    })
+    }
 }

@@ -10,22 +10,16 @@ use serde::{Deserialize, Serialize};
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::{Level, parse_levels};
 use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig};
-use crate::registration::Method;
 use crate::render::Backend;
 use crate::{Error, Result};
 
-/// Experiments a study can run.
-pub const EXPERIMENTS: [&str; 3] = ["projection", "landmarks", "registration"];
+mod kinds;
+mod validate;
 
-/// Registration methods a study can run (method and the views it observes).
-pub const METHODS: [&str; 6] = [
-    "direct-ap",
-    "direct-lat",
-    "direct-ap+lat",
-    "kabsch",
-    "opencv-ap",
-    "opencv-lat",
-];
+pub use kinds::{Experiment, RegistrationMethod};
+
+/// The target of the phantom levels studied together (`anatomy.segment`).
+pub const SEGMENT_TARGET: &str = "segment";
 
 /// The whole study.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -33,8 +27,8 @@ pub const METHODS: [&str; 6] = [
 pub struct StudyConfig {
     /// Master seed; every unit derives its own from (seed, unit id).
     pub seed: u64,
-    /// Which experiments run (of [`EXPERIMENTS`]).
-    pub experiments: Vec<String>,
+    /// Which experiments run.
+    pub experiments: Vec<Experiment>,
     pub anatomy: AnatomyConfig,
     pub geometry: GeometrySection,
     pub perturbations: PerturbationGrid,
@@ -84,8 +78,8 @@ pub struct CtTarget {
     pub ct: PathBuf,
     pub seg: PathBuf,
     /// Label convention of `seg`: `totalseg` or `verse`.
-    #[serde(default = "default_labels")]
-    pub labels: String,
+    #[serde(default, with = "kinds::label_convention")]
+    pub labels: LabelConvention,
     /// Levels (`L1`, `T12`, `vertebrae_L3`) or raw label ids (`"31"`).
     pub levels: Vec<String>,
     /// Landmarks JSON (one set per level, CT world mm); default: automatic landmarks of each label surface.
@@ -96,17 +90,10 @@ pub struct CtTarget {
     pub segment: bool,
 }
 
-fn default_labels() -> String {
-    "totalseg".into()
-}
-
 impl CtTarget {
     /// Each level's target name (`<name>-L1`, or `<name>-id31` for a raw id) and its label id.
     pub fn level_targets(&self) -> Result<Vec<(String, u16)>> {
-        let conv: LabelConvention = self
-            .labels
-            .parse()
-            .map_err(|e: Error| Error::invalid("anatomy.ct.labels", e.to_string()))?;
+        let conv = self.labels;
         let mut out: Vec<(String, u16)> = Vec::new();
         for spec in &self.levels {
             let id = conv.resolve(spec).map_err(|e| {
@@ -176,8 +163,8 @@ pub struct PerturbationGrid {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RegistrationConfig {
-    /// Methods (of [`METHODS`]).
-    pub methods: Vec<String>,
+    /// Methods (solver and observed views).
+    pub methods: Vec<RegistrationMethod>,
     pub df_px: Vec<f64>,
     /// Piercing shifts p (px), applied as (p, p).
     pub piercing_px: Vec<f64>,
@@ -195,7 +182,7 @@ impl Default for StudyConfig {
     fn default() -> Self {
         StudyConfig {
             seed: 20240601,
-            experiments: EXPERIMENTS.iter().map(|s| s.to_string()).collect(),
+            experiments: Experiment::ALL.to_vec(),
             anatomy: AnatomyConfig::default(),
             geometry: GeometrySection::default(),
             perturbations: PerturbationGrid::default(),
@@ -215,6 +202,17 @@ impl Default for AnatomyConfig {
             meshes: Vec::new(),
             ct: Vec::new(),
         }
+    }
+}
+
+impl GeometrySection {
+    /// The backend's user spelling (`raster`, `embree`, `bvh`), as `--backend` and the config take it.
+    pub fn backend_name(&self) -> String {
+        use clap::ValueEnum;
+        self.backend.to_possible_value().map_or_else(
+            || format!("{:?}", self.backend),
+            |v| v.get_name().to_string(),
+        )
     }
 }
 
@@ -243,7 +241,7 @@ impl Default for PerturbationGrid {
 impl Default for RegistrationConfig {
     fn default() -> Self {
         RegistrationConfig {
-            methods: METHODS.iter().map(|s| s.to_string()).collect(),
+            methods: RegistrationMethod::ALL.to_vec(),
             df_px: vec![0.0, 100.0, 200.0, 300.0, 400.0, 500.0],
             piercing_px: vec![0.0, 10.0, 20.0, 30.0, 40.0, 50.0],
             trials: 20,
@@ -321,156 +319,6 @@ impl StudyConfig {
             .map_err(|e| Error::invalid("anatomy.levels", e.to_string()))
     }
 
-    /// Checks every key before any work; errors name the key and the value.
-    pub fn validate(&self) -> Result<()> {
-        for e in &self.experiments {
-            if !EXPERIMENTS.contains(&e.as_str()) {
-                return Err(Error::invalid(
-                    "experiments",
-                    format!("unknown experiment '{e}' (use {})", EXPERIMENTS.join(", ")),
-                ));
-            }
-        }
-        let a = &self.anatomy;
-        if a.levels.is_empty() && a.meshes.is_empty() && a.ct.is_empty() {
-            return Err(Error::invalid(
-                "anatomy.levels",
-                "must list at least one level (or give [[anatomy.meshes]] or [[anatomy.ct]])",
-            ));
-        }
-        self.levels()?;
-        let mut names: Vec<String> = a.levels.clone();
-        names.push("segment".into());
-        self.validate_meshes(&mut names)?;
-        self.validate_ct(&mut names)?;
-        positive("anatomy.voxel_mm", self.anatomy.voxel_mm)?;
-        positive("anatomy.marker_radius_mm", self.anatomy.marker_radius_mm)?;
-        if self.geometry.binning == 0 {
-            return Err(Error::invalid("geometry.binning", "must be at least 1"));
-        }
-        let carm = self.carm()?;
-        if self.geometry.views.is_empty() {
-            return Err(Error::invalid(
-                "geometry.views",
-                "must list at least one view",
-            ));
-        }
-        for v in &self.geometry.views {
-            carm.view(v)
-                .map_err(|e| Error::invalid("geometry.views", e.to_string()))?;
-        }
-        let p = &self.perturbations;
-        finite_list("perturbations.df_px", &p.df_px)?;
-        finite_list("perturbations.piercing_px", &p.piercing_px)?;
-        finite_list("perturbations.skew_px", &p.skew_px)?;
-        finite_list("perturbations.pixel_scale", &p.pixel_scale)?;
-        if let Some(s) = p.pixel_scale.iter().find(|s| **s <= 0.0) {
-            return Err(Error::invalid(
-                "perturbations.pixel_scale",
-                format!("{s} must be > 0"),
-            ));
-        }
-        finite_list("heatmaps_df_px", &self.heatmaps_df_px)?;
-        self.validate_registration()
-    }
-
-    fn validate_meshes(&self, names: &mut Vec<String>) -> Result<()> {
-        for m in &self.anatomy.meshes {
-            target_name("anatomy.meshes.name", &m.name, names)?;
-            if m.files.is_empty() {
-                return Err(Error::invalid(
-                    "anatomy.meshes.files",
-                    format!("target '{}' lists no files", m.name),
-                ));
-            }
-            for f in m.files.iter().chain([&m.landmarks]) {
-                if !f.is_file() {
-                    return Err(Error::invalid(
-                        "anatomy.meshes",
-                        format!("target '{}': no such file {}", m.name, f.display()),
-                    ));
-                }
-            }
-            if !m.mu_per_mm.is_finite() {
-                return Err(Error::invalid(
-                    "anatomy.meshes.mu_per_mm",
-                    format!("{} is not finite", m.mu_per_mm),
-                ));
-            }
-        }
-        Ok(())
-    }
-
-    /// Static checks of `[[anatomy.ct]]` (names, files exist, convention, level names). Whether each
-    /// label is present in its file is checked when the anatomy is loaded, still before any output.
-    fn validate_ct(&self, names: &mut Vec<String>) -> Result<()> {
-        for c in &self.anatomy.ct {
-            target_name("anatomy.ct.name", &c.name, names)?;
-            for (key, f) in [
-                ("anatomy.ct.ct", Some(&c.ct)),
-                ("anatomy.ct.seg", Some(&c.seg)),
-                ("anatomy.ct.landmarks", c.landmarks.as_ref()),
-            ] {
-                if let Some(f) = f
-                    && !f.is_file()
-                {
-                    return Err(Error::invalid(
-                        key,
-                        format!("target '{}': no such file {}", c.name, f.display()),
-                    ));
-                }
-            }
-            if c.levels.is_empty() {
-                return Err(Error::invalid(
-                    "anatomy.ct.levels",
-                    format!("target '{}' lists no levels", c.name),
-                ));
-            }
-            let mut sub: Vec<String> = c.level_targets()?.into_iter().map(|(n, _)| n).collect();
-            if c.segment {
-                sub.push(c.segment_target());
-            }
-            for n in sub {
-                if names.contains(&n) {
-                    return Err(Error::invalid(
-                        "anatomy.ct.name",
-                        format!("target '{n}' of '{}' clashes with another target", c.name),
-                    ));
-                }
-                names.push(n);
-            }
-        }
-        Ok(())
-    }
-
-    fn validate_registration(&self) -> Result<()> {
-        let r = &self.registration;
-        for m in &r.methods {
-            method_spec(m)?;
-        }
-        finite_list("registration.df_px", &r.df_px)?;
-        finite_list("registration.piercing_px", &r.piercing_px)?;
-        if r.trials == 0 {
-            return Err(Error::invalid("registration.trials", "must be at least 1"));
-        }
-        if r.trials_per_unit == 0 {
-            return Err(Error::invalid(
-                "registration.trials_per_unit",
-                "must be at least 1",
-            ));
-        }
-        for (k, v) in [
-            ("registration.init_rot_deg", r.init_rot_deg),
-            ("registration.init_trans_mm", r.init_trans_mm),
-            ("registration.noise_px", r.noise_px),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(Error::invalid(k, format!("{v} must be finite and >= 0")));
-            }
-        }
-        Ok(())
-    }
-
     /// The C-arm: the geometry file (or the built-in one) with the detector binned.
     pub fn carm(&self) -> Result<CArm> {
         let (text, origin) = match &self.geometry.file {
@@ -506,59 +354,9 @@ impl StudyConfig {
         g.build().map_err(|e| Error::format(&origin, e.to_string()))
     }
 
-    /// Whether experiment `name` runs.
-    pub fn runs(&self, name: &str) -> bool {
-        self.experiments.iter().any(|e| e == name)
-    }
-}
-
-/// A registration method name → the solver and the views it observes.
-pub fn method_spec(name: &str) -> Result<(Method, Vec<String>)> {
-    let (m, views) = match name {
-        "direct-ap" => ("direct", vec!["ap"]),
-        "direct-lat" => ("direct", vec!["lat"]),
-        "direct-ap+lat" => ("direct", vec!["ap", "lat"]),
-        "kabsch" => ("kabsch", vec!["ap", "lat"]),
-        "opencv-ap" => ("opencv", vec!["ap"]),
-        "opencv-lat" => ("opencv", vec!["lat"]),
-        _ => {
-            return Err(Error::invalid(
-                "registration.methods",
-                format!("unknown method '{name}' (use {})", METHODS.join(", ")),
-            ));
-        }
-    };
-    Ok((
-        Method::parse(m)?,
-        views.into_iter().map(String::from).collect(),
-    ))
-}
-
-/// A user target name: non-empty, letters/digits/'-' (it goes into file names), not yet taken.
-fn target_name(key: &str, name: &str, names: &mut Vec<String>) -> Result<()> {
-    let ok = !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-');
-    if !ok || names.iter().any(|n| n == name) {
-        return Err(Error::invalid(
-            key,
-            format!("'{name}' must be unique, non-empty, letters/digits/'-' only"),
-        ));
-    }
-    names.push(name.to_string());
-    Ok(())
-}
-
-fn positive(key: &str, v: f64) -> Result<()> {
-    if v.is_finite() && v > 0.0 {
-        Ok(())
-    } else {
-        Err(Error::invalid(key, format!("{v} must be finite and > 0")))
-    }
-}
-
-fn finite_list(key: &str, v: &[f64]) -> Result<()> {
-    match v.iter().find(|x| !x.is_finite()) {
-        Some(x) => Err(Error::invalid(key, format!("{x} is not finite"))),
-        None => Ok(()),
+    /// Whether experiment `e` runs.
+    pub fn runs(&self, e: Experiment) -> bool {
+        self.experiments.contains(&e)
     }
 }
 
@@ -590,7 +388,7 @@ mod tests {
             name: "p".into(),
             ct: "ct.nii".into(),
             seg: "seg.nii".into(),
-            labels: "totalseg".into(),
+            labels: LabelConvention::TotalSegmentator,
             levels: vec!["L1".into(), "vertebrae_l3".into(), "27".into()],
             landmarks: None,
             segment: true,
@@ -611,7 +409,7 @@ mod tests {
             e.contains("anatomy.ct.levels") && e.contains("twice"),
             "{e}"
         );
-        c.labels = "verse".into();
+        c.labels = LabelConvention::Verse;
         c.levels = vec!["L1".into()];
         assert_eq!(c.level_targets().unwrap()[0].1, 20, "VerSe L1 = 20");
     }

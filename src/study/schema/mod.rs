@@ -1,0 +1,206 @@
+//! The study's tables, typed: one serde row type per table. A row's fields are its columns (names
+//! with units, in order); the `csv` crate writes them with headers from the field names and quotes a
+//! cell only when it must (a landmark name with a comma or a quote). Unit result files hold the same
+//! rows as JSON. Adding a metric column is one field here plus its computation in `experiments`.
+//!
+//! f64 cells are written with `{}` Display and read back exactly (see [`num`]).
+
+pub mod num;
+mod tables;
+
+use std::fmt;
+
+use serde::{Deserialize, Serialize};
+
+use super::config::RegistrationMethod;
+
+pub use tables::{StudyTables, TableRow, mean_sd, read_rows, write_rows};
+
+/// The family of a projection perturbation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Family {
+    /// Δf alone.
+    Focal,
+    /// Piercing point shifted by (p, p).
+    Piercing,
+    /// Δf paired with a non-zero piercing shift.
+    Joint,
+    /// Skew alone.
+    Skew,
+    /// Anisotropic pixel scale alone.
+    Scale,
+}
+
+impl Family {
+    /// The table spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Focal => "focal",
+            Family::Piercing => "piercing",
+            Family::Joint => "joint",
+            Family::Skew => "skew",
+            Family::Scale => "scale",
+        }
+    }
+}
+
+impl fmt::Display for Family {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Whole-object silhouette, contour and image-similarity metrics (table `projection.csv`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ProjectionRow {
+    pub target: String,
+    pub view: String,
+    pub family: Family,
+    #[serde(with = "num")]
+    pub df_px: f64,
+    #[serde(with = "num")]
+    pub dcx_px: f64,
+    #[serde(with = "num")]
+    pub dcy_px: f64,
+    #[serde(with = "num")]
+    pub skew_px: f64,
+    #[serde(with = "num")]
+    pub sy: f64,
+    #[serde(with = "num")]
+    pub dice: f64,
+    #[serde(with = "num")]
+    pub iou: f64,
+    #[serde(with = "num")]
+    pub chamfer_mean_px: f64,
+    #[serde(with = "num")]
+    pub hausdorff_px: f64,
+    #[serde(with = "num")]
+    pub hd95_px: f64,
+    #[serde(with = "num")]
+    pub edge_distance_mean_px: f64,
+    #[serde(with = "num")]
+    pub ncc: f64,
+    #[serde(with = "num")]
+    pub ssim: f64,
+    #[serde(with = "num")]
+    pub mutual_information_nats: f64,
+    #[serde(with = "num")]
+    pub gradient_correlation: f64,
+    /// Mean |a − b| of the two images: unitless line integrals (or intensities), not per mm.
+    #[serde(with = "num")]
+    pub mean_abs_diff: f64,
+}
+
+/// Dice/IoU of one anatomical structure (table `structures.csv`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StructureRow {
+    pub target: String,
+    pub view: String,
+    pub family: Family,
+    #[serde(with = "num")]
+    pub df_px: f64,
+    #[serde(with = "num")]
+    pub dcx_px: f64,
+    #[serde(with = "num")]
+    pub dcy_px: f64,
+    pub structure: String,
+    #[serde(with = "num")]
+    pub dice: f64,
+    #[serde(with = "num")]
+    pub iou: f64,
+}
+
+/// One landmark measured from marker images, with the homography prediction (table `landmarks.csv`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LandmarkRow {
+    pub target: String,
+    pub view: String,
+    pub family: Family,
+    #[serde(with = "num")]
+    pub df_px: f64,
+    #[serde(with = "num")]
+    pub dcx_px: f64,
+    #[serde(with = "num")]
+    pub dcy_px: f64,
+    pub landmark: String,
+    #[serde(with = "num")]
+    pub ref_u_px: f64,
+    #[serde(with = "num")]
+    pub ref_v_px: f64,
+    #[serde(with = "num")]
+    pub meas_u_px: f64,
+    #[serde(with = "num")]
+    pub meas_v_px: f64,
+    #[serde(with = "num")]
+    pub shift_px: f64,
+    #[serde(with = "num")]
+    pub pred_u_px: f64,
+    #[serde(with = "num")]
+    pub pred_v_px: f64,
+    #[serde(with = "num")]
+    pub pred_shift_px: f64,
+    /// `‖x_meas − H x_ref‖`.
+    #[serde(with = "num")]
+    pub pred_error_px: f64,
+}
+
+/// One registration trial (table `registration.csv`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RegistrationRow {
+    pub target: String,
+    pub method: RegistrationMethod,
+    #[serde(with = "num")]
+    pub df_px: f64,
+    #[serde(with = "num")]
+    pub piercing_px: f64,
+    pub trial: usize,
+    #[serde(with = "num")]
+    pub rot_err_deg: f64,
+    #[serde(with = "num")]
+    pub trans_err_mm: f64,
+    #[serde(with = "num")]
+    pub residual_px: f64,
+    pub iterations: usize,
+    pub converged: bool,
+}
+
+/// Mean and sample standard deviation over the trials of one registration cell (table
+/// `registration_summary.csv`); NaN trials (failed solves) are counted in `failed` and left out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RegistrationSummaryRow {
+    pub target: String,
+    pub method: RegistrationMethod,
+    #[serde(with = "num")]
+    pub df_px: f64,
+    #[serde(with = "num")]
+    pub piercing_px: f64,
+    pub trials: usize,
+    pub failed: usize,
+    #[serde(with = "num")]
+    pub rot_err_deg_mean: f64,
+    #[serde(with = "num")]
+    pub rot_err_deg_sd: f64,
+    #[serde(with = "num")]
+    pub trans_err_mm_mean: f64,
+    #[serde(with = "num")]
+    pub trans_err_mm_sd: f64,
+    #[serde(with = "num")]
+    pub residual_px_mean: f64,
+    #[serde(with = "num")]
+    pub residual_px_sd: f64,
+}
+
+/// Everything one unit produced (the content of its `units/<id>.json`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct UnitRows {
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub projection: Vec<ProjectionRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub structures: Vec<StructureRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub landmarks: Vec<LandmarkRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub registration: Vec<RegistrationRow>,
+}

@@ -1,0 +1,295 @@
+//! `tables/*.csv`: tidy tables, one row per measurement, written and read with the `csv` crate.
+
+use std::path::Path;
+
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+use super::{
+    LandmarkRow, ProjectionRow, RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
+};
+use crate::io::write_atomic_bytes;
+use crate::{Error, Result};
+
+/// A row type and the table (`tables/<TABLE>.csv`) it belongs to.
+pub trait TableRow: Serialize + DeserializeOwned {
+    const TABLE: &'static str;
+}
+
+impl TableRow for ProjectionRow {
+    const TABLE: &'static str = "projection";
+}
+impl TableRow for StructureRow {
+    const TABLE: &'static str = "structures";
+}
+impl TableRow for LandmarkRow {
+    const TABLE: &'static str = "landmarks";
+}
+impl TableRow for RegistrationRow {
+    const TABLE: &'static str = "registration";
+}
+impl TableRow for RegistrationSummaryRow {
+    const TABLE: &'static str = "registration_summary";
+}
+
+fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
+    dir.join(format!("{}.csv", R::TABLE))
+}
+
+/// Writes `dir/<table>.csv` (header from the field names, then `rows`) atomically.
+pub fn write_rows<R: TableRow>(dir: &Path, rows: &[R]) -> Result<()> {
+    let what = || format!("table {}", R::TABLE);
+    let mut w = csv::Writer::from_writer(Vec::new());
+    for r in rows {
+        w.serialize(r).map_err(|e| Error::encode(what(), e))?;
+    }
+    let bytes = w.into_inner().map_err(|e| Error::encode(what(), e))?;
+    write_atomic_bytes(&table_path::<R>(dir), &bytes)
+}
+
+/// Reads `dir/<table>.csv`; an absent table has no rows.
+pub fn read_rows<R: TableRow>(dir: &Path) -> Result<Vec<R>> {
+    let path = table_path::<R>(dir);
+    if !path.exists() {
+        return Ok(Vec::new());
+    }
+    let mut r = csv::Reader::from_path(&path).map_err(|e| Error::format(&path, e.to_string()))?;
+    r.deserialize()
+        .collect::<std::result::Result<Vec<R>, _>>()
+        .map_err(|e| Error::format(&path, e.to_string()))
+}
+
+/// Every table of a study, typed.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StudyTables {
+    pub projection: Vec<ProjectionRow>,
+    pub structures: Vec<StructureRow>,
+    pub landmarks: Vec<LandmarkRow>,
+    pub registration: Vec<RegistrationRow>,
+    pub registration_summary: Vec<RegistrationSummaryRow>,
+}
+
+impl StudyTables {
+    /// The tables of the units' rows, concatenated in the given (unit) order, with the registration
+    /// summary computed from them.
+    pub fn from_units(units: impl IntoIterator<Item = UnitRows>) -> StudyTables {
+        let mut t = StudyTables::default();
+        for u in units {
+            t.projection.extend(u.projection);
+            t.structures.extend(u.structures);
+            t.landmarks.extend(u.landmarks);
+            t.registration.extend(u.registration);
+        }
+        t.registration_summary = summarize_registration(&t.registration);
+        t
+    }
+
+    /// Writes every non-empty table to `dir` (`out/tables`); returns how many.
+    pub fn write(&self, dir: &Path) -> Result<usize> {
+        fn put<R: TableRow>(dir: &Path, rows: &[R], n: &mut usize) -> Result<()> {
+            if !rows.is_empty() {
+                write_rows(dir, rows)?;
+                *n += 1;
+            }
+            Ok(())
+        }
+        let mut n = 0;
+        put(dir, &self.projection, &mut n)?;
+        put(dir, &self.structures, &mut n)?;
+        put(dir, &self.landmarks, &mut n)?;
+        put(dir, &self.registration, &mut n)?;
+        put(dir, &self.registration_summary, &mut n)?;
+        Ok(n)
+    }
+
+    /// Reads each table of the study in `out` (`out/tables/*.csv`) once; absent tables are empty.
+    pub fn load(out: &Path) -> Result<StudyTables> {
+        let dir = out.join("tables");
+        Ok(StudyTables {
+            projection: read_rows(&dir)?,
+            structures: read_rows(&dir)?,
+            landmarks: read_rows(&dir)?,
+            registration: read_rows(&dir)?,
+            registration_summary: read_rows(&dir)?,
+        })
+    }
+}
+
+/// Mean and sample standard deviation of the finite values.
+pub fn mean_sd(v: &[f64]) -> (f64, f64) {
+    let x: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if x.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    let var = if x.len() > 1 {
+        x.iter().map(|a| (a - m).powi(2)).sum::<f64>() / (n - 1.0)
+    } else {
+        0.0
+    };
+    (m, var.sqrt())
+}
+
+/// Per (target, method, Δf, piercing) the mean and spread over trials, in the order the cells first
+/// appear in `rows`.
+fn summarize_registration(rows: &[RegistrationRow]) -> Vec<RegistrationSummaryRow> {
+    let same_cell = |a: &RegistrationRow, b: &RegistrationRow| {
+        a.target == b.target
+            && a.method == b.method
+            && a.df_px.to_bits() == b.df_px.to_bits()
+            && a.piercing_px.to_bits() == b.piercing_px.to_bits()
+    };
+    let mut cells: Vec<Vec<&RegistrationRow>> = Vec::new();
+    for r in rows {
+        match cells.iter_mut().find(|c| same_cell(c[0], r)) {
+            Some(c) => c.push(r),
+            None => cells.push(vec![r]),
+        }
+    }
+    cells
+        .into_iter()
+        .map(|c| {
+            let stat = |f: fn(&RegistrationRow) -> f64| {
+                mean_sd(&c.iter().map(|r| f(r)).collect::<Vec<_>>())
+            };
+            let (rot, trans, res) = (
+                stat(|r| r.rot_err_deg),
+                stat(|r| r.trans_err_mm),
+                stat(|r| r.residual_px),
+            );
+            RegistrationSummaryRow {
+                target: c[0].target.clone(),
+                method: c[0].method,
+                df_px: c[0].df_px,
+                piercing_px: c[0].piercing_px,
+                trials: c.len(),
+                failed: c.iter().filter(|r| !r.rot_err_deg.is_finite()).count(),
+                rot_err_deg_mean: rot.0,
+                rot_err_deg_sd: rot.1,
+                trans_err_mm_mean: trans.0,
+                trans_err_mm_sd: trans.1,
+                residual_px_mean: res.0,
+                residual_px_sd: res.1,
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::study::config::RegistrationMethod;
+    use crate::study::schema::Family;
+
+    #[test]
+    fn mean_and_sample_sd_match_hand_values_and_skip_nan() {
+        // mean 2.5; Σ(x − m)² = 5 → sample variance 5/3.
+        let (m, s) = mean_sd(&[1.0, 2.0, f64::NAN, 3.0, 4.0]);
+        assert_eq!(m, 2.5);
+        assert!((s - (5.0f64 / 3.0).sqrt()).abs() < 1e-15);
+        assert!(mean_sd(&[f64::NAN]).0.is_nan());
+    }
+
+    fn trial(trial: usize, rot: f64) -> RegistrationRow {
+        RegistrationRow {
+            target: "L1".into(),
+            method: RegistrationMethod::Kabsch,
+            df_px: 100.0,
+            piercing_px: 0.1 + 0.2,
+            trial,
+            rot_err_deg: rot,
+            trans_err_mm: f64::NAN,
+            residual_px: 2.5e-4,
+            iterations: 7,
+            converged: true,
+        }
+    }
+
+    #[test]
+    fn rows_round_trip_exactly_through_a_written_table_with_display_numbers() {
+        let dir = tempfile::tempdir().unwrap();
+        let rows = vec![trial(3, 1.0 / 3.0), trial(4, f64::NEG_INFINITY)];
+        write_rows(dir.path(), &rows).unwrap();
+        let text = std::fs::read_to_string(dir.path().join("registration.csv")).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(
+            lines[0],
+            "target,method,df_px,piercing_px,trial,rot_err_deg,trans_err_mm,residual_px,iterations,converged"
+        );
+        // `{}` Display, as the tables always had: `100`, not `100.0`; `NaN`, not an empty cell.
+        assert_eq!(
+            lines[1],
+            "L1,kabsch,100,0.30000000000000004,3,0.3333333333333333,NaN,0.00025,7,true"
+        );
+        let back: Vec<RegistrationRow> = read_rows(dir.path()).unwrap();
+        assert_eq!(back[0].piercing_px, 0.1 + 0.2);
+        assert_eq!(back[0].rot_err_deg, 1.0 / 3.0);
+        assert_eq!(back[1].rot_err_deg, f64::NEG_INFINITY);
+        assert!(back[0].trans_err_mm.is_nan());
+        assert_eq!(back[0].residual_px, 2.5e-4);
+    }
+
+    #[test]
+    fn names_with_commas_and_quotes_are_quoted_and_come_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let name = "tip, \"left\"";
+        let row = StructureRow {
+            target: "box".into(),
+            view: "ap".into(),
+            family: Family::Focal,
+            df_px: 100.0,
+            dcx_px: 0.0,
+            dcy_px: -0.0,
+            structure: name.into(),
+            dice: 0.5,
+            iou: 1.0 / 3.0,
+        };
+        write_rows(dir.path(), std::slice::from_ref(&row)).unwrap();
+        let text = std::fs::read_to_string(dir.path().join("structures.csv")).unwrap();
+        assert!(text.contains(",\"tip, \"\"left\"\"\","), "{text}");
+        let back: Vec<StructureRow> = read_rows(dir.path()).unwrap();
+        assert_eq!(back, vec![row]);
+        assert!(back[0].dcy_px.is_sign_negative());
+    }
+
+    #[test]
+    fn unit_rows_survive_json_with_nan_and_infinities() {
+        let mut r = trial(0, f64::INFINITY);
+        r.residual_px = 1e-300;
+        let rows = UnitRows {
+            registration: vec![r],
+            ..UnitRows::default()
+        };
+        let text = serde_json::to_string(&rows).unwrap();
+        assert!(
+            text.contains("\"inf\"") && text.contains("\"NaN\""),
+            "{text}"
+        );
+        let back: UnitRows = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.registration[0].rot_err_deg, f64::INFINITY);
+        assert!(back.registration[0].trans_err_mm.is_nan());
+        assert_eq!(back.registration[0].piercing_px, 0.1 + 0.2);
+        assert_eq!(back.registration[0].residual_px, 1e-300);
+    }
+
+    #[test]
+    fn summary_groups_cells_in_order_and_counts_failures() {
+        let mut rows = vec![trial(0, 1.0), trial(1, f64::NAN), trial(2, 3.0)];
+        let mut other = trial(0, 5.0);
+        other.method = RegistrationMethod::DirectAp;
+        rows.insert(1, other);
+        let s = summarize_registration(&rows);
+        assert_eq!(s.len(), 2);
+        assert_eq!(
+            (s[0].method, s[0].trials, s[0].failed),
+            (RegistrationMethod::Kabsch, 3, 1)
+        );
+        assert_eq!(s[0].rot_err_deg_mean, 2.0);
+        assert_eq!(s[0].rot_err_deg_sd, 2f64.sqrt());
+        assert_eq!(
+            (s[1].method, s[1].trials),
+            (RegistrationMethod::DirectAp, 1)
+        );
+    }
+}
