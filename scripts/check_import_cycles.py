@@ -3,8 +3,9 @@
 
 Builds the file-level graph of `use` items and inline `crate::`/`super::` paths (a path resolves to the
 deepest module file that exists) and prints every strongly connected component of more than one file.
-A parent `mod.rs` naming its children by relative path (`projection::run`) is not an edge: declaring
-child modules is how Rust composes a folder, not a cycle. Exit status 1 when a cycle exists.
+A module using its own descendants (`projection::run`, `self::select::x`) is not an edge: declaring
+and re-exporting child modules is how Rust composes a folder, not a cycle. `super::` inside an inline
+`mod tests { … }` refers to the file itself. Exit status 1 when a cycle exists.
 Usage: python3 scripts/check_import_cycles.py [src]"""
 import os, re, sys
 root = sys.argv[1] if len(sys.argv) > 1 else 'src'
@@ -48,29 +49,41 @@ def expand_use(s):
         p = p.strip()
         if p: out += expand_use(pre + p + post)
     return out
+def inline_modules(src):
+    """(start, end, name) of each inline `mod name { ... }` block (e.g. `mod tests`)."""
+    spans = []
+    for mm in re.finditer(r'\bmod\s+(\w+)\s*\{', src):
+        depth = 0
+        for i in range(mm.end() - 1, len(src)):
+            if src[i] == '{': depth += 1
+            elif src[i] == '}':
+                depth -= 1
+                if depth == 0: spans.append((mm.start(), i, mm.group(1))); break
+    return spans
 graph = {m: set() for m in mods}
 for m, p in files.items():
     src = open(p).read()
     src = re.sub(r'//[^\n]*', '', src)
-    paths = []
+    spans = inline_modules(src)
+    occurrences = []
     for u in re.finditer(r'^\s*(?:pub(?:\([^)]*\))?\s+)?use\s+([^;]+);', src, re.M):
-        paths += expand_use(re.sub(r'\s+', '', u.group(1)))
-    paths += re.findall(r'\b((?:crate|super)(?:::\w+)+)', src)
-    for q in paths:
-        q = q.split(' as ')[0]
+        occurrences += [(u.start(), q) for q in expand_use(re.sub(r'\s+', '', u.group(1)))]
+    occurrences += [(x.start(), x.group(1)) for x in re.finditer(r'\b((?:crate|super)(?:::\w+)+)', src)]
+    for pos, q in occurrences:
         segs = [s for s in q.split('::') if s]
         if not segs: continue
+        # the module this occurrence sits in: the file's, or an inline module inside it
+        here = list(m) + [n for a, b, n in spans if a < pos < b]
         if segs[0] == 'crate': base, rest = [], segs[1:]
-        elif segs[0] == 'super':
-            base = list(m)
-            rest = segs
-            while rest and rest[0] == 'super':
-                base = base[:-1]; rest = rest[1:]
-        elif segs[0] == 'self':
-            base = list(m); rest = segs[1:]
+        elif segs[0] in ('super', 'self'):
+            base, rest = here, segs
+            while rest and rest[0] in ('super', 'self'):
+                if rest[0] == 'super': base = base[:-1]
+                rest = rest[1:]
         else: continue
         t = resolve(base + rest)
-        if t != m and t != ():
+        # a module using its own descendants (declaring, re-exporting children) is composition, not a cycle
+        if t != () and t[:len(m)] != m:
             graph[m].add(t)
 def name(m): return '/'.join(m) or 'lib'
 sys.setrecursionlimit(10000)

@@ -17,8 +17,6 @@ mod thickness;
 mod tracer;
 pub mod volume;
 
-/// μ of a phantom tissue, for the study's mesh targets (defined with μ(HU) in [`crate::anatomy`]).
-pub use crate::anatomy::tissue_mu;
 pub use backend::Backend;
 pub use phantom_scene::phantom_scene;
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh};

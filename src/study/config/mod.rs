@@ -129,7 +129,7 @@ impl CtTarget {
 }
 
 fn default_mu() -> f64 {
-    crate::render::tissue_mu(crate::anatomy::Tissue::Cortical)
+    crate::anatomy::tissue_mu(crate::anatomy::Tissue::Cortical)
 }
 
 /// `[geometry]`: the C-arm file (default: the built-in paper geometry), its views and detector binning.

@@ -28,10 +28,11 @@ use crate::anatomy::ct::{
     CtVolume, LabelMap, SurfaceOptions, VoxelMask, label_surface, read_ct, read_labels,
 };
 use crate::anatomy::labels::LabelConvention;
+use crate::anatomy::tissue_mu;
 use crate::anatomy::{Landmarks, Tissue, TriMesh, auto_landmarks, read_landmarks};
 use crate::geometry::RigidTransform;
 use crate::render::volume::{VolumeRenderOptions, VolumeRenderer};
-use crate::render::{RenderScene, SceneMesh, tissue_mu};
+use crate::render::{RenderScene, SceneMesh};
 use crate::study::config::{CtTarget, StudyConfig};
 use crate::study::timings::{Phase, Timings};
 use crate::{Error, Result};
