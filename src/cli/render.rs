@@ -46,7 +46,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1.0, value_name = "MU", conflicts_with_all = ["phantom", "ct"])]
     mu_default: f64,
     /// With --phantom: add the soft-tissue outline around the spine.
-    #[arg(long, requires = "phantom")]
+    #[arg(long, conflicts_with_all = ["mesh", "ct"])]
     soft_tissue: bool,
     /// View name from the geometry (the default geometry has `ap` and `lat`).
     #[arg(long, default_value = "ap")]

@@ -24,25 +24,25 @@ pub struct CtArgs {
     #[arg(long, value_name = "CT.nii.gz")]
     pub ct: Option<PathBuf>,
     /// Segmentation on the CT's grid; with `--label`, only that label's voxels are rendered.
-    #[arg(long, requires_all = ["label", "ct"])]
+    #[arg(long, requires = "label", conflicts_with_all = ["mesh", "phantom"])]
     pub seg: Option<PathBuf>,
     /// Label to render: a level name (`L1`, `T12`) in the `--labels` convention, or a raw integer id.
     #[arg(long, requires = "seg")]
     pub label: Option<String>,
     /// Label convention of `--seg`: totalseg (TotalSegmentator v2) or verse.
-    #[arg(long, default_value = "totalseg", requires = "seg")]
+    #[arg(long, default_value = "totalseg", requires = "seg", conflicts_with_all = ["mesh", "phantom"])]
     pub labels: String,
     /// Render only voxels at or above this HU (e.g. 150 for bone).
-    #[arg(long, requires = "ct")]
+    #[arg(long, conflicts_with_all = ["mesh", "phantom"])]
     pub bone_hu: Option<f32>,
     /// Ray integrator of a CT render: siddon (exact voxel traversal) or trilinear.
-    #[arg(long, default_value = "siddon", requires = "ct")]
+    #[arg(long, default_value = "siddon", conflicts_with_all = ["mesh", "phantom"])]
     pub method: String,
     /// μ of water (mm⁻¹) in μ(HU) = μ_water · max(0, 1 + HU/1000).
-    #[arg(long, default_value_t = MU_WATER_PER_MM, requires = "ct")]
+    #[arg(long, default_value_t = MU_WATER_PER_MM, conflicts_with_all = ["mesh", "phantom"])]
     pub mu_water: f64,
     /// Trilinear step (mm), capped at half the smallest voxel spacing (with --method trilinear).
-    #[arg(long, requires = "ct")]
+    #[arg(long, conflicts_with_all = ["mesh", "phantom"])]
     pub step_mm: Option<f64>,
 }
 
