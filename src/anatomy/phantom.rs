@@ -19,9 +19,7 @@ use glam::{DMat3, DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::decimate::{collapse_short_edges, project_to_zero};
-use super::isosurface::{
-    ScalarGrid, check_grid_size, extract_isosurface, remove_small_components,
-};
+use super::isosurface::{ScalarGrid, check_grid_size, extract_isosurface, remove_small_components};
 use super::landmarks::Landmarks;
 use super::sdf::{Frame, Placed, Shape, ellipse_distance};
 use super::vertebra::{Level, VertebraShape};

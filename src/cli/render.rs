@@ -4,17 +4,18 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, bail};
+use glam::DVec3;
 use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
 use spinedrr::geometry::{CArm, Perturbation};
-use glam::DVec3;
 use spinedrr::io::{DrrProducts, DrrValues, check_output_paths, drr_set_paths, write_drr_set};
 use spinedrr::render::{
     Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, phantom_scene,
 };
 
 use super::render_checks::{
-    RenderRun, box_corners, check_not_empty, check_not_negative, check_source_outside, split_mesh_spec,
+    RenderRun, box_corners, check_not_empty, check_not_negative, check_source_outside,
+    split_mesh_spec,
 };
 use super::render_timing::{median_min, peak_rss_mb};
 
@@ -123,7 +124,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let named: Vec<_> = scene
         .meshes
         .iter()
-        .map(|m| (m.mesh.name.as_str(), m.mesh.as_ref()))
+        .map(|m| (m.object.as_str(), m.mesh.as_ref()))
         .collect();
     check_source_outside(&rendered, &named)?;
     let corners = scene_corners(&scene);
@@ -190,10 +191,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
 /// Warns about each mesh that is not closed and consistently wound, saying which it is.
 fn report_open_meshes(scene: &RenderScene) {
-    for m in scene.meshes.iter().filter(|m| scene.open_meshes.contains(&m.mesh.name)) {
+    for m in scene
+        .meshes
+        .iter()
+        .filter(|m| scene.open_meshes.contains(&m.mesh.name))
+    {
         let c = m.mesh.check();
         eprintln!(
-            "warning: mesh '{}' is not a closed, consistently wound surface ({} boundary edges, {} edges \
+            "warning: mesh '{}' is not closed or not consistently wound ({} boundary edges, {} edges \
              shared by more than two triangles, {} edges wound the same way by both triangles); path \
              lengths near those edges are unreliable",
             m.mesh.name, c.boundary_edges, c.nonmanifold_edges, c.misoriented_edges

@@ -40,7 +40,9 @@ pub fn split_mesh_spec(spec: &str, default_mu: f64) -> anyhow::Result<(PathBuf, 
     match mu.trim().parse::<f64>() {
         Ok(v) if v.is_finite() => Ok((PathBuf::from(path), v)),
         Ok(v) => bail!("--mesh {spec}: μ {v} must be finite"),
-        Err(_) => bail!("--mesh {spec}: μ '{mu}' is not a number (expected FILE or FILE:MU, MU in mm⁻¹)"),
+        Err(_) => {
+            bail!("--mesh {spec}: μ '{mu}' is not a number (expected FILE or FILE:MU, MU in mm⁻¹)")
+        }
     }
 }
 
@@ -85,12 +87,16 @@ fn where_it_projects(view: &View, corners: &[DVec3]) -> String {
         );
     }
     let px: Vec<_> = corners.iter().map(|&c| view.project(c)).collect();
-    let (u0, u1) = px.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-        (a.min(p.x), b.max(p.x))
-    });
-    let (v0, v1) = px.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-        (a.min(p.y), b.max(p.y))
-    });
+    let (u0, u1) = px
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.x), b.max(p.x))
+        });
+    let (v0, v1) = px
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.y), b.max(p.y))
+        });
     format!(
         "its bounding box projects to u ∈ [{u0:.4e}, {u1:.4e}], v ∈ [{v0:.4e}, {v1:.4e}] px, the detector \
          is {} × {} px",

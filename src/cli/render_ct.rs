@@ -30,7 +30,7 @@ pub struct CtArgs {
     #[arg(long, requires = "seg")]
     pub label: Option<String>,
     /// Label convention of `--seg`: totalseg (TotalSegmentator v2) or verse.
-    #[arg(long, default_value = "totalseg", requires = "seg", conflicts_with_all = ["mesh", "phantom"])]
+    #[arg(long, default_value = "totalseg", conflicts_with_all = ["mesh", "phantom"])]
     pub labels: String,
     /// Render only voxels at or above this HU (e.g. 150 for bone).
     #[arg(long, conflicts_with_all = ["mesh", "phantom"])]
@@ -139,8 +139,15 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
         bone_hu: a.bone_hu,
         render: renderer.details(),
     };
-    write_drr(run.out, &img, run.values, run.view, run.perturbation, &inputs)
-        .with_context(|| format!("writing {}", run.out.display()))
+    write_drr(
+        run.out,
+        &img,
+        run.values,
+        run.view,
+        run.perturbation,
+        &inputs,
+    )
+    .with_context(|| format!("writing {}", run.out.display()))
 }
 
 /// The CT render's sidecar `details`: the inputs as given, and the renderer's record.

@@ -108,6 +108,14 @@ impl Intrinsics {
                 ));
             }
         }
+        for (name, v) in [("width", self.width), ("height", self.height)] {
+            if v == 0 || v > MAX_DETECTOR_PX {
+                return Err(Error::invalid(
+                    format!("detector {name}"),
+                    format!("must be between 1 and {MAX_DETECTOR_PX} pixels, got {v}"),
+                ));
+            }
+        }
         if self.fx <= 0.0 || self.fy <= 0.0 {
             return Err(Error::invalid(
                 "intrinsics.fx/fy",
@@ -146,14 +154,6 @@ impl Intrinsics {
                         "principal point {v} px is beyond ±{MAX_PRINCIPAL_POINT_PX} px (10 × the \
                          largest detector side, {MAX_DETECTOR_PX} px)"
                     ),
-                ));
-            }
-        }
-        for (name, v) in [("width", self.width), ("height", self.height)] {
-            if v == 0 || v > MAX_DETECTOR_PX {
-                return Err(Error::invalid(
-                    format!("detector {name}"),
-                    format!("must be between 1 and {MAX_DETECTOR_PX} pixels, got {v}"),
                 ));
             }
         }

@@ -95,7 +95,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         // Process ids above the kernel's pid_max (2²² at most) are never alive.
         let dead = dir.path().join(".a.tiff.tmp-4999999");
-        let live = dir.path().join(format!(".a.json.tmp-{}", std::process::id()));
+        let live = dir
+            .path()
+            .join(format!(".a.json.tmp-{}", std::process::id()));
         let other = dir.path().join(".notes.tmp-x1");
         for p in [&dead, &live, &other] {
             std::fs::write(p, b"x").unwrap();

@@ -31,7 +31,10 @@ pub fn check_output_paths(paths: &[PathBuf]) -> Result<()> {
         if !dir.is_dir() {
             return Err(Error::invalid(
                 format!("output {}", p.display()),
-                format!("its folder {} does not exist; nothing was written", dir.display()),
+                format!(
+                    "its folder {} does not exist; nothing was written",
+                    dir.display()
+                ),
             ));
         }
         folders.insert(dir.to_path_buf());

@@ -264,9 +264,15 @@ pub fn write_difference(
 /// Every file of `spinedrr compare`'s output set in `dir`: [`write_difference`]'s four, then the marker
 /// `metrics.json`.
 pub fn difference_set_paths(dir: &Path) -> Vec<PathBuf> {
-    ["absdiff.tiff", "absdiff.json", "heatmap.png", "heatmap.json", "metrics.json"]
-        .map(|f| dir.join(f))
-        .to_vec()
+    [
+        "absdiff.tiff",
+        "absdiff.json",
+        "heatmap.png",
+        "heatmap.json",
+        "metrics.json",
+    ]
+    .map(|f| dir.join(f))
+    .to_vec()
 }
 
 /// Writes [`write_difference`]'s images and then `marker` (the set's record, e.g. `metrics.json`, a JSON

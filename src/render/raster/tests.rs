@@ -25,7 +25,17 @@ impl Extremes {
     }
 
     fn value(&mut self) -> f64 {
-        let special = [0.0, 1.0, 511.5, 1e19, 1e22, 1e30, f64::MAX, f64::MIN_POSITIVE, f64::INFINITY];
+        let special = [
+            0.0,
+            1.0,
+            511.5,
+            1e19,
+            1e22,
+            1e30,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+            f64::INFINITY,
+        ];
         let r = self.next_u64();
         let sign = if r & 1 == 0 { 1.0 } else { -1.0 };
         if r & 6 == 0 {
@@ -56,7 +66,10 @@ fn raster_all(scene: &RenderScene, k: Intrinsics) {
     let mut scratch = BandScratch::default();
     for band in 0..(k.height as usize).div_ceil(16) {
         rv.band_hits(band, &mut scratch, |u, row, hits| {
-            assert!(u < k.width as usize && band * 16 + row < k.height as usize, "{k:?}");
+            assert!(
+                u < k.width as usize && band * 16 + row < k.height as usize,
+                "{k:?}"
+            );
             assert!(!hits.is_empty());
         });
     }
