@@ -24,6 +24,33 @@ use rayon::prelude::*;
 use super::TriMesh;
 use crate::{Error, Result};
 
+/// Most samples a grid the tool builds may hold: 2²⁸ (1 GiB of f32). Beyond it the allocation, and the
+/// hours of sampling that follow, come from a voxel size typed wrong, not from a use.
+pub const MAX_GRID_SAMPLES: u64 = 1 << 28;
+
+/// Refuses a grid of `dims` (`nx × ny × nz` samples of `bytes_per_sample` bytes) for `what` (e.g.
+/// "voxel_mm 0.0001") larger than [`MAX_GRID_SAMPLES`], with the estimate in the message. `dims` are
+/// floating point so that the dimensions of an absurd voxel size (which overflow `usize`) are checked
+/// before they are computed.
+pub fn check_grid_size(what: &str, dims: [f64; 3], bytes_per_sample: usize) -> Result<()> {
+    let samples = dims[0] * dims[1] * dims[2];
+    if samples.is_finite() && samples <= MAX_GRID_SAMPLES as f64 {
+        return Ok(());
+    }
+    let gib = samples * bytes_per_sample as f64 / f64::from(1u32 << 30);
+    Err(Error::invalid(
+        what,
+        format!(
+            "needs a grid of {:.0} × {:.0} × {:.0} = {samples:.3e} samples ({gib:.3e} GiB), more than the \
+             limit of {MAX_GRID_SAMPLES} samples ({} GiB); use a larger voxel size",
+            dims[0],
+            dims[1],
+            dims[2],
+            MAX_GRID_SAMPLES as f64 * bytes_per_sample as f64 / f64::from(1u32 << 30),
+        ),
+    ))
+}
+
 /// A scalar field sampled on a regular grid, `values[i + nx·(j + ny·k)]` at index `(i, j, k)` (x fastest).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScalarGrid {

@@ -226,6 +226,35 @@ impl TriMesh {
         }
     }
 
+    /// Makes a closed, consistently wound mesh that is inside out (negative [`Self::volume`]) outward by
+    /// flipping every triangle; returns whether it did. An open or inconsistently wound mesh has no
+    /// orientation to fix and is left as it is. (The test is on the whole mesh: a closed mesh with one
+    /// inside-out component among larger outward ones keeps it.)
+    pub fn orient_outward(&mut self) -> bool {
+        let flip = self.check().is_watertight() && self.volume() < 0.0;
+        if flip {
+            self.flip();
+        }
+        flip
+    }
+
+    /// Generalised winding number of the mesh about `p`: `Σ Ω_t / 4π` over the triangles' signed solid
+    /// angles (Van Oosterom & Strackee 1983, `tan(Ω/2) = a·(b×c) / (|a||b||c| + (a·b)|c| + (b·c)|a| +
+    /// (c·a)|b|)` with corners relative to `p`). 1 inside a closed outward mesh, 0 outside, −1 inside an
+    /// inside-out one; near ±½ on the surface and fractional for an open mesh.
+    pub fn winding_number(&self, p: DVec3) -> f64 {
+        let omega: f64 = (0..self.triangles.len())
+            .map(|i| {
+                let [a, b, c] = self.corners(i).map(|v| v - p);
+                let (la, lb, lc) = (a.length(), b.length(), c.length());
+                let num = a.dot(b.cross(c));
+                let den = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
+                2.0 * num.atan2(den)
+            })
+            .sum();
+        omega / (4.0 * std::f64::consts::PI)
+    }
+
     /// Appends another mesh (indices offset; labels kept when both are labelled or padded as Unlabelled).
     pub fn append(&mut self, other: &TriMesh) {
         let off = self.vertices.len() as u32;
@@ -407,5 +436,23 @@ mod tests {
         assert_eq!(m.check().misoriented_edges, 3);
         m.triangles.pop();
         assert!(m.check().boundary_edges > 0);
+    }
+
+    #[test]
+    fn inside_out_mesh_is_reoriented_and_winding_numbers_count_it() {
+        let outward = TriMesh::cuboid("b", DVec3::splat(-1.0), DVec3::splat(1.0));
+        let mut m = outward.clone();
+        m.flip();
+        assert_eq!(m.winding_number(DVec3::ZERO).round(), -1.0);
+        assert!(m.orient_outward());
+        assert_eq!(m, outward);
+        assert!(!m.orient_outward());
+        assert!((m.winding_number(DVec3::new(0.3, -0.2, 0.9)) - 1.0).abs() < 1e-9);
+        assert!(m.winding_number(DVec3::new(3.0, 0.0, 0.0)).abs() < 1e-9);
+        // Open: no orientation to fix.
+        let mut open = outward.clone();
+        open.flip();
+        open.triangles.pop();
+        assert!(!open.orient_outward());
     }
 }

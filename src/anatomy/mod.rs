@@ -16,7 +16,10 @@ pub mod vertebra;
 
 pub use auto_landmarks::auto_landmarks;
 pub use decimate::{decimate, decimate_to_error};
-pub use isosurface::{Inside, ScalarGrid, extract_isosurface, extract_isosurface_with};
+pub use isosurface::{
+    Inside, MAX_GRID_SAMPLES, ScalarGrid, check_grid_size, extract_isosurface,
+    extract_isosurface_with,
+};
 pub use landmarks::{Landmarks, read_landmarks, write_landmarks};
 pub use mesh::{MeshCheck, Structure, TriMesh};
 pub use meshio::{MeshFormat, read_mesh, write_mesh, write_mesh_as};

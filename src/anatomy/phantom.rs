@@ -19,7 +19,7 @@ use glam::{DMat3, DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::decimate::{collapse_short_edges, project_to_zero};
-use super::isosurface::{ScalarGrid, extract_isosurface, remove_small_components};
+use super::isosurface::{ScalarGrid, check_grid_size, extract_isosurface, remove_small_components};
 use super::landmarks::Landmarks;
 use super::sdf::{Frame, Placed, Shape, ellipse_distance};
 use super::vertebra::{Level, VertebraShape};
@@ -191,6 +191,11 @@ fn sample(
 ) -> Result<ScalarGrid> {
     let lo = bounds.0 - DVec3::splat(2.0 * voxel);
     let n = ((bounds.1 + DVec3::splat(2.0 * voxel) - lo) / voxel).ceil();
+    check_grid_size(
+        &format!("voxel_mm {voxel}"),
+        (n + DVec3::ONE).to_array(),
+        std::mem::size_of::<f32>(),
+    )?;
     let dims = [n.x as usize + 1, n.y as usize + 1, n.z as usize + 1];
     let index_to_local = DMat4::from_translation(lo) * DMat4::from_scale(DVec3::splat(voxel));
     // Gradient-norm margin 4: the elliptic distances stay below ~3 for our aspect ratios (tested).

@@ -95,6 +95,8 @@ pub fn synthetic_ct(phantom: &Phantom, opts: &SyntheticCtOptions) -> Result<(CtV
     );
     let h = opts.voxel_mm;
     let n = ((hi - lo) / h).ceil();
+    // A float HU and a 16-bit label per voxel.
+    super::check_grid_size(&format!("CT voxel_mm {h}"), (n + DVec3::ONE).to_array(), 6)?;
     let dims = [n.x as usize + 1, n.y as usize + 1, n.z as usize + 1];
     let affine = DMat4::from_scale_rotation_translation(DVec3::splat(h), Default::default(), lo);
     let ids: Vec<u16> = phantom

@@ -13,7 +13,8 @@ use spinedrr::analysis::{
     Comparison, MaskPair, abs_difference, compare, read_landmarks, read_mask_png,
 };
 use spinedrr::io::{
-    ImageF32, Sidecar, read_with_sidecar, sidecar_path, write_difference, write_json,
+    ImageF32, Sidecar, check_output_paths, difference_set_paths, read_with_sidecar, sidecar_path,
+    write_difference_set,
 };
 
 #[derive(clap::Args)]
@@ -39,7 +40,33 @@ fn load(path: &Path) -> anyhow::Result<(ImageF32, Sidecar)> {
     read_with_sidecar(path).with_context(|| format!("reading {} and its sidecar", path.display()))
 }
 
-fn read_mask(path: &Path, size: (u32, u32)) -> anyhow::Result<Vec<bool>> {
+/// Reads mask `path` of the image `image` (described by `image_sidecar`). A mask with a sidecar must
+/// have been rendered with the image's camera (size, K, world_to_camera): a mask from another render
+/// (stale beside a re-rendered image) is refused, naming both files.
+fn read_mask(
+    path: &Path,
+    image: &Path,
+    image_sidecar: &Sidecar,
+    size: (u32, u32),
+) -> anyhow::Result<Vec<bool>> {
+    let sc_path = sidecar_path(path);
+    if sc_path.exists() {
+        let sc = Sidecar::read(&sc_path)
+            .with_context(|| format!("reading the sidecar of mask {}", path.display()))?;
+        if !sc.same_camera(image_sidecar) {
+            bail!(
+                "mask {} does not belong to {}: the mask's sidecar {} has K {:?} and world_to_camera \
+                 {:?}, the image's has K {:?} and world_to_camera {:?} (a mask left from another render?)",
+                path.display(),
+                image.display(),
+                sc_path.display(),
+                sc.k,
+                sc.world_to_camera,
+                image_sidecar.k,
+                image_sidecar.world_to_camera
+            );
+        }
+    }
     let (w, h, m) =
         read_mask_png(path).with_context(|| format!("reading mask {}", path.display()))?;
     if (w, h) != size {
@@ -71,8 +98,36 @@ fn parse_mask_spec(spec: &str) -> anyhow::Result<(String, PathBuf, PathBuf)> {
     Ok((name, r, PathBuf::from(p)))
 }
 
-/// `A_mask_NAME.png` / `B_mask_NAME.png` pairs found beside the two images.
-fn conventional_masks(a: &Path, b: &Path) -> Vec<(String, PathBuf, PathBuf)> {
+/// `A_mask_NAME.png` / `B_mask_NAME.png` pairs found beside the two images, keeping only masks their
+/// image's sidecar lists among its companions (when it lists any: a mask it does not list is left from
+/// an earlier render, and is skipped with a warning).
+fn conventional_masks(
+    a: (&Path, &Sidecar),
+    b: (&Path, &Sidecar),
+) -> Vec<(String, PathBuf, PathBuf)> {
+    let listed = |(image, sc): (&Path, &Sidecar), mask: &Path| {
+        let name = mask
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let ok = sc.companions.is_empty() || sc.companions.contains(&name);
+        if !ok {
+            eprintln!(
+                "warning: skipping mask {}: not part of the output set of {} (left from an earlier render)",
+                mask.display(),
+                image.display()
+            );
+        }
+        ok
+    };
+    conventional_mask_files(a.0, b.0)
+        .into_iter()
+        .filter(|(_, ra, pb)| listed(a, ra) & listed(b, pb))
+        .collect()
+}
+
+/// Every `A_mask_NAME.png` beside `a` with a `B_mask_NAME.png` beside `b`.
+fn conventional_mask_files(a: &Path, b: &Path) -> Vec<(String, PathBuf, PathBuf)> {
     let stem = |p: &Path| {
         p.file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -100,7 +155,7 @@ fn conventional_masks(a: &Path, b: &Path) -> Vec<(String, PathBuf, PathBuf)> {
 }
 
 /// The two images compared (also recorded in the difference images' sidecars).
-#[derive(Serialize)]
+#[derive(Serialize, Clone)]
 struct Inputs {
     reference: String,
     perturbed: String,
@@ -131,8 +186,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             rb.height
         );
     }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    check_output_paths(&difference_set_paths(&a.out))?;
     let specs = if a.masks.is_empty() {
-        conventional_masks(&a.reference, &a.perturbed)
+        conventional_masks((&a.reference, &sa), (&a.perturbed, &sb))
     } else {
         a.masks
             .iter()
@@ -147,8 +204,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 name: name.clone(),
                 width: size.0,
                 height: size.1,
-                reference: read_mask(r, size)?,
-                perturbed: read_mask(p, size)?,
+                reference: read_mask(r, &a.reference, &sa, size)?,
+                perturbed: read_mask(p, &a.perturbed, &sb, size)?,
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
@@ -163,23 +220,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let result =
         compare(&ra, &rb, &masks, &landmarks, Some((&va, &vb))).context("computing metrics")?;
 
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let diff = abs_difference(&ra, &rb)?;
     let inputs = Inputs {
         reference: a.reference.display().to_string(),
         perturbed: a.perturbed.display().to_string(),
     };
-    write_difference(&a.out, &diff, &sb, &inputs)?;
     let metrics = Metrics {
-        inputs,
+        inputs: inputs.clone(),
         view: sa.view,
         perturbation_reference: sa.perturbation_spec,
-        perturbation: sb.perturbation_spec,
+        perturbation: sb.perturbation_spec.clone(),
         comparison: result,
     };
-    let path = a.out.join("metrics.json");
-    // Through a JSON value: its keys come out sorted, as metrics.json has always had them.
-    let metrics = serde_json::to_value(&metrics).context("encoding metrics.json")?;
-    write_json(&path, &metrics).with_context(|| format!("writing {}", path.display()))?;
+    let serde_json::Value::Object(metrics) =
+        serde_json::to_value(&metrics).context("encoding metrics.json")?
+    else {
+        bail!("internal error: metrics.json is not a JSON object");
+    };
+    write_difference_set(&a.out, &diff, &sb, &inputs, metrics)
+        .with_context(|| format!("writing the comparison into {}", a.out.display()))?;
     Ok(())
 }

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use spinedrr::anatomy::ct::{SurfaceOptions, label_surface, read_labels};
+use spinedrr::anatomy::ct::{MAX_SMOOTH_ITERATIONS, SurfaceOptions, label_surface, read_labels};
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::{MeshFormat, auto_landmarks, decimate, write_landmarks, write_mesh};
 
@@ -19,7 +19,8 @@ pub struct Args {
     /// Label convention of `--seg`: totalseg (TotalSegmentator v2) or verse.
     #[arg(long, default_value = "totalseg")]
     labels: String,
-    /// Taubin λ|μ smoothing iterations (0 = none: the exact 0.5-isosurface of the voxel mask).
+    /// Taubin λ|μ smoothing iterations (0 = none: the exact 0.5-isosurface of the voxel mask; at most
+    /// 500).
     #[arg(long, default_value_t = 0)]
     smooth: usize,
     /// Decimate to this many triangles (quadric edge collapse; the surface stays closed).
@@ -49,6 +50,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         bail!("--landmarks {l:?}: the only landmark source is `auto`");
     }
     MeshFormat::from_path(&a.out).with_context(|| format!("--out {}", a.out.display()))?;
+    if a.smooth > MAX_SMOOTH_ITERATIONS {
+        bail!(
+            "--smooth {}: more than the limit of {MAX_SMOOTH_ITERATIONS} Taubin iterations",
+            a.smooth
+        );
+    }
     let convention: LabelConvention = a.labels.parse()?;
     let id = convention
         .resolve(&a.label)

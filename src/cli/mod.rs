@@ -10,7 +10,9 @@ mod mesh;
 mod phantom;
 mod register;
 mod render;
+mod render_checks;
 mod render_ct;
+mod render_timing;
 mod study;
 
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of

@@ -34,7 +34,8 @@ pub struct Args {
     /// Also build the soft-tissue outline (a 300 × 220 mm elliptic cylinder).
     #[arg(long)]
     soft_tissue: bool,
-    /// Also voxelize the phantom into a synthetic CT (Hounsfield units, NIfTI `.nii` / `.nii.gz`).
+    /// Also voxelize the phantom into a synthetic CT (Hounsfield units, NIfTI: the name must end in `.nii`
+    /// or `.nii.gz`).
     #[arg(long, value_name = "CT.nii.gz")]
     ct: Option<PathBuf>,
     /// Voxel size of the synthetic CT (mm).
@@ -76,6 +77,21 @@ fn write_synthetic_ct(
     Ok(())
 }
 
+/// Refuses an output name that is not NIfTI (`.nii` or `.nii.gz`): the file is NIfTI whatever its name.
+fn check_nifti_name(flag: &str, path: &Path) -> anyhow::Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if !(name.ends_with(".nii") || name.ends_with(".nii.gz")) || name.starts_with(".nii") {
+        anyhow::bail!(
+            "{flag} {}: the volume is written as NIfTI-1; name it .nii or .nii.gz",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum Format {
     Stl,
@@ -107,6 +123,11 @@ fn write_one(dir: &Path, stem: &str, mesh: &TriMesh, format: MeshFormat) -> anyh
 pub fn run(a: Args) -> anyhow::Result<()> {
     let levels = parse_levels(&a.levels).with_context(|| format!("--levels {:?}", a.levels))?;
     // Check the CT flags before the (slow) phantom build.
+    for (flag, path) in [("--ct", &a.ct), ("--labels-out", &a.labels_out)] {
+        if let Some(p) = path {
+            check_nifti_name(flag, p)?;
+        }
+    }
     if a.ct.is_some() {
         a.labels.parse::<LabelConvention>()?;
         if !(a.ct_voxel_mm.is_finite() && (0.1..=5.0).contains(&a.ct_voxel_mm)) {

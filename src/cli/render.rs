@@ -4,13 +4,20 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, bail};
+use glam::DVec3;
 use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
 use spinedrr::geometry::{CArm, Perturbation};
-use spinedrr::io::{DrrValues, write_depth, write_drr, write_masks};
+use spinedrr::io::{DrrProducts, DrrValues, check_output_paths, drr_set_paths, write_drr_set};
 use spinedrr::render::{
     Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, phantom_scene,
 };
+
+use super::render_checks::{
+    RenderRun, box_corners, check_not_empty, check_not_negative, check_source_outside,
+    split_mesh_spec,
+};
+use super::render_timing::{median_min, peak_rss_mb};
 
 /// Render a DRR under the reference or a perturbed calibration.
 ///
@@ -18,6 +25,11 @@ use spinedrr::render::{
 /// (sidecar: width, height, K, world_to_camera, units, view, perturbation, version) and OUT.png (preview).
 /// With --masks also OUT_mask.png (all objects), OUT_mask_<object>.png and OUT_mask_<structure>.png, each
 /// with its sidecar; with --depth OUT_depth.tiff (camera z of the first surface, mm; 0 = no hit).
+///
+/// Every output path is checked before the first is written; OUT.json is written last and lists the
+/// other files of the set (`companions`), so a folder without OUT.json holds an unfinished set. A render
+/// with nothing on the detector is refused (see --allow-empty), as are flags that do not apply to the
+/// input (e.g. --masks with --ct, --bone-hu with --mesh).
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("anatomy").required(true).args(["phantom", "mesh", "ct"])))]
 pub struct Args {
@@ -25,14 +37,17 @@ pub struct Args {
     #[arg(long, value_name = "LEVELS")]
     phantom: Option<String>,
     /// A closed mesh (STL, OBJ or PLY) with an optional attenuation in mm⁻¹: FILE or FILE:MU. Repeat for
-    /// several meshes; nested surfaces take differential μ.
+    /// several meshes; nested surfaces take differential μ: a core inside a shell of μ₁ gets μ₂ − μ₁, which
+    /// is negative for a core less dense than its shell. A negative μ is therefore accepted, but a render
+    /// whose line integral comes out negative anywhere (a negative μ not nested in a denser surface) is
+    /// refused. A closed mesh wound inside out is flipped to face outward, with a warning.
     #[arg(long, value_name = "FILE[:MU]")]
     mesh: Vec<String>,
     /// μ (mm⁻¹) of a --mesh given without one.
-    #[arg(long, default_value_t = 1.0, value_name = "MU")]
+    #[arg(long, default_value_t = 1.0, value_name = "MU", conflicts_with_all = ["phantom", "ct"])]
     mu_default: f64,
     /// With --phantom: add the soft-tissue outline around the spine.
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["mesh", "ct"])]
     soft_tissue: bool,
     /// View name from the geometry (the default geometry has `ap` and `lat`).
     #[arg(long, default_value = "ap")]
@@ -47,20 +62,24 @@ pub struct Args {
     /// How rays find the surfaces: `raster` (exact edge functions per pixel, the fastest; a view with a
     /// vertex at or behind the source plane is traced with Embree), `embree` (all hits in one Embree
     /// traversal) or `bvh` (the pure-Rust reference). All give the same path lengths (to ~1e-7 mm).
-    #[arg(long, value_enum, default_value_t = Backend::Raster)]
+    #[arg(long, value_enum, default_value_t = Backend::Raster, conflicts_with = "ct")]
     backend: Backend,
-    /// Write silhouette masks per object and per structure.
-    #[arg(long)]
+    /// Write silhouette masks per object and per structure (meshes and phantom only).
+    #[arg(long, conflicts_with = "ct")]
     masks: bool,
-    /// Write the first-hit depth map.
-    #[arg(long)]
+    /// Write the first-hit depth map (meshes and phantom only).
+    #[arg(long, conflicts_with = "ct")]
     depth: bool,
     /// Write I0·exp(−line integral) instead of the line integral (a radiograph look), for meshes and CT.
     #[arg(long, value_name = "I0")]
     intensity: Option<f64>,
-    /// Render N times and print timing statistics as one JSON line on stderr.
+    /// Render N times and print timing statistics as one JSON line on stderr (meshes, phantom and CT).
     #[arg(long, default_value_t = 1, value_name = "N")]
     repeat: u32,
+    /// Write the image even when every pixel is 0 (nothing of the anatomy on the detector), which is
+    /// otherwise an error.
+    #[arg(long)]
+    allow_empty: bool,
     #[command(flatten)]
     ct: super::render_ct::CtArgs,
     /// Output image (.tiff or .tif); the sidecar and preview are written beside it.
@@ -85,16 +104,30 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.repeat == 0 {
         bail!("invalid --repeat 0: render at least once");
     }
+    // The files every render writes, checked before the (possibly long) render.
+    check_output_paths(&drr_set_paths(&a.out, &[], a.depth))?;
+    let run = RenderRun {
+        view: &view,
+        rendered: &rendered,
+        perturbation: &perturbation,
+        values,
+        repeat: a.repeat,
+        allow_empty: a.allow_empty,
+        out: &a.out,
+    };
     if a.ct.ct.is_some() {
-        return super::render_ct::run_ct(&a.ct, &view, &perturbation, values, &a.out);
+        return super::render_ct::run_ct(&a.ct, &run);
     }
 
     let (scene, anatomy) = build_scene(&a)?;
-    for name in &scene.open_meshes {
-        eprintln!(
-            "warning: mesh '{name}' is not closed; path lengths near its holes are unreliable"
-        );
-    }
+    report_open_meshes(&scene);
+    let named: Vec<_> = scene
+        .meshes
+        .iter()
+        .map(|m| (m.object.as_str(), m.mesh.as_ref()))
+        .collect();
+    check_source_outside(&rendered, &named)?;
+    let corners = scene_corners(&scene);
     let renderer = a.backend.renderer(scene)?;
     let mut times = Vec::with_capacity(a.repeat as usize);
     let opts = ThicknessOptions {
@@ -118,22 +151,29 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.repeat > 1 {
         eprintln!("{}", timing_json(&a, &renderer, &drr, &mut times));
     }
+    check_not_empty(
+        &drr.line_integral,
+        &rendered,
+        &perturbation.to_string(),
+        &corners,
+        a.allow_empty,
+    )?;
+    check_not_negative(&drr.line_integral)?;
 
     let details = renderer.details(drr.stats, anatomy);
-    write_drr(
-        &a.out,
-        &drr.line_integral,
+    let silhouettes = if a.masks {
+        drr.silhouettes()?
+    } else {
+        Vec::new()
+    };
+    let products = DrrProducts {
+        line_integral: &drr.line_integral,
         values,
-        &view,
-        &perturbation,
-        &details,
-    )?;
-    if a.masks {
-        write_masks(&a.out, &drr.silhouettes()?, &view, &perturbation)?;
-    }
-    if a.depth {
-        write_depth(&a.out, drr.depth()?, &view, &perturbation)?;
-    }
+        silhouettes: &silhouettes,
+        depth: if a.depth { Some(drr.depth()?) } else { None },
+    };
+    write_drr_set(&a.out, &products, &view, &perturbation, &details)
+        .with_context(|| format!("writing {}", a.out.display()))?;
     eprintln!(
         "{}: {} × {} {} DRR, view {}, perturbation {}, {:.1} ms ({} rays traced, {} culled)",
         a.out.display(),
@@ -147,6 +187,35 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         drr.stats.rays_culled
     );
     Ok(())
+}
+
+/// Warns about each mesh that is not closed and consistently wound, saying which it is.
+fn report_open_meshes(scene: &RenderScene) {
+    for m in scene
+        .meshes
+        .iter()
+        .filter(|m| scene.open_meshes.contains(&m.mesh.name))
+    {
+        let c = m.mesh.check();
+        eprintln!(
+            "warning: mesh '{}' is not closed or not consistently wound ({} boundary edges, {} edges \
+             shared by more than two triangles, {} edges wound the same way by both triangles); path \
+             lengths near those edges are unreliable",
+            m.mesh.name, c.boundary_edges, c.nonmanifold_edges, c.misoriented_edges
+        );
+    }
+}
+
+/// The corners of the bounding box of every mesh of `scene` (world mm).
+fn scene_corners(scene: &RenderScene) -> Vec<DVec3> {
+    let (lo, hi) = scene
+        .meshes
+        .iter()
+        .filter_map(|m| m.mesh.bounds())
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), (l, h)| {
+            (a.min(l), b.max(h))
+        });
+    box_corners(lo, hi).to_vec()
 }
 
 fn check_out_path(out: &Path) -> anyhow::Result<()> {
@@ -190,7 +259,16 @@ fn build_scene(a: &Args) -> anyhow::Result<(RenderScene, serde_json::Value)> {
     let mut meshes = Vec::new();
     for spec in &a.mesh {
         let (path, mu) = split_mesh_spec(spec, a.mu_default)?;
-        let mesh = read_mesh(&path).with_context(|| format!("reading mesh {}", path.display()))?;
+        let mut mesh =
+            read_mesh(&path).with_context(|| format!("reading mesh {}", path.display()))?;
+        let volume = mesh.volume();
+        if mesh.orient_outward() {
+            eprintln!(
+                "warning: mesh {} is inside out (closed, consistently wound, signed volume {volume:.1} mm³ < 0): \
+                 its triangles were flipped to face outward",
+                path.display()
+            );
+        }
         let object = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -209,28 +287,13 @@ fn build_scene(a: &Args) -> anyhow::Result<(RenderScene, serde_json::Value)> {
     Ok((RenderScene::new(meshes)?, json!({"meshes": desc})))
 }
 
-/// `FILE[:MU]`: a trailing `:number` is the attenuation; anything else is part of the path.
-fn split_mesh_spec(spec: &str, default_mu: f64) -> anyhow::Result<(PathBuf, f64)> {
-    if let Some((path, mu)) = spec.rsplit_once(':')
-        && let Ok(mu) = mu.parse::<f64>()
-    {
-        if !mu.is_finite() {
-            bail!("--mesh {spec}: μ must be finite");
-        }
-        return Ok((PathBuf::from(path), mu));
-    }
-    Ok((PathBuf::from(spec), default_mu))
-}
-
 fn timing_json(
     a: &Args,
     r: &spinedrr::render::ThicknessRenderer,
     drr: &ThicknessDrr,
     times: &mut [f64],
 ) -> serde_json::Value {
-    times.sort_by(f64::total_cmp);
-    let median = times[times.len() / 2];
-    let min = times[0];
+    let (median, min) = median_min(times);
     json!({
         "backend": r.backend_name(),
         "view": a.view,
@@ -246,12 +309,4 @@ fn timing_json(
         "triangles": r.scene().triangle_count(),
         "peak_rss_mb": peak_rss_mb(),
     })
-}
-
-/// Peak resident memory of this process so far (MiB), from /proc/self/status (Linux; null elsewhere).
-fn peak_rss_mb() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
 }

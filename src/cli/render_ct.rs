@@ -1,16 +1,21 @@
 //! CT volume DRR options of `spinedrr render` (`--ct`, `--seg`, `--label`, …) and their runner.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
+use std::time::Instant;
 
 use anyhow::{Context, bail};
+use glam::DVec3;
+use serde_json::json;
 use spinedrr::anatomy::MU_WATER_PER_MM;
 use spinedrr::anatomy::ct::{read_ct, read_labels};
 use spinedrr::anatomy::labels::LabelConvention;
-use spinedrr::geometry::{Perturbation, View};
-use spinedrr::io::{DrrValues, write_drr};
+use spinedrr::io::write_drr;
 use spinedrr::render::volume::{
     VolumeDetails, VolumeMethod, VolumeRenderOptions, VolumeRenderer, select_voxels,
 };
+
+use super::render_checks::{RenderRun, box_corners, check_not_empty};
+use super::render_timing::{median_min, peak_rss_mb};
 
 /// Flags of a CT volume DRR.
 #[derive(clap::Args, Debug, Clone)]
@@ -19,41 +24,39 @@ pub struct CtArgs {
     #[arg(long, value_name = "CT.nii.gz")]
     pub ct: Option<PathBuf>,
     /// Segmentation on the CT's grid; with `--label`, only that label's voxels are rendered.
-    #[arg(long, requires = "label")]
+    #[arg(long, requires = "label", conflicts_with_all = ["mesh", "phantom"])]
     pub seg: Option<PathBuf>,
     /// Label to render: a level name (`L1`, `T12`) in the `--labels` convention, or a raw integer id.
     #[arg(long, requires = "seg")]
     pub label: Option<String>,
     /// Label convention of `--seg`: totalseg (TotalSegmentator v2) or verse.
-    #[arg(long, default_value = "totalseg")]
+    #[arg(long, default_value = "totalseg", conflicts_with_all = ["mesh", "phantom"])]
     pub labels: String,
     /// Render only voxels at or above this HU (e.g. 150 for bone).
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["mesh", "phantom"])]
     pub bone_hu: Option<f32>,
-    /// Ray integrator: siddon (exact voxel traversal) or trilinear.
-    #[arg(long, default_value = "siddon")]
+    /// Ray integrator of a CT render: siddon (exact voxel traversal) or trilinear.
+    #[arg(long, default_value = "siddon", conflicts_with_all = ["mesh", "phantom"])]
     pub method: String,
     /// μ of water (mm⁻¹) in μ(HU) = μ_water · max(0, 1 + HU/1000).
-    #[arg(long, default_value_t = MU_WATER_PER_MM)]
+    #[arg(long, default_value_t = MU_WATER_PER_MM, conflicts_with_all = ["mesh", "phantom"])]
     pub mu_water: f64,
-    /// Trilinear step (mm), capped at half the smallest voxel spacing.
-    #[arg(long)]
+    /// Trilinear step (mm), capped at half the smallest voxel spacing (with --method trilinear).
+    #[arg(long, conflicts_with_all = ["mesh", "phantom"])]
     pub step_mm: Option<f64>,
 }
 
-/// Renders the CT DRR of `view` under `perturbation` to `out` (float32 TIFF of `values`), with its JSON
-/// sidecar and an 8-bit PNG preview beside it.
-pub fn run_ct(
-    a: &CtArgs,
-    view: &View,
-    perturbation: &Perturbation,
-    values: DrrValues,
-    out: &Path,
-) -> anyhow::Result<()> {
+/// Renders the CT DRR of `run.view` under `run.perturbation` to `run.out` (float32 TIFF of
+/// `run.values`), with its JSON sidecar and an 8-bit PNG preview beside it; with `run.repeat > 1` prints
+/// the timing statistics as one JSON line on stderr.
+pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
     let Some(ct_path) = &a.ct else {
         bail!("--ct is required for a CT render");
     };
     let method: VolumeMethod = a.method.parse()?;
+    if a.step_mm.is_some() && method != VolumeMethod::Trilinear {
+        bail!("--step-mm applies to --method trilinear only, not to --method {method}");
+    }
     let convention: LabelConvention = a.labels.parse()?;
     let ct = read_ct(ct_path).with_context(|| format!("reading CT {}", ct_path.display()))?;
     let label = match (&a.seg, &a.label) {
@@ -82,7 +85,52 @@ pub fn run_ct(
         step_mm: a.step_mm,
     };
     let renderer = VolumeRenderer::new(&ct, &opts, mask.as_ref())?;
-    let img = renderer.render(&view.perturbed(perturbation)?);
+    let mut times = Vec::with_capacity(run.repeat as usize);
+    let mut img = None;
+    for _ in 0..run.repeat {
+        let start = Instant::now();
+        img = Some(renderer.render(run.rendered));
+        times.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    let Some(img) = img else {
+        bail!("invalid --repeat 0: render at least once");
+    };
+    if run.repeat > 1 {
+        let (median_ms, min_ms) = median_min(&mut times);
+        let rays = img.data.len() as f64;
+        eprintln!(
+            "{}",
+            json!({
+                "backend": format!("volume-{method}"),
+                "view": run.view.name,
+                "repeat": run.repeat,
+                "median_ms": median_ms,
+                "min_ms": min_ms,
+                "rays_traced": img.data.len(),
+                "rays_per_s": rays / (median_ms / 1e3),
+                "voxels": ct.values.len(),
+                "peak_rss_mb": peak_rss_mb(),
+            })
+        );
+    }
+    let (lo, hi) = match &mask {
+        Some(m) => (m.bbox.0, m.bbox.1),
+        None => ([0; 3], ct.dims.map(|n| n - 1)),
+    };
+    let corners: Vec<DVec3> = box_corners(
+        DVec3::from_array(lo.map(|i| i as f64 - 0.5)),
+        DVec3::from_array(hi.map(|i| i as f64 + 0.5)),
+    )
+    .iter()
+    .map(|&c| ct.index_to_world.transform_point3(c))
+    .collect();
+    check_not_empty(
+        &img,
+        run.rendered,
+        &run.perturbation.to_string(),
+        &corners,
+        run.allow_empty,
+    )?;
     let inputs = CtInputs {
         ct: ct_path.display().to_string(),
         seg: a.seg.as_ref().map(|p| p.display().to_string()),
@@ -91,8 +139,15 @@ pub fn run_ct(
         bone_hu: a.bone_hu,
         render: renderer.details(),
     };
-    write_drr(out, &img, values, view, perturbation, &inputs)
-        .with_context(|| format!("writing {}", out.display()))
+    write_drr(
+        run.out,
+        &img,
+        run.values,
+        run.view,
+        run.perturbation,
+        &inputs,
+    )
+    .with_context(|| format!("writing {}", run.out.display()))
 }
 
 /// The CT render's sidecar `details`: the inputs as given, and the renderer's record.

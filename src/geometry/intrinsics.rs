@@ -8,6 +8,19 @@ use crate::{Error, Result};
 /// Largest detector side accepted (pixels). Anything larger is a typo, not a detector.
 pub const MAX_DETECTOR_PX: u32 = 8192;
 
+/// Largest focal length and largest |skew| accepted (pixels): 1000 × the largest detector side. A focal
+/// length that long sees less than a thousandth of a radian across any detector; past it, pixel
+/// arithmetic loses its precision, not only its meaning.
+pub const MAX_FOCAL_PX: f64 = 1000.0 * MAX_DETECTOR_PX as f64;
+
+/// Smallest focal length accepted (pixels): below one pixel, a single pixel spans close to 90°.
+pub const MIN_FOCAL_PX: f64 = 1.0;
+
+/// Largest |cx|, |cy| accepted (pixels): 10 × the largest detector side, so the piercing point may lie
+/// off the detector (an offset detector) but not at infinity. The bounds are multiples of the largest
+/// detector, not of this one, so a detector window ([`crate::geometry::View::window`]) stays valid.
+pub const MAX_PRINCIPAL_POINT_PX: f64 = 10.0 * MAX_DETECTOR_PX as f64;
+
 /// Pinhole intrinsics in pixels plus the detector size.
 ///
 /// `fx = SDD / pixel_spacing_u`, `fy = SDD / pixel_spacing_v`; `(cx, cy)` is the piercing point.
@@ -77,7 +90,9 @@ impl Intrinsics {
         Ok(out)
     }
 
-    /// Checks that every parameter is finite, the focal lengths are positive and the detector size is sane.
+    /// Checks that every parameter is finite and within its domain ([`MIN_FOCAL_PX`] ≤ fx, fy ≤
+    /// [`MAX_FOCAL_PX`], |skew| ≤ [`MAX_FOCAL_PX`], |cx|, |cy| ≤ [`MAX_PRINCIPAL_POINT_PX`]) and the
+    /// detector size is sane.
     pub fn validate(&self) -> Result<()> {
         for (name, v) in [
             ("fx", self.fx),
@@ -93,6 +108,14 @@ impl Intrinsics {
                 ));
             }
         }
+        for (name, v) in [("width", self.width), ("height", self.height)] {
+            if v == 0 || v > MAX_DETECTOR_PX {
+                return Err(Error::invalid(
+                    format!("detector {name}"),
+                    format!("must be between 1 and {MAX_DETECTOR_PX} pixels, got {v}"),
+                ));
+            }
+        }
         if self.fx <= 0.0 || self.fy <= 0.0 {
             return Err(Error::invalid(
                 "intrinsics.fx/fy",
@@ -102,11 +125,35 @@ impl Intrinsics {
                 ),
             ));
         }
-        for (name, v) in [("width", self.width), ("height", self.height)] {
-            if v == 0 || v > MAX_DETECTOR_PX {
+        for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(MIN_FOCAL_PX..=MAX_FOCAL_PX).contains(&v) {
                 return Err(Error::invalid(
-                    format!("detector {name}"),
-                    format!("must be between 1 and {MAX_DETECTOR_PX} pixels, got {v}"),
+                    format!("intrinsics.{name}"),
+                    format!(
+                        "focal length {v} px is outside [{MIN_FOCAL_PX}, {MAX_FOCAL_PX}] px \
+                         (1000 × the largest detector side, {MAX_DETECTOR_PX} px)"
+                    ),
+                ));
+            }
+        }
+        if self.skew.abs() > MAX_FOCAL_PX {
+            return Err(Error::invalid(
+                "intrinsics.skew",
+                format!(
+                    "skew {} px exceeds ±{MAX_FOCAL_PX} px (1000 × the largest detector side, \
+                     {MAX_DETECTOR_PX} px)",
+                    self.skew
+                ),
+            ));
+        }
+        for (name, v) in [("cx", self.cx), ("cy", self.cy)] {
+            if v.abs() > MAX_PRINCIPAL_POINT_PX {
+                return Err(Error::invalid(
+                    format!("intrinsics.{name}"),
+                    format!(
+                        "principal point {v} px is beyond ±{MAX_PRINCIPAL_POINT_PX} px (10 × the \
+                         largest detector side, {MAX_DETECTOR_PX} px)"
+                    ),
                 ));
             }
         }

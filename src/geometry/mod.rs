@@ -11,7 +11,9 @@ mod pose;
 mod view;
 
 pub use carm::{CArm, DEFAULT_GEOMETRY_TOML, DetectorConfig, GeometryConfig, ViewConfig};
-pub use intrinsics::Intrinsics;
+pub use intrinsics::{
+    Intrinsics, MAX_DETECTOR_PX, MAX_FOCAL_PX, MAX_PRINCIPAL_POINT_PX, MIN_FOCAL_PX,
+};
 pub use perturbation::Perturbation;
 pub use pose::{RigidTransform, rotation_angle_deg, rotation_exp, rotation_log};
 pub use view::{Ray, View, apply_homography};

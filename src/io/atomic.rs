@@ -15,6 +15,43 @@ fn temp_name(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
+/// The process id of a temporary named by [`write_atomic`] (`.NAME.tmp-PID`), else `None`.
+fn temp_owner(file_name: &str) -> Option<u32> {
+    let rest = file_name.strip_prefix('.')?;
+    let (name, pid) = rest.rsplit_once(".tmp-")?;
+    if name.is_empty() || pid.is_empty() || !pid.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    pid.parse().ok()
+}
+
+/// Removes the temporaries (`.NAME.tmp-PID`) that [`write_atomic`] calls of processes no longer running
+/// (a killed run) from `dir`, and returns their paths. Liveness is read from `/proc`; where there is no
+/// `/proc`, nothing is removed. A temporary of a live process (another run writing now) is kept.
+pub fn remove_stale_temporaries(dir: &Path) -> Vec<PathBuf> {
+    let proc = Path::new("/proc");
+    if !proc.join("self").exists() {
+        return Vec::new();
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    entries
+        .flatten()
+        .filter(|e| {
+            let name = e.file_name();
+            let Some(pid) = temp_owner(&name.to_string_lossy()) else {
+                return false;
+            };
+            pid != std::process::id()
+                && !proc.join(pid.to_string()).exists()
+                && e.file_type().is_ok_and(|t| t.is_file())
+        })
+        .map(|e| e.path())
+        .filter(|p| std::fs::remove_file(p).is_ok())
+        .collect()
+}
+
 /// Writes `path` atomically through `fill`, which receives a buffered writer.
 pub fn write_atomic<F>(path: &Path, fill: F) -> Result<()>
 where
@@ -47,4 +84,27 @@ pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
 /// Writes `bytes` to `path` atomically.
 pub fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic(path, |w| w.write_all(bytes).map_err(|e| Error::io(path, e)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temporaries_of_dead_processes_are_removed_and_others_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        // Process ids above the kernel's pid_max (2²² at most) are never alive.
+        let dead = dir.path().join(".a.tiff.tmp-4999999");
+        let live = dir
+            .path()
+            .join(format!(".a.json.tmp-{}", std::process::id()));
+        let other = dir.path().join(".notes.tmp-x1");
+        for p in [&dead, &live, &other] {
+            std::fs::write(p, b"x").unwrap();
+        }
+        assert_eq!(temp_owner(".a.tiff.tmp-4999999"), Some(4_999_999));
+        assert_eq!(temp_owner("a.tiff.tmp-12"), None);
+        assert_eq!(remove_stale_temporaries(dir.path()), vec![dead.clone()]);
+        assert!(!dead.exists() && live.exists() && other.exists());
+    }
 }

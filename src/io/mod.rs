@@ -4,14 +4,17 @@
 mod atomic;
 mod heatmap;
 mod image;
+mod output_set;
 mod products;
 mod sidecar;
 
-pub use atomic::{write_atomic, write_atomic_bytes, write_json};
+pub use atomic::{remove_stale_temporaries, write_atomic, write_atomic_bytes, write_json};
 pub use heatmap::{format_label, heatmap_rgb, write_heatmap_png};
 pub use image::{ImageF32, read_tiff_f32, write_mask_png, write_preview_png, write_tiff_f32};
+pub use output_set::check_output_paths;
 pub use products::{
-    DrrValues, Silhouette, SilhouetteOf, read_with_sidecar, sibling, write_depth, write_difference,
-    write_difference_heatmap, write_drr, write_masks,
+    DrrProducts, DrrValues, Silhouette, SilhouetteOf, difference_set_paths, drr_set_paths,
+    read_with_sidecar, sibling, write_depth, write_difference, write_difference_heatmap,
+    write_difference_set, write_drr, write_drr_set, write_masks,
 };
 pub use sidecar::{Sidecar, kind, sidecar_path, units};

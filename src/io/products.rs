@@ -8,9 +8,10 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 use serde_json::json;
 
+use super::output_set::{file_names, folder_of, remove_marker};
 use super::{
-    ImageF32, Sidecar, kind, read_tiff_f32, sidecar_path, units, write_heatmap_png, write_mask_png,
-    write_preview_png, write_tiff_f32,
+    ImageF32, Sidecar, check_output_paths, kind, read_tiff_f32, remove_stale_temporaries,
+    sidecar_path, units, write_heatmap_png, write_mask_png, write_preview_png, write_tiff_f32,
 };
 use crate::geometry::{Perturbation, View};
 use crate::{Error, Result};
@@ -70,9 +71,74 @@ pub fn sibling(out: &Path, suffix: &str, ext: &str) -> PathBuf {
     out.with_file_name(format!("{stem}_{suffix}.{ext}"))
 }
 
-/// Writes a DRR of `view` (reference geometry) rendered under `perturbation`: `out` (float TIFF of
-/// `values` of the line integral), its sidecar (kind `drr`, the producer's `details`, and `I0` for an
-/// intensity image) and `out` with extension `.png` (an 8-bit preview of the line integral).
+/// The images of one render, written together by [`write_drr_set`].
+#[derive(Debug, Clone, Copy)]
+pub struct DrrProducts<'a> {
+    /// The line integral (written as `values`; the PNG preview always shows the line integral).
+    pub line_integral: &'a ImageF32,
+    pub values: DrrValues,
+    /// Silhouette masks (`OUT_mask*.png`), none when not asked for.
+    pub silhouettes: &'a [Silhouette],
+    /// The first-hit depth map (`OUT_depth.tiff`), when asked for.
+    pub depth: Option<&'a ImageF32>,
+}
+
+/// Every file [`write_drr_set`] writes for `out` (the main sidecar last).
+pub fn drr_set_paths(out: &Path, silhouettes: &[Silhouette], depth: bool) -> Vec<PathBuf> {
+    let mut paths = Vec::new();
+    for s in silhouettes {
+        let png = sibling(out, &s.of.suffix(), "png");
+        paths.push(sidecar_path(&png));
+        paths.push(png);
+    }
+    if depth {
+        let tiff = sibling(out, "depth", "tiff");
+        paths.push(sidecar_path(&tiff));
+        paths.push(tiff);
+    }
+    paths.push(out.to_path_buf());
+    paths.push(out.with_extension("png"));
+    paths.push(sidecar_path(out));
+    paths
+}
+
+/// Writes the output set of a DRR of `view` (reference geometry) rendered under `perturbation`: the
+/// masks and the depth map (each with its sidecar), `out` (float TIFF of the values), `OUT.png` (an 8-bit
+/// preview of the line integral) and, last, `OUT.json` (kind `drr`, the producer's `details`, `I0` for an
+/// intensity image, and `companions`: the other files of the set).
+///
+/// Every path is checked first ([`check_output_paths`]): when one cannot be written, nothing is. Then
+/// temporaries of killed runs are removed, the previous `OUT.json` is removed, and the files are written
+/// (each atomically), so a set without `OUT.json` is one a run did not finish.
+pub fn write_drr_set(
+    out: &Path,
+    products: &DrrProducts,
+    view: &View,
+    perturbation: &Perturbation,
+    details: &impl Serialize,
+) -> Result<()> {
+    let values = products.values;
+    let mut sidecar =
+        Sidecar::new(kind::DRR, values.units(), view, perturbation)?.with_details(details)?;
+    if let DrrValues::Intensity { i0 } = values {
+        sidecar = sidecar.with_details(&json!({ "I0": i0 }))?;
+    }
+    let paths = drr_set_paths(out, products.silhouettes, products.depth.is_some());
+    check_output_paths(&paths)?;
+    remove_stale_temporaries(folder_of(out));
+    let marker = sidecar_path(out);
+    remove_marker(&marker)?;
+    write_masks(out, products.silhouettes, view, perturbation)?;
+    if let Some(depth) = products.depth {
+        write_depth(out, depth, view, perturbation)?;
+    }
+    write_tiff_f32(out, &values.apply(products.line_integral))?;
+    write_preview_png(&out.with_extension("png"), products.line_integral, false)?;
+    sidecar.companions = file_names(&paths[..paths.len() - 1]);
+    sidecar.write(&marker)
+}
+
+/// [`write_drr_set`] of a DRR alone (its TIFF, preview and sidecar).
 pub fn write_drr(
     out: &Path,
     line_integral: &ImageF32,
@@ -81,14 +147,13 @@ pub fn write_drr(
     perturbation: &Perturbation,
     details: &impl Serialize,
 ) -> Result<()> {
-    let mut sidecar =
-        Sidecar::new(kind::DRR, values.units(), view, perturbation)?.with_details(details)?;
-    if let DrrValues::Intensity { i0 } = values {
-        sidecar = sidecar.with_details(&json!({ "I0": i0 }))?;
-    }
-    write_tiff_f32(out, &values.apply(line_integral))?;
-    sidecar.write(&sidecar_path(out))?;
-    write_preview_png(&out.with_extension("png"), line_integral, false)
+    let products = DrrProducts {
+        line_integral,
+        values,
+        silhouettes: &[],
+        depth: None,
+    };
+    write_drr_set(out, &products, view, perturbation, details)
 }
 
 /// Reads an image written with its sidecar (a DRR, or any float TIFF beside a `name.json`), checking
@@ -194,6 +259,42 @@ pub fn write_difference(
         .derived(kind::ABS_DIFFERENCE)
         .write(&sidecar_path(&tiff))?;
     write_heatmap_png(&dir.join("heatmap.png"), diff, &sidecar)
+}
+
+/// Every file of `spinedrr compare`'s output set in `dir`: [`write_difference`]'s four, then the marker
+/// `metrics.json`.
+pub fn difference_set_paths(dir: &Path) -> Vec<PathBuf> {
+    [
+        "absdiff.tiff",
+        "absdiff.json",
+        "heatmap.png",
+        "heatmap.json",
+        "metrics.json",
+    ]
+    .map(|f| dir.join(f))
+    .to_vec()
+}
+
+/// Writes [`write_difference`]'s images and then `marker` (the set's record, e.g. `metrics.json`, a JSON
+/// object given `companions`: the other files) under the protocol of [`write_drr_set`]: every path checked
+/// first, stale temporaries and the previous marker removed, the marker last.
+pub fn write_difference_set(
+    dir: &Path,
+    diff: &ImageF32,
+    base: &Sidecar,
+    details: &impl Serialize,
+    marker: serde_json::Map<String, serde_json::Value>,
+) -> Result<()> {
+    let paths = difference_set_paths(dir);
+    check_output_paths(&paths)?;
+    remove_stale_temporaries(dir);
+    let (marker_path, companions) = paths.split_last().expect("a set has a marker");
+    remove_marker(marker_path)?;
+    write_difference(dir, diff, base, details)?;
+    let mut marker = marker;
+    marker.insert("companions".into(), json!(file_names(companions)));
+    // Through a JSON value: its keys come out sorted.
+    super::write_json(marker_path, &serde_json::Value::Object(marker))
 }
 
 /// Writes the heatmap PNG of `diff = |A − B|`, the difference of the line-integral DRRs of `view` (A,

@@ -63,6 +63,12 @@ pub struct Sidecar {
     /// Producer-specific details (renderer, backend, anatomy, μ table, statistics).
     #[serde(default)]
     pub details: serde_json::Map<String, serde_json::Value>,
+    /// The files of this image's output set (names in the sidecar's folder), written before this sidecar,
+    /// which is written last: a set whose main sidecar is missing is incomplete, and a file of the set's
+    /// naming pattern that is not listed here is not part of it (see [`super::write_drr_set`]). Empty
+    /// (and not written) for an image without companions.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub companions: Vec<String>,
 }
 
 impl Sidecar {
@@ -88,6 +94,7 @@ impl Sidecar {
             perturbation_spec: perturbation.to_string(),
             perturbation: *perturbation,
             details: serde_json::Map::new(),
+            companions: Vec::new(),
         })
     }
 
@@ -113,6 +120,13 @@ impl Sidecar {
             ))),
             Err(e) => Err(Error::encode("sidecar details", e.to_string())),
         }
+    }
+
+    /// Whether the image this sidecar describes was rendered with the same camera as `other`'s: size,
+    /// `K` and `world_to_camera` (a mask belongs to a DRR only when they agree).
+    pub fn same_camera(&self, other: &Sidecar) -> bool {
+        (self.width, self.height, self.k, self.world_to_camera)
+            == (other.width, other.height, other.k, other.world_to_camera)
     }
 
     /// The view the image was rendered with (perturbed intrinsics), checked for validity.

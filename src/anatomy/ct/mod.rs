@@ -14,7 +14,9 @@ use crate::{Error, Result};
 
 pub use mask::VoxelMask;
 pub use nifti::{affine_from_header, read_ct, read_labels, write_ct, write_labels};
-pub use surface::{SurfaceOptions, label_surface, largest_component, taubin_smooth};
+pub use surface::{
+    MAX_SMOOTH_ITERATIONS, SurfaceOptions, label_surface, largest_component, taubin_smooth,
+};
 
 /// A 3-D voxel grid with a world affine.
 #[derive(Debug, Clone, PartialEq)]

@@ -36,8 +36,21 @@ impl Default for SurfaceOptions {
     }
 }
 
+/// Most Taubin iteration pairs [`label_surface`] runs: its low-pass response settles within tens of
+/// iterations; thousands only cost minutes.
+pub const MAX_SMOOTH_ITERATIONS: usize = 500;
+
 /// The closed outward surface (world mm) of the voxels of `seg` carrying `label`.
 pub fn label_surface(seg: &LabelMap, label: u16, opts: &SurfaceOptions) -> Result<TriMesh> {
+    if opts.smooth_iterations > MAX_SMOOTH_ITERATIONS {
+        return Err(Error::invalid(
+            "smooth_iterations",
+            format!(
+                "{} is more than the limit of {MAX_SMOOTH_ITERATIONS} Taubin iterations",
+                opts.smooth_iterations
+            ),
+        ));
+    }
     let mut keep: Vec<bool> = seg.values.iter().map(|&v| v == label).collect();
     if !keep.iter().any(|&k| k) {
         return Err(Error::invalid(

@@ -347,15 +347,27 @@ pub(crate) struct BandScratch {
     hits: Vec<Crossing>,
 }
 
-/// `ceil(x)` of a coordinate clamped to the image (`0 ≤ x < 2³¹`; a NaN gives 0).
+/// Bound of the pixel coordinates [`ceil_small`] and [`floor_small`] take: far beyond any detector
+/// ([`crate::geometry::MAX_DETECTOR_PX`]), so clamping to it changes no pixel range, and small enough that
+/// the rounding arithmetic cannot overflow whatever the projection gave (a huge but finite K, an
+/// infinity).
+const COORD_CLAMP: f64 = (1u64 << 31) as f64;
+
+/// `ceil(x)` of a coordinate, which the caller has clamped to the image from below (`0 ≤ x`; larger
+/// values saturate at 2³¹, a NaN gives 0).
 #[inline]
 fn ceil_small(x: f64) -> i64 {
+    let x = x.min(COORD_CLAMP);
     let i = x as i64;
     i + i64::from((i as f64) < x)
 }
 
-/// `floor(x)` of a coordinate clamped to the image (`0 ≤ x < 2³¹`; a NaN gives 0).
+/// `floor(x)` of a coordinate, which the caller has clamped to the image from above (`x < 2³¹`; smaller
+/// values saturate at −2³¹, a NaN gives 0).
 #[inline]
 fn floor_small(x: f64) -> i64 {
-    x as i64
+    x.max(-COORD_CLAMP) as i64
 }
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,153 @@
+//! What `spinedrr render` refuses before it writes an image: a `--mesh FILE:MU` whose μ is not a number,
+//! an X-ray source inside a mesh, an image on which nothing of the anatomy landed, and a negative line
+//! integral (a negative μ not nested in a denser surface); and [`RenderRun`], what the mesh and the CT
+//! renders share.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::bail;
+use glam::DVec3;
+use spinedrr::anatomy::TriMesh;
+use spinedrr::geometry::{Perturbation, View};
+use spinedrr::io::{DrrValues, ImageF32};
+
+/// What the mesh and the CT renders share: the view, the perturbation, the output and its checks.
+pub struct RenderRun<'a> {
+    /// The reference view (recorded in the sidecar).
+    pub view: &'a View,
+    /// The view under the perturbation (what the rays follow).
+    pub rendered: &'a View,
+    pub perturbation: &'a Perturbation,
+    pub values: DrrValues,
+    pub repeat: u32,
+    pub allow_empty: bool,
+    pub out: &'a Path,
+}
+
+/// `FILE[:MU]`: a trailing `:MU` is the attenuation (mm⁻¹), which must be a finite number. A spec that
+/// names an existing file, or whose last `:` part ends in a mesh extension, is a path (which may contain
+/// `:`).
+pub fn split_mesh_spec(spec: &str, default_mu: f64) -> anyhow::Result<(PathBuf, f64)> {
+    let Some((path, mu)) = spec.rsplit_once(':') else {
+        return Ok((PathBuf::from(spec), default_mu));
+    };
+    let is_mesh_name = [".stl", ".obj", ".ply"]
+        .iter()
+        .any(|e| mu.to_ascii_lowercase().ends_with(e));
+    if is_mesh_name || Path::new(spec).is_file() {
+        return Ok((PathBuf::from(spec), default_mu));
+    }
+    match mu.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok((PathBuf::from(path), v)),
+        Ok(v) => bail!("--mesh {spec}: μ {v} must be finite"),
+        Err(_) => {
+            bail!("--mesh {spec}: μ '{mu}' is not a number (expected FILE or FILE:MU, MU in mm⁻¹)")
+        }
+    }
+}
+
+/// Refuses a render whose X-ray source lies inside a mesh (winding number above ½): its rays start in
+/// the material, and no DRR of it means anything.
+pub fn check_source_outside(view: &View, meshes: &[(&str, &TriMesh)]) -> anyhow::Result<()> {
+    let s = view.source_world();
+    for (name, mesh) in meshes {
+        if mesh.winding_number(s).abs() > 0.5 {
+            bail!(
+                "the X-ray source of view '{}' (world [{:.1}, {:.1}, {:.1}] mm) lies inside mesh '{name}': \
+                 the anatomy must lie between the source and the detector (check the mesh's units and \
+                 position, or the geometry)",
+                view.name,
+                s.x,
+                s.y,
+                s.z
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The eight corners of the box `lo`–`hi`.
+pub fn box_corners(lo: DVec3, hi: DVec3) -> [DVec3; 8] {
+    std::array::from_fn(|i| {
+        DVec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        )
+    })
+}
+
+/// Where the anatomy with world bounding-box corners `corners` lands on the detector of `view`, in words.
+fn where_it_projects(view: &View, corners: &[DVec3]) -> String {
+    let behind = corners.iter().filter(|&&c| view.depth(c) <= 0.0).count();
+    if behind > 0 {
+        return format!(
+            "{behind} of its {} bounding-box corners lie behind the source",
+            corners.len()
+        );
+    }
+    let px: Vec<_> = corners.iter().map(|&c| view.project(c)).collect();
+    let (u0, u1) = px
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.x), b.max(p.x))
+        });
+    let (v0, v1) = px
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.y), b.max(p.y))
+        });
+    format!(
+        "its bounding box projects to u ∈ [{u0:.4e}, {u1:.4e}], v ∈ [{v0:.4e}, {v1:.4e}] px, the detector \
+         is {} × {} px",
+        view.intrinsics.width, view.intrinsics.height
+    )
+}
+
+/// Refuses an image in which every pixel is 0 — the anatomy did not land on the detector (placed
+/// elsewhere, a huge perturbation, a CT whose world position is not where the view aims) — unless
+/// `allow_empty`. `rendered` is the view the rays followed (perturbed K), `corners` the anatomy's world
+/// bounding box.
+pub fn check_not_empty(
+    line_integral: &ImageF32,
+    rendered: &View,
+    perturbation: &str,
+    corners: &[DVec3],
+    allow_empty: bool,
+) -> anyhow::Result<()> {
+    if allow_empty || line_integral.data.iter().any(|&v| v != 0.0) {
+        return Ok(());
+    }
+    bail!(
+        "nothing of the anatomy is on the detector: every pixel of the {} × {} DRR of view '{}' under \
+         perturbation {perturbation} is 0 ({}); nothing was written. Pass --allow-empty to write an empty \
+         image anyway",
+        line_integral.width,
+        line_integral.height,
+        rendered.name,
+        where_it_projects(rendered, corners)
+    )
+}
+
+/// Refuses a line integral that is negative anywhere beyond rounding: a negative μ is the differential
+/// μ of a surface nested in a denser one (a cancellous core in a cortical shell); alone it attenuates
+/// negatively, which no material does.
+pub fn check_not_negative(line_integral: &ImageF32) -> anyhow::Result<()> {
+    let (min, max) = line_integral
+        .data
+        .iter()
+        .fold((0f32, 0f32), |(a, b), &v| (a.min(v), b.max(v)));
+    let tolerance = 1e-4 * f64::from(max).max(1.0);
+    if f64::from(min) >= -tolerance {
+        return Ok(());
+    }
+    let count = line_integral
+        .data
+        .iter()
+        .filter(|&&v| f64::from(v) < -tolerance)
+        .count();
+    bail!(
+        "the line integral is negative at {count} pixels (down to {min}): a negative μ is only valid for a \
+         surface nested inside one whose μ is at least as large (differential μ); nothing was written"
+    )
+}
