@@ -141,6 +141,10 @@ pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
                 })
                 .sum::<f64>()
         })
+        .collect::<Vec<f64>>()
+        // Rows summed in row order: a parallel reduction's order depends on thread scheduling, and the
+        // same images must give the same SSIM to the last bit on any machine.
+        .iter()
         .sum();
     Ok(total / (wo * ho) as f64)
 }
@@ -253,13 +257,13 @@ pub fn gradient_correlation(a: &ImageF32, b: &ImageF32) -> Result<f64> {
     // other moments changes nothing), so they are counted without being filtered.
     let w = a.width as usize;
     let blank = blank_rows(a, b);
-    let zero = || ([0.0; 6], [0.0; 6]);
-    let (mx, my) = (0..a.height as usize - 2)
+    let rows: Vec<([f64; 6], [f64; 6])> = (0..a.height as usize - 2)
         .into_par_iter()
-        .fold(zero, |(mut mx, mut my), v| {
+        .map(|v| {
+            let (mut mx, mut my) = ([0.0; 6], [0.0; 6]);
             if blank[v..v + 3].iter().all(|&z| z) {
-                mx[0] += (w - 2) as f64;
-                my[0] += (w - 2) as f64;
+                mx[0] = (w - 2) as f64;
+                my[0] = (w - 2) as f64;
                 return (mx, my);
             }
             let ((a0, a1, a2), (b0, b1, b2)) = (three_rows(a, v, w), three_rows(b, v, w));
@@ -271,13 +275,57 @@ pub fn gradient_correlation(a: &ImageF32, b: &ImageF32) -> Result<f64> {
             }
             (mx, my)
         })
-        .reduce(zero, |(mut x1, mut y1), (x2, y2)| {
-            for k in 0..6 {
-                x1[k] += x2[k];
-                y1[k] += y2[k];
-            }
-            (x1, y1)
-        });
+        .collect();
+    // Row moments summed in row order, so the result does not depend on thread scheduling.
+    let (mut mx, mut my) = ([0.0; 6], [0.0; 6]);
+    for (rx, ry) in &rows {
+        for k in 0..6 {
+            mx[k] += rx[k];
+            my[k] += ry[k];
+        }
+    }
     let (cx, cy) = (correlation(&mx)?, correlation(&my)?);
     Ok(0.5 * (cx + cy))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A smooth blob with a ridge, centred at `(cx, cy)`, on a `w × h` image.
+    fn blob(w: u32, h: u32, cx: f64, cy: f64) -> ImageF32 {
+        let mut img = ImageF32::zeros(w, h);
+        for v in 0..h {
+            for u in 0..w {
+                let (x, y) = (f64::from(u) - cx, f64::from(v) - cy);
+                let r2 = x * x + y * y;
+                let value = (-r2 / 800.0).exp() + 0.3 * (x / 7.0).sin() * (-r2 / 3000.0).exp();
+                img.data[(v * w + u) as usize] = value as f32;
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn ssim_and_gradient_correlation_do_not_depend_on_the_thread_count() {
+        let (a, b) = (blob(301, 257, 150.0, 120.0), blob(301, 257, 153.5, 118.0));
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    (
+                        ssim(&a, &b).unwrap().to_bits(),
+                        gradient_correlation(&a, &b).unwrap().to_bits(),
+                    )
+                })
+        };
+        let serial = run(1);
+        for threads in [2, 3, 8] {
+            for _ in 0..5 {
+                assert_eq!(run(threads), serial, "{threads} threads");
+            }
+        }
+    }
 }
