@@ -18,6 +18,7 @@ mod limits;
 mod validate;
 
 pub use kinds::{Experiment, RegistrationMethod};
+pub(crate) use validate::family_keys;
 pub use limits::{MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate};
 
 /// The target of the phantom levels studied together (`anatomy.segment`).

@@ -238,7 +238,7 @@ fn positive(key: &str, v: f64) -> Result<()> {
 }
 
 /// The config keys a perturbation family's values come from.
-fn family_keys(f: Family) -> &'static str {
+pub(crate) fn family_keys(f: Family) -> &'static str {
     match f {
         Family::Focal => "perturbations.df_px",
         Family::Piercing => "perturbations.piercing_px",
