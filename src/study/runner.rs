@@ -192,7 +192,9 @@ fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
         if n == 0 || n > max {
             return Err(Error::invalid(
                 "threads (--threads)",
-                format!("{n}: must be between 1 and {max} (4 × the cores, and never fewer than 256)"),
+                format!(
+                    "{n}: must be between 1 and {max} (4 × the cores, and never fewer than 256)"
+                ),
             ));
         }
         builder = builder.num_threads(n);
@@ -325,7 +327,8 @@ impl OutputLock {
                             )));
                         }
                         _ => {
-                            let who = owner.map_or_else(|| "no PID".to_string(), |p| format!("PID {p}"));
+                            let who =
+                                owner.map_or_else(|| "no PID".to_string(), |p| format!("PID {p}"));
                             eprintln!(
                                 "warning: taking over the stale lock {} ({who}, no longer running)",
                                 path.display()
@@ -421,7 +424,11 @@ fn clear_foreign_products(out: &Path, toml: &str, fp: &str) -> Result<()> {
         "note: {} held the products of another study config (its study.toml differs from this one); \
          removed {}",
         out.display(),
-        if removed.is_empty() { "nothing else".to_string() } else { removed.join(", ") }
+        if removed.is_empty() {
+            "nothing else".to_string()
+        } else {
+            removed.join(", ")
+        }
     );
     Ok(())
 }

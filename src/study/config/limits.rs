@@ -40,13 +40,14 @@ impl StudyConfig {
     pub fn work_estimate(&self) -> WorkEstimate {
         let n = |x: usize| x as u64;
         let n_targets = n(targets(self).len());
-        let projection_units = if self.runs(Experiment::Projection) || self.runs(Experiment::Landmarks) {
-            n_targets
-                .saturating_mul(n(self.geometry.views.len()))
-                .saturating_mul(n(projection_perturbations(self).len()))
-        } else {
-            0
-        };
+        let projection_units =
+            if self.runs(Experiment::Projection) || self.runs(Experiment::Landmarks) {
+                n_targets
+                    .saturating_mul(n(self.geometry.views.len()))
+                    .saturating_mul(n(projection_perturbations(self).len()))
+            } else {
+                0
+            };
         let r = &self.registration;
         let (cells, chunks) = if self.runs(Experiment::Registration) {
             let cells = n_targets

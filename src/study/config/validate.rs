@@ -37,7 +37,10 @@ impl StudyConfig {
         if let Some(i) = (1..parsed.len()).find(|&i| parsed[..i].contains(&parsed[i])) {
             return Err(Error::invalid(
                 "anatomy.levels",
-                format!("{:?} is listed twice: each level is studied once", a.levels[i]),
+                format!(
+                    "{:?} is listed twice: each level is studied once",
+                    a.levels[i]
+                ),
             ));
         }
         let mut names: Vec<String> = a.levels.clone();
@@ -128,7 +131,9 @@ impl StudyConfig {
                     format!("target '{}' lists no files", m.name),
                 ));
             }
-            unique("anatomy.meshes.files", &m.files, |f| f.display().to_string())?;
+            unique("anatomy.meshes.files", &m.files, |f| {
+                f.display().to_string()
+            })?;
             for f in m.files.iter().chain([&m.landmarks]) {
                 if !f.is_file() {
                     return Err(Error::invalid(
@@ -265,10 +270,7 @@ pub(super) fn unique<T, K: PartialEq + Display>(
 ) -> Result<()> {
     let ids: Vec<K> = items.iter().map(identity).collect();
     match (1..ids.len()).find(|&i| ids[..i].contains(&ids[i])) {
-        Some(i) => Err(Error::invalid(
-            key,
-            format!("{} is listed twice", ids[i]),
-        )),
+        Some(i) => Err(Error::invalid(key, format!("{} is listed twice", ids[i]))),
         None => Ok(()),
     }
 }

@@ -21,8 +21,8 @@ use super::schema::UnitRows;
 use super::timings::{Phase, Timings};
 use super::units::{Unit, targets};
 use crate::anatomy::{
-    Landmarks, Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels, read_landmarks,
-    read_mesh,
+    Landmarks, Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels,
+    read_landmarks, read_mesh,
 };
 use crate::geometry::{CArm, View};
 use crate::io::ImageF32;
