@@ -4,7 +4,6 @@
 //! granularity: a unit is redone whole after an interruption).
 
 use super::{Experiment, StudyConfig};
-use crate::study::units::{projection_perturbations, targets};
 use crate::{Error, Result};
 
 /// At most this many work units (the default study has 1 476).
@@ -39,12 +38,29 @@ impl StudyConfig {
     /// Counts the study's units and trials (saturating, so an absurd config cannot overflow).
     pub fn work_estimate(&self) -> WorkEstimate {
         let n = |x: usize| x as u64;
-        let n_targets = n(targets(self).len());
+        // The counts of `units::targets` and `units::projection_perturbations` (the test below checks
+        // them against enumeration).
+        let a = &self.anatomy;
+        let ct_targets: u64 =
+            a.ct.iter()
+                .map(|c| n(c.levels.len()) + u64::from(c.segment))
+                .sum();
+        let n_targets = n(a.levels.len())
+            + u64::from(a.segment && !a.levels.is_empty())
+            + n(a.meshes.len())
+            + ct_targets;
+        let g = &self.perturbations;
+        let nonzero = g.piercing_px.iter().filter(|p| **p != 0.0).count();
+        let n_perturbations = n(g.df_px.len()
+            + nonzero
+            + g.df_px.len().min(nonzero)
+            + g.skew_px.len()
+            + g.pixel_scale.len());
         let projection_units =
             if self.runs(Experiment::Projection) || self.runs(Experiment::Landmarks) {
                 n_targets
                     .saturating_mul(n(self.geometry.views.len()))
-                    .saturating_mul(n(projection_perturbations(self).len()))
+                    .saturating_mul(n_perturbations)
             } else {
                 0
             };
@@ -114,13 +130,21 @@ impl StudyConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::study::units::enumerate_units;
+    use crate::study::units::{enumerate_units, projection_perturbations, targets};
 
     #[test]
     fn the_estimate_counts_what_enumeration_makes() {
-        for mut cfg in [StudyConfig::default(), StudyConfig::quick()] {
+        let mut skewed = StudyConfig::quick();
+        skewed.perturbations.skew_px = vec![1.0, 2.0];
+        skewed.perturbations.pixel_scale = vec![1.01];
+        skewed.perturbations.piercing_px = vec![0.0, 5.0, 10.0, 20.0];
+        for mut cfg in [StudyConfig::default(), StudyConfig::quick(), skewed] {
             cfg.registration.trials = 7;
             cfg.registration.trials_per_unit = 3;
+            assert_eq!(
+                cfg.work_estimate().projection_units,
+                (targets(&cfg).len() * 2 * projection_perturbations(&cfg).len()) as u64
+            );
             let units = enumerate_units(&cfg).unwrap();
             let w = cfg.work_estimate();
             assert_eq!(w.units(), units.len() as u64);

@@ -19,7 +19,6 @@ mod validate;
 
 pub use kinds::{Experiment, RegistrationMethod};
 pub use limits::{MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate};
-pub(crate) use validate::family_keys;
 
 /// The target of the phantom levels studied together (`anatomy.segment`).
 pub const SEGMENT_TARGET: &str = "segment";

@@ -6,8 +6,6 @@ use std::fmt::Display;
 use super::StudyConfig;
 use crate::anatomy::parse_levels;
 use crate::geometry::{CArm, Perturbation};
-use crate::study::schema::Family;
-use crate::study::units::projection_perturbations;
 use crate::{Error, Result};
 
 impl StudyConfig {
@@ -81,34 +79,71 @@ impl StudyConfig {
         self.check_work()
     }
 
-    /// Every perturbed K of the grid (projection cells in every view, registration cells in the views
-    /// of every method) must be a valid camera: fails before the first unit, naming the key and value.
+    /// Every perturbed K of the grid (projection cells in every view, registration cells in every
+    /// view) must be a valid camera: fails before the first unit, naming the key and value.
     fn validate_grid_intrinsics(&self, carm: &CArm) -> Result<()> {
+        let g = &self.perturbations;
+        let nonzero: Vec<f64> = g
+            .piercing_px
+            .iter()
+            .copied()
+            .filter(|p| *p != 0.0)
+            .collect();
+        let with = |df_px: f64, p: f64| Perturbation {
+            df_px,
+            ..Perturbation::piercing(p, p)
+        };
+        // The cells of `units::projection_perturbations`, each with the keys its values come from.
+        let mut cells: Vec<(&str, Perturbation)> = Vec::new();
+        cells.extend(
+            g.df_px
+                .iter()
+                .map(|&d| ("perturbations.df_px", Perturbation::focal(d))),
+        );
+        cells.extend(
+            nonzero
+                .iter()
+                .map(|&p| ("perturbations.piercing_px", with(0.0, p))),
+        );
+        cells.extend(g.df_px.iter().zip(&nonzero).map(|(&d, &p)| {
+            (
+                "perturbations.df_px / perturbations.piercing_px",
+                with(d, p),
+            )
+        }));
+        cells.extend(g.skew_px.iter().map(|&s| {
+            let q = Perturbation {
+                skew_px: s,
+                ..Perturbation::NONE
+            };
+            ("perturbations.skew_px", q)
+        }));
+        cells.extend(g.pixel_scale.iter().map(|&sy| {
+            let q = Perturbation {
+                sy,
+                ..Perturbation::NONE
+            };
+            ("perturbations.pixel_scale", q)
+        }));
         let views: Vec<_> = carm
             .views
             .iter()
             .filter(|v| self.geometry.views.contains(&v.name))
             .collect();
-        for np in projection_perturbations(self) {
+        for (key, q) in &cells {
             for v in &views {
-                np.perturbation.apply(&v.intrinsics).map_err(|e| {
-                    Error::invalid(
-                        family_keys(np.family),
-                        format!("perturbation {} in view '{}': {e}", np.perturbation, v.name),
-                    )
+                q.apply(&v.intrinsics).map_err(|e| {
+                    Error::invalid(*key, format!("perturbation {q} in view '{}': {e}", v.name))
                 })?;
             }
         }
-        let r = &self.registration;
         if !self.runs(super::Experiment::Registration) {
             return Ok(());
         }
+        let r = &self.registration;
         for &df in &r.df_px {
             for &pp in &r.piercing_px {
-                let q = Perturbation {
-                    df_px: df,
-                    ..Perturbation::piercing(pp, pp)
-                };
+                let q = with(df, pp);
                 for v in &carm.views {
                     q.apply(&v.intrinsics).map_err(|e| {
                         Error::invalid(
@@ -239,17 +274,6 @@ fn positive(key: &str, v: f64) -> Result<()> {
         Ok(())
     } else {
         Err(Error::invalid(key, format!("{v} must be finite and > 0")))
-    }
-}
-
-/// The config keys a perturbation family's values come from.
-pub(crate) fn family_keys(f: Family) -> &'static str {
-    match f {
-        Family::Focal => "perturbations.df_px",
-        Family::Piercing => "perturbations.piercing_px",
-        Family::Joint => "perturbations.df_px / perturbations.piercing_px",
-        Family::Skew => "perturbations.skew_px",
-        Family::Scale => "perturbations.pixel_scale",
     }
 }
 

@@ -4,7 +4,8 @@
 
 use super::{Context, Target};
 use crate::geometry::View;
-use crate::study::config::{Experiment, family_keys};
+use crate::study::config::Experiment;
+use crate::study::schema::Family;
 use crate::study::units::projection_perturbations;
 use crate::{Error, Result};
 
@@ -80,4 +81,15 @@ fn where_it_lands(t: &Target, view: &View) -> String {
         "it projects to u ∈ [{:.1}, {:.1}], v ∈ [{:.1}, {:.1}] px, the detector is {} × {} px",
         lo.x, hi.x, lo.y, hi.y, k.width, k.height
     )
+}
+
+/// The config keys a perturbation family's values come from.
+fn family_keys(f: Family) -> &'static str {
+    match f {
+        Family::Focal => "perturbations.df_px",
+        Family::Piercing => "perturbations.piercing_px",
+        Family::Joint => "perturbations.df_px / perturbations.piercing_px",
+        Family::Skew => "perturbations.skew_px",
+        Family::Scale => "perturbations.pixel_scale",
+    }
 }
