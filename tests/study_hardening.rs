@@ -183,6 +183,11 @@ fn late_errors_come_before_any_output_and_name_the_key() {
         "[registration]\ndf_px = [0.0, -5000.0]\n",
         &["registration.df_px", "df=-5000"],
     );
+    // A phantom grid of 2.5e14 samples: refused before allocating, naming the key.
+    bad_config(
+        "[anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 0.001\n",
+        &["anatomy.voxel_mm", "0.001", "GiB"],
+    );
     bad_config(
         "[perturbations]\nskew_px = [1e30]\n",
         &["perturbations.skew_px"],

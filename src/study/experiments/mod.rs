@@ -181,6 +181,13 @@ impl Context {
                 soft_tissue: false,
                 ..PhantomOptions::default()
             })
+            .map_err(|e| match e {
+                // The grid-size limit names the phantom's option; here it is this config key.
+                Error::Invalid { field, message } if field.starts_with("voxel_mm") => {
+                    Error::invalid(format!("anatomy.{field}"), message)
+                }
+                other => other,
+            })
         };
         let t = &timings;
         // Anatomy is built in parallel over targets (each build is deterministic).
