@@ -3,7 +3,9 @@
 //! Each unit's typed rows go atomically to `out/units/<id>.json`, tagged with the config fingerprint; a
 //! unit whose file exists with the same fingerprint is skipped (resume). Tables, figures and the report
 //! are assembled only once every unit is present, in the fixed unit order, so their bytes do not depend
-//! on the thread count or on interruptions.
+//! on the thread count or on interruptions. One run at a time owns the output folder
+//! (`OUT/.study.lock`), and a folder left by another config is cleared of that run's products first, so
+//! a report never links figures or units that are not its own.
 
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
