@@ -10,7 +10,8 @@ use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
 use spinedrr::geometry::{CArm, Perturbation};
 use spinedrr::io::{DrrProducts, DrrValues, check_output_paths, drr_set_paths, write_drr_set};
 use spinedrr::render::{
-    Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, phantom_scene,
+    Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, orient_outward_warning,
+    phantom_scene,
 };
 
 use super::render_checks::{
@@ -120,7 +121,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
 
     let (scene, anatomy) = build_scene(&a)?;
-    report_open_meshes(&scene);
+    for w in scene.open_mesh_warnings() {
+        eprintln!("warning: {w}");
+    }
     let named: Vec<_> = scene
         .meshes
         .iter()
@@ -189,23 +192,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Warns about each mesh that is not closed and consistently wound, saying which it is.
-fn report_open_meshes(scene: &RenderScene) {
-    for m in scene
-        .meshes
-        .iter()
-        .filter(|m| scene.open_meshes.contains(&m.mesh.name))
-    {
-        let c = m.mesh.check();
-        eprintln!(
-            "warning: mesh '{}' is not closed or not consistently wound ({} boundary edges, {} edges \
-             shared by more than two triangles, {} edges wound the same way by both triangles); path \
-             lengths near those edges are unreliable",
-            m.mesh.name, c.boundary_edges, c.nonmanifold_edges, c.misoriented_edges
-        );
-    }
-}
-
 /// The corners of the bounding box of every mesh of `scene` (world mm).
 fn scene_corners(scene: &RenderScene) -> Vec<DVec3> {
     let (lo, hi) = scene
@@ -261,13 +247,8 @@ fn build_scene(a: &Args) -> anyhow::Result<(RenderScene, serde_json::Value)> {
         let (path, mu) = split_mesh_spec(spec, a.mu_default)?;
         let mut mesh =
             read_mesh(&path).with_context(|| format!("reading mesh {}", path.display()))?;
-        let volume = mesh.volume();
-        if mesh.orient_outward() {
-            eprintln!(
-                "warning: mesh {} is inside out (closed, consistently wound, signed volume {volume:.1} mm³ < 0): \
-                 its triangles were flipped to face outward",
-                path.display()
-            );
+        if let Some(w) = orient_outward_warning(&mut mesh, &path.display().to_string()) {
+            eprintln!("warning: {w}");
         }
         let object = path
             .file_stem()

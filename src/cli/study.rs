@@ -5,11 +5,13 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args as ClapArgs;
+use spinedrr::study::runner::max_threads;
 use spinedrr::study::{RunOptions, StudyConfig, run_study};
 
 #[derive(ClapArgs)]
 pub struct Args {
-    /// Study config (TOML; see examples/study.toml). Without it, the paper's defaults.
+    /// Study config (TOML; see examples/study.toml). Without it, the paper's defaults. Relative paths in
+    /// it are relative to its folder.
     #[arg(long)]
     config: Option<PathBuf>,
     /// A tiny grid for a smoke test: 2× binned detector, Δf {100, 500}, piercing {0, 50}, 3 registration
@@ -19,7 +21,7 @@ pub struct Args {
     /// Output folder (tables/, figures/, units/, report.md).
     #[arg(long, default_value = "study-out")]
     out: PathBuf,
-    /// Worker threads (default: all cores).
+    /// Worker threads (default: all cores; at most 4 × the cores, and never fewer than 256).
     #[arg(long)]
     threads: Option<usize>,
     /// Stop after running this many work units (the rest run on the next invocation).
@@ -31,6 +33,14 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    if let Some(n) = a.threads {
+        let max = max_threads();
+        if n == 0 || n > max {
+            anyhow::bail!(
+                "--threads {n}: must be between 1 and {max} (4 × the cores, and never fewer than 256)"
+            );
+        }
+    }
     let cfg = match &a.config {
         Some(p) => {
             let cfg = StudyConfig::from_file(p)
@@ -40,9 +50,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         None if a.quick => StudyConfig::quick(),
         None => StudyConfig::default(),
     };
-    if a.threads == Some(0) {
-        anyhow::bail!("--threads must be at least 1");
-    }
     let opts = RunOptions {
         out: a.out.clone(),
         threads: a.threads,

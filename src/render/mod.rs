@@ -19,7 +19,7 @@ pub mod volume;
 
 pub use backend::Backend;
 pub use phantom_scene::phantom_scene;
-pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh};
+pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh, orient_outward_warning};
 pub use thickness::{
     Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions, ThicknessRenderer,
 };

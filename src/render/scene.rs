@@ -117,6 +117,24 @@ impl RenderScene {
         self.meshes.iter().map(|m| m.mesh.triangles.len()).sum()
     }
 
+    /// One warning per mesh that is not closed and consistently wound, saying which it is (what
+    /// `render` and `study` print).
+    pub fn open_mesh_warnings(&self) -> Vec<String> {
+        self.meshes
+            .iter()
+            .filter(|m| self.open_meshes.contains(&m.mesh.name))
+            .map(|m| {
+                let c = m.mesh.check();
+                format!(
+                    "mesh '{}' is not closed or not consistently wound ({} boundary edges, {} edges \
+                     shared by more than two triangles, {} edges wound the same way by both triangles); \
+                     path lengths near those edges are unreliable",
+                    m.mesh.name, c.boundary_edges, c.nonmanifold_edges, c.misoriented_edges
+                )
+            })
+            .collect()
+    }
+
     /// Axis-aligned bounds of all meshes.
     pub fn bounds(&self) -> (DVec3, DVec3) {
         self.meshes.iter().filter_map(|m| m.mesh.bounds()).fold(
@@ -124,4 +142,16 @@ impl RenderScene {
             |(lo, hi), (a, b)| (lo.min(a), hi.max(b)),
         )
     }
+}
+
+/// Makes a closed, consistently wound mesh that is inside out face outward ([`TriMesh::orient_outward`]);
+/// returns the warning to show when it did (`what` names the mesh, e.g. its file).
+pub fn orient_outward_warning(mesh: &mut TriMesh, what: &str) -> Option<String> {
+    let volume = mesh.volume();
+    mesh.orient_outward().then(|| {
+        format!(
+            "mesh {what} is inside out (closed, consistently wound, signed volume {volume:.1} mm³ < 0): \
+             its triangles were flipped to face outward"
+        )
+    })
 }

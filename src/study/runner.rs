@@ -3,7 +3,9 @@
 //! Each unit's typed rows go atomically to `out/units/<id>.json`, tagged with the config fingerprint; a
 //! unit whose file exists with the same fingerprint is skipped (resume). Tables, figures and the report
 //! are assembled only once every unit is present, in the fixed unit order, so their bytes do not depend
-//! on the thread count or on interruptions.
+//! on the thread count or on interruptions. One run at a time owns the output folder
+//! (`OUT/.study.lock`), and a folder left by another config is cleared of that run's products first, so
+//! a report never links figures or units that are not its own.
 
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -18,7 +20,7 @@ use super::schema::StudyTables;
 use super::timings::{Phase, RunFacts, TimingRow, Timings, to_csv};
 use super::units::{Unit, UnitFile, derive_seed, enumerate_units};
 use super::{figures, report, report_html};
-use crate::io::write_atomic_bytes;
+use crate::io::{self, write_atomic_bytes};
 use crate::{Error, Result};
 
 /// How to run a study.
@@ -72,39 +74,56 @@ fn create_dir(p: &Path) -> Result<()> {
 
 /// Runs (or resumes) the study.
 ///
-/// Order: validate the config; read and check the CT inputs (labels present, grids) when there is work
-/// to do — so a bad input fails before the output folder is touched; create the output folder; build
-/// the anatomy and scenes; run the pending units; assemble tables, figures, report.
+/// Order: validate the config (keys, grid, work limits) and the thread count; when there is work to do,
+/// read and check every input (meshes, landmarks, CT labels and grids), build the anatomy and scenes
+/// and check that every target lands on the detector in every cell — so a bad input fails before the
+/// output folder is touched; lock the output folder ([`OutputLock`]); clear the products of another
+/// config ([`clear_foreign_products`]); run the pending units; assemble tables, figures, report.
 pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     let start = Instant::now();
     let timings = Arc::new(Timings::default());
     cfg.validate()?;
+    let pool = thread_pool(opts.threads)?;
     let fp = fingerprint(cfg)?;
+    let toml = config_toml(cfg)?;
     let units = enumerate_units(cfg)?;
+    // What is pending, read before the lock only to decide whether the anatomy must be built.
+    let work_before = opts.max_units != Some(0)
+        && units
+            .iter()
+            .any(|u| load_unit(&unit_path(&opts.out, &u.id()), &fp).is_none());
+    let build_start = Instant::now();
+    let mut ctx = if work_before {
+        Some(build_context(cfg, opts, &timings, &pool)?)
+    } else {
+        None
+    };
+    let mut build_wall = build_start.elapsed();
+    create_dir(&opts.out)?;
+    let _lock = OutputLock::acquire(&opts.out)?;
+    clear_foreign_products(&opts.out, &toml, &fp)?;
+    for d in ["units", "tables", "figures", experiments::REFERENCES_DIR] {
+        create_dir(&opts.out.join(d))?;
+        io::remove_stale_temporaries(&opts.out.join(d));
+    }
+    io::remove_stale_temporaries(&opts.out);
     let pending: Vec<&Unit> = units
         .iter()
         .filter(|u| load_unit(&unit_path(&opts.out, &u.id()), &fp).is_none())
         .collect();
     let skipped = units.len() - pending.len();
-    let todo: Vec<&Unit> = match opts.max_units {
-        Some(n) => pending.iter().take(n).copied().collect(),
-        None => pending.clone(),
-    };
-    let pool = thread_pool(opts.threads)?;
-    let build_start = Instant::now();
-    let inputs = if todo.is_empty() {
-        experiments::Inputs::default()
-    } else {
-        timings.time(Phase::Anatomy, 0, || experiments::load_inputs(cfg))?
-    };
-    let mut build_wall = build_start.elapsed();
-    for d in ["units", "tables", "figures", experiments::REFERENCES_DIR] {
-        create_dir(&opts.out.join(d))?;
-    }
-    write_atomic_bytes(&opts.out.join("study.toml"), config_toml(cfg)?.as_bytes())?;
+    let todo: Vec<&Unit> = pending
+        .iter()
+        .take(opts.max_units.unwrap_or(usize::MAX))
+        .copied()
+        .collect();
+    write_atomic_bytes(&opts.out.join("study.toml"), toml.as_bytes())?;
     if !todo.is_empty() {
         let t0 = Instant::now();
-        let mut ctx = Context::build(cfg, inputs, &opts.out, timings.clone(), &pool)?;
+        let mut ctx = match ctx.take() {
+            Some(c) => c,
+            None => build_context(cfg, opts, &timings, &pool)?,
+        };
         build_wall += t0.elapsed();
         timings.add(Phase::Build, build_wall, ctx.targets.len() as u64);
         let t0 = Instant::now();
@@ -144,10 +163,42 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     })
 }
 
+/// Reads the inputs (printing their warnings), builds the targets and checks that every cell puts its
+/// target on the detector; touches no file.
+fn build_context(
+    cfg: &StudyConfig,
+    opts: &RunOptions,
+    timings: &Arc<Timings>,
+    pool: &rayon::ThreadPool,
+) -> Result<Context> {
+    let inputs = timings.time(Phase::Anatomy, 0, || experiments::load_inputs(cfg))?;
+    for w in &inputs.warnings {
+        eprintln!("warning: {w}");
+    }
+    let ctx = Context::build(cfg, inputs, &opts.out, timings.clone(), pool)?;
+    ctx.check_on_detector()?;
+    Ok(ctx)
+}
+
+/// The most worker threads a run may ask for: 4 × the cores, and never fewer than 256.
+pub fn max_threads() -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    (4 * cores).max(256)
+}
+
 /// The worker pool of a run (`threads` workers, or rayon's default).
 fn thread_pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(n) = threads {
+        let max = max_threads();
+        if n == 0 || n > max {
+            return Err(Error::invalid(
+                "threads (--threads)",
+                format!(
+                    "{n}: must be between 1 and {max} (4 × the cores, and never fewer than 256)"
+                ),
+            ));
+        }
         builder = builder.num_threads(n);
     }
     builder
@@ -170,7 +221,7 @@ fn run_units(
             .with_max_len(1)
             .try_for_each(|u| -> Result<()> {
                 ctx.timings.time(Phase::UnitThreads, 1, || -> Result<()> {
-                    let rows = ctx.run(u)?;
+                    let rows = ctx.run(u).map_err(|e| in_unit(e, u))?;
                     let file = UnitFile {
                         id: u.id(),
                         fingerprint: fp.to_string(),
@@ -218,4 +269,168 @@ fn assemble(out: &Path, units: &[Unit], fp: &str) -> Result<StudyTables> {
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(StudyTables::from_units(rows))
+}
+
+/// `e` with the unit it came from (target, view and perturbation, or registration cell) in front.
+fn in_unit(e: Error, u: &Unit) -> Error {
+    let cell = u.describe();
+    match e {
+        Error::Invalid { field, message } => Error::Invalid {
+            field,
+            message: format!("{cell}: {message}"),
+        },
+        Error::Numerical(m) => Error::Numerical(format!("{cell}: {m}")),
+        Error::Resource(m) => Error::Resource(format!("{cell}: {m}")),
+        Error::Internal(m) => Error::Internal(format!("{cell}: {m}")),
+        Error::Format { path, message } => Error::Format {
+            path,
+            message: format!("{cell}: {message}"),
+        },
+        other => other,
+    }
+}
+
+/// The name of the lock file in a study's output folder.
+pub const LOCK_FILE: &str = ".study.lock";
+
+/// An exclusive claim on a study's output folder: `OUT/.study.lock`, created with `create_new` and
+/// holding the process id, removed when dropped. A lock whose process is no longer running (a killed
+/// run) is taken over with a warning; a live one is an error naming its PID, so two studies never write
+/// into one folder at once.
+#[derive(Debug)]
+pub struct OutputLock {
+    path: PathBuf,
+}
+
+impl OutputLock {
+    /// Claims `out` (which must exist).
+    pub fn acquire(out: &Path) -> Result<OutputLock> {
+        let path = out.join(LOCK_FILE);
+        for _ in 0..3 {
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&path)
+            {
+                Ok(mut f) => {
+                    use std::io::Write;
+                    write!(f, "{}", std::process::id()).map_err(|e| Error::io(&path, e))?;
+                    return Ok(OutputLock { path });
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    let owner = lock_owner(&path);
+                    match owner {
+                        Some(pid) if pid != std::process::id() && process_running(pid) => {
+                            return Err(Error::Resource(format!(
+                                "{}: another study (PID {pid}) is running into {}; wait for it to \
+                                 finish, or use another --out",
+                                path.display(),
+                                out.display()
+                            )));
+                        }
+                        _ => {
+                            let who =
+                                owner.map_or_else(|| "no PID".to_string(), |p| format!("PID {p}"));
+                            eprintln!(
+                                "warning: taking over the stale lock {} ({who}, no longer running)",
+                                path.display()
+                            );
+                            match std::fs::remove_file(&path) {
+                                Ok(()) => {}
+                                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                                Err(e) => return Err(Error::io(&path, e)),
+                            }
+                        }
+                    }
+                }
+                Err(e) => return Err(Error::io(&path, e)),
+            }
+        }
+        Err(Error::Resource(format!(
+            "{}: could not claim the output folder (another run keeps taking it)",
+            path.display()
+        )))
+    }
+}
+
+impl Drop for OutputLock {
+    fn drop(&mut self) {
+        // Only our own lock is removed (a lock taken over by another run after ours went stale is theirs).
+        if lock_owner(&self.path) == Some(std::process::id()) {
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// The PID in a lock file; a lock just created by another run may not hold it yet, so an empty one is
+/// read again after a moment.
+fn lock_owner(path: &Path) -> Option<u32> {
+    for attempt in 0..2 {
+        match std::fs::read_to_string(path) {
+            Ok(t) if !t.trim().is_empty() => return t.trim().parse().ok(),
+            Ok(_) if attempt == 0 => std::thread::sleep(std::time::Duration::from_millis(200)),
+            _ => return None,
+        }
+    }
+    None
+}
+
+/// Whether process `pid` runs (read from `/proc`; where there is none, every PID counts as running, so
+/// a lock is never taken from a live run).
+fn process_running(pid: u32) -> bool {
+    let proc = Path::new("/proc");
+    !proc.join("self").exists() || proc.join(pid.to_string()).exists()
+}
+
+/// When `out/study.toml` is that of another config, removes what belongs to that run — `figures/`,
+/// `tables/`, `references/`, `report.*`, `timings.csv` and the unit files of other configs — so this
+/// run's report cannot link an earlier run's products; says so on stderr.
+fn clear_foreign_products(out: &Path, toml: &str, fp: &str) -> Result<()> {
+    let Ok(previous) = std::fs::read_to_string(out.join("study.toml")) else {
+        return Ok(());
+    };
+    if previous == toml {
+        return Ok(());
+    }
+    let mut removed = Vec::new();
+    for d in ["figures", "tables", experiments::REFERENCES_DIR] {
+        let p = out.join(d);
+        if p.is_dir() {
+            std::fs::remove_dir_all(&p).map_err(|e| Error::io(&p, e))?;
+            removed.push(format!("{d}/"));
+        }
+    }
+    let entries = std::fs::read_dir(out).map_err(|e| Error::io(out, e))?;
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if (name.starts_with("report.") || name == "timings.csv") && e.path().is_file() {
+            std::fs::remove_file(e.path()).map_err(|err| Error::io(e.path(), err))?;
+            removed.push(name);
+        }
+    }
+    let mut stale_units = 0;
+    if let Ok(entries) = std::fs::read_dir(out.join("units")) {
+        for e in entries.flatten() {
+            let p = e.path();
+            if p.extension().is_some_and(|x| x == "json") && load_unit(&p, fp).is_none() {
+                std::fs::remove_file(&p).map_err(|err| Error::io(&p, err))?;
+                stale_units += 1;
+            }
+        }
+    }
+    if stale_units > 0 {
+        removed.push(format!("{stale_units} unit files"));
+    }
+    removed.sort();
+    eprintln!(
+        "note: {} held the products of another study config (its study.toml differs from this one); \
+         removed {}",
+        out.display(),
+        if removed.is_empty() {
+            "nothing else".to_string()
+        } else {
+            removed.join(", ")
+        }
+    );
+    Ok(())
 }

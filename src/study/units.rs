@@ -57,6 +57,28 @@ impl Unit {
         raw.replace('+', "_")
     }
 
+    /// The cell in words, for error messages: target, view and perturbation, or the registration cell.
+    pub fn describe(&self) -> String {
+        match self {
+            Unit::Projection { target, view, p } => format!(
+                "target '{target}', view '{view}', perturbation {} (family {})",
+                p.perturbation, p.family
+            ),
+            Unit::Registration {
+                target,
+                method,
+                df_px,
+                piercing_px,
+                first,
+                count,
+            } => format!(
+                "registration of target '{target}' by {method} at Δf = {df_px} px, piercing = \
+                 {piercing_px} px, trials {first}..{}",
+                first + count
+            ),
+        }
+    }
+
     /// The key every random draw of this unit derives from (trial chunking excluded, so the same trial
     /// draws the same numbers whatever `trials_per_unit` is).
     pub fn seed_key(&self) -> String {

@@ -14,9 +14,11 @@ use crate::render::Backend;
 use crate::{Error, Result};
 
 mod kinds;
+mod limits;
 mod validate;
 
 pub use kinds::{Experiment, RegistrationMethod};
+pub use limits::{MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate};
 
 /// The target of the phantom levels studied together (`anatomy.segment`).
 pub const SEGMENT_TARGET: &str = "segment";
@@ -295,7 +297,8 @@ impl StudyConfig {
         }
     }
 
-    /// Parses a study TOML document (`origin` names it in errors) and validates it.
+    /// Parses a study TOML document (`origin` names it in errors) and validates it. Relative paths stay
+    /// as they are (relative to the working directory); [`Self::from_file`] resolves them.
     pub fn from_toml_str(text: &str, origin: &str) -> Result<Self> {
         let cfg: StudyConfig =
             toml::from_str(text).map_err(|e| Error::format(origin, e.to_string()))?;
@@ -304,10 +307,42 @@ impl StudyConfig {
         Ok(cfg)
     }
 
-    /// Reads and validates a study file.
+    /// Reads and validates a study file. Relative paths in it (`geometry.file`, mesh files, landmarks,
+    /// CT volumes) are relative to the file's folder, not to the working directory.
     pub fn from_file(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        Self::from_toml_str(&text, &path.display().to_string())
+        let origin = path.display().to_string();
+        let mut cfg: StudyConfig =
+            toml::from_str(&text).map_err(|e| Error::format(&origin, e.to_string()))?;
+        if let Some(dir) = path.parent() {
+            cfg.resolve_paths(dir);
+        }
+        cfg.validate()
+            .map_err(|e| Error::format(&origin, e.to_string()))?;
+        Ok(cfg)
+    }
+
+    /// Makes every relative input path relative to `dir` instead (absolute paths are kept).
+    pub fn resolve_paths(&mut self, dir: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = dir.join(&*p);
+            }
+        };
+        if let Some(f) = &mut self.geometry.file {
+            fix(f);
+        }
+        for m in &mut self.anatomy.meshes {
+            m.files.iter_mut().for_each(fix);
+            fix(&mut m.landmarks);
+        }
+        for c in &mut self.anatomy.ct {
+            fix(&mut c.ct);
+            fix(&mut c.seg);
+            if let Some(l) = &mut c.landmarks {
+                fix(l);
+            }
+        }
     }
 
     /// The phantom levels, parsed.
@@ -340,6 +375,16 @@ impl StudyConfig {
                 return Err(Error::invalid(
                     "geometry.binning",
                     format!("{origin} gives an explicit K; binning needs pixel spacing"),
+                ));
+            }
+            if d.width % b != 0 || d.height % b != 0 {
+                return Err(Error::invalid(
+                    "geometry.binning",
+                    format!(
+                        "{b} does not divide the {} × {} px detector of {origin}: binning merges b × b \
+                         pixels, so it must divide both sides",
+                        d.width, d.height
+                    ),
                 ));
             }
             let bf = f64::from(b);

@@ -1,7 +1,11 @@
 //! [`StudyConfig::validate`]: every key checked before any work; errors name the key and the value.
 //! (Enumerated values — experiments, methods, label conventions — are checked when the TOML is parsed.)
 
+use std::fmt::Display;
+
 use super::StudyConfig;
+use crate::anatomy::parse_levels;
+use crate::geometry::{CArm, Perturbation};
 use crate::{Error, Result};
 
 impl StudyConfig {
@@ -14,7 +18,29 @@ impl StudyConfig {
                 "must list at least one level (or give [[anatomy.meshes]] or [[anatomy.ct]])",
             ));
         }
+        if self.experiments.is_empty() {
+            return Err(Error::invalid(
+                "experiments",
+                "must list at least one of \"projection\", \"landmarks\", \"registration\"",
+            ));
+        }
+        unique("experiments", &self.experiments, |e| e.name())?;
         self.levels()?;
+        let parsed = a
+            .levels
+            .iter()
+            .map(|l| parse_levels(l))
+            .collect::<Result<Vec<_>>>()
+            .map_err(|e| Error::invalid("anatomy.levels", e.to_string()))?;
+        if let Some(i) = (1..parsed.len()).find(|&i| parsed[..i].contains(&parsed[i])) {
+            return Err(Error::invalid(
+                "anatomy.levels",
+                format!(
+                    "{:?} is listed twice: each level is studied once",
+                    a.levels[i]
+                ),
+            ));
+        }
         let mut names: Vec<String> = a.levels.clone();
         names.push(super::SEGMENT_TARGET.into());
         self.validate_meshes(&mut names)?;
@@ -35,6 +61,7 @@ impl StudyConfig {
             carm.view(v)
                 .map_err(|e| Error::invalid("geometry.views", e.to_string()))?;
         }
+        unique("geometry.views", &self.geometry.views, |v| v.clone())?;
         let p = &self.perturbations;
         finite_list("perturbations.df_px", &p.df_px)?;
         finite_list("perturbations.piercing_px", &p.piercing_px)?;
@@ -47,7 +74,87 @@ impl StudyConfig {
             ));
         }
         finite_list("heatmaps_df_px", &self.heatmaps_df_px)?;
-        self.validate_registration()
+        self.validate_registration()?;
+        self.validate_grid_intrinsics(&carm)?;
+        self.check_work()
+    }
+
+    /// Every perturbed K of the grid (projection cells in every view, registration cells in every
+    /// view) must be a valid camera: fails before the first unit, naming the key and value.
+    fn validate_grid_intrinsics(&self, carm: &CArm) -> Result<()> {
+        let g = &self.perturbations;
+        let nonzero: Vec<f64> = g
+            .piercing_px
+            .iter()
+            .copied()
+            .filter(|p| *p != 0.0)
+            .collect();
+        let with = |df_px: f64, p: f64| Perturbation {
+            df_px,
+            ..Perturbation::piercing(p, p)
+        };
+        // The cells of `units::projection_perturbations`, each with the keys its values come from.
+        let mut cells: Vec<(&str, Perturbation)> = Vec::new();
+        cells.extend(
+            g.df_px
+                .iter()
+                .map(|&d| ("perturbations.df_px", Perturbation::focal(d))),
+        );
+        cells.extend(
+            nonzero
+                .iter()
+                .map(|&p| ("perturbations.piercing_px", with(0.0, p))),
+        );
+        cells.extend(g.df_px.iter().zip(&nonzero).map(|(&d, &p)| {
+            (
+                "perturbations.df_px / perturbations.piercing_px",
+                with(d, p),
+            )
+        }));
+        cells.extend(g.skew_px.iter().map(|&s| {
+            let q = Perturbation {
+                skew_px: s,
+                ..Perturbation::NONE
+            };
+            ("perturbations.skew_px", q)
+        }));
+        cells.extend(g.pixel_scale.iter().map(|&sy| {
+            let q = Perturbation {
+                sy,
+                ..Perturbation::NONE
+            };
+            ("perturbations.pixel_scale", q)
+        }));
+        let views: Vec<_> = carm
+            .views
+            .iter()
+            .filter(|v| self.geometry.views.contains(&v.name))
+            .collect();
+        for (key, q) in &cells {
+            for v in &views {
+                q.apply(&v.intrinsics).map_err(|e| {
+                    Error::invalid(*key, format!("perturbation {q} in view '{}': {e}", v.name))
+                })?;
+            }
+        }
+        if !self.runs(super::Experiment::Registration) {
+            return Ok(());
+        }
+        let r = &self.registration;
+        for &df in &r.df_px {
+            for &pp in &r.piercing_px {
+                let q = with(df, pp);
+                for v in &carm.views {
+                    q.apply(&v.intrinsics).map_err(|e| {
+                        Error::invalid(
+                            "registration.df_px / registration.piercing_px",
+                            format!("perturbation {q} in view '{}': {e}", v.name),
+                        )
+                    })?;
+                }
+            }
+        }
+        Ok(())
     }
 
     fn validate_meshes(&self, names: &mut Vec<String>) -> Result<()> {
@@ -59,6 +166,9 @@ impl StudyConfig {
                     format!("target '{}' lists no files", m.name),
                 ));
             }
+            unique("anatomy.meshes.files", &m.files, |f| {
+                f.display().to_string()
+            })?;
             for f in m.files.iter().chain([&m.landmarks]) {
                 if !f.is_file() {
                     return Err(Error::invalid(
@@ -123,6 +233,7 @@ impl StudyConfig {
         let r = &self.registration;
         finite_list("registration.df_px", &r.df_px)?;
         finite_list("registration.piercing_px", &r.piercing_px)?;
+        unique("registration.methods", &r.methods, |m| m.name())?;
         if r.trials == 0 {
             return Err(Error::invalid("registration.trials", "must be at least 1"));
         }
@@ -166,9 +277,24 @@ fn positive(key: &str, v: f64) -> Result<()> {
     }
 }
 
+/// A finite list without repeats (a repeated value would run the same cells twice).
 fn finite_list(key: &str, v: &[f64]) -> Result<()> {
-    match v.iter().find(|x| !x.is_finite()) {
-        Some(x) => Err(Error::invalid(key, format!("{x} is not finite"))),
+    if let Some(x) = v.iter().find(|x| !x.is_finite()) {
+        return Err(Error::invalid(key, format!("{x} is not finite")));
+    }
+    unique(key, v, |x| *x)
+}
+
+/// Refuses a list in which two items have the same `identity` (each is studied once; a repeat would
+/// run everything twice), naming the repeated item.
+pub(super) fn unique<T, K: PartialEq + Display>(
+    key: &str,
+    items: &[T],
+    identity: impl Fn(&T) -> K,
+) -> Result<()> {
+    let ids: Vec<K> = items.iter().map(identity).collect();
+    match (1..ids.len()).find(|&i| ids[..i].contains(&ids[i])) {
+        Some(i) => Err(Error::invalid(key, format!("{} is listed twice", ids[i]))),
         None => Ok(()),
     }
 }

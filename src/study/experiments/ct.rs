@@ -121,7 +121,18 @@ fn match_landmarks(
     conv: LabelConvention,
     levels: &[LevelSpec],
 ) -> Result<Vec<Landmarks>> {
-    let sets = read_landmarks(path)?;
+    let sets =
+        read_landmarks(path).map_err(|e| Error::invalid("anatomy.ct.landmarks", e.to_string()))?;
+    let empty = |s: &Landmarks| s.points.is_empty();
+    if sets.is_empty() || sets.iter().any(empty) {
+        return Err(Error::invalid(
+            "anatomy.ct.landmarks",
+            format!(
+                "{} holds a landmark set with no points (or no set)",
+                path.display()
+            ),
+        ));
+    }
     levels
         .iter()
         .map(|l| {

@@ -5,6 +5,7 @@
 //! the output folder is touched), [`Context::build`], [`Context::prepare_references`], [`Context::run`].
 
 mod ct;
+mod on_detector;
 mod projection;
 mod registration;
 
@@ -20,12 +21,15 @@ use super::schema::UnitRows;
 use super::timings::{Phase, Timings};
 use super::units::{Unit, targets};
 use crate::anatomy::{
-    Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels, read_landmarks, read_mesh,
+    Landmarks, Level, Phantom, PhantomOptions, TriMesh, build_phantom, parse_levels,
+    read_landmarks, read_mesh,
 };
 use crate::geometry::{CArm, View};
 use crate::io::ImageF32;
 use crate::render::volume::VolumeRenderer;
-use crate::render::{RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, phantom_scene};
+use crate::render::{
+    RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, orient_outward_warning, phantom_scene,
+};
 use crate::{Error, Result};
 use ct::CtInput;
 
@@ -39,18 +43,76 @@ pub fn reference_image_path(out: &Path, target: &str, view: &str) -> PathBuf {
         .join(format!("{target}_{view}.tiff"))
 }
 
-/// The study's input files read and checked (CT volumes and label maps, their landmarks).
+/// The study's input files read and checked (mesh targets' surfaces and landmarks, CT volumes and label
+/// maps and their landmarks), and the warnings they raised.
 #[derive(Default)]
 pub struct Inputs {
+    meshes: Vec<MeshInput>,
     ct: Vec<CtInput>,
+    /// What the runner prints before the work starts (inside-out meshes flipped, open meshes).
+    pub warnings: Vec<String>,
 }
 
-/// Reads and checks every input file the study needs beyond its config (labels present, grids match),
-/// so a bad input fails before any output is written.
+/// A `[[anatomy.meshes]]` target read and checked: its scene (meshes oriented outward) and landmarks.
+struct MeshInput {
+    scene: RenderScene,
+    landmarks: Vec<Landmarks>,
+}
+
+/// Reads and checks every input file the study needs beyond its config (meshes readable and valid,
+/// landmarks parsed and non-empty, labels present, grids match), so a bad input fails before any
+/// output is written; errors name the config key.
 pub fn load_inputs(cfg: &StudyConfig) -> Result<Inputs> {
+    let mut warnings = Vec::new();
+    let meshes = cfg
+        .anatomy
+        .meshes
+        .iter()
+        .map(|m| load_mesh_input(m, &mut warnings))
+        .collect::<Result<Vec<_>>>()?;
     Ok(Inputs {
+        meshes,
         ct: ct::load_inputs(cfg)?,
+        warnings,
     })
+}
+
+/// Reads one mesh target: every file (flipped outward when closed and inside out, with a warning; an
+/// open one is kept with a warning, as `render` does) and its landmarks.
+fn load_mesh_input(m: &MeshTarget, warnings: &mut Vec<String>) -> Result<MeshInput> {
+    let named = |key: &str, e: Error| Error::invalid(key, format!("target '{}': {e}", m.name));
+    let mut meshes = Vec::new();
+    for f in &m.files {
+        let mut mesh = read_mesh(f).map_err(|e| named("anatomy.meshes.files", e))?;
+        if let Some(w) = orient_outward_warning(&mut mesh, &f.display().to_string()) {
+            warnings.push(format!("target '{}': {w}", m.name));
+        }
+        meshes.push(SceneMesh {
+            mesh: Arc::new(mesh),
+            mu_per_mm: m.mu_per_mm,
+            object: m.name.clone(),
+        });
+    }
+    let scene = RenderScene::new(meshes).map_err(|e| named("anatomy.meshes.files", e))?;
+    warnings.extend(
+        scene
+            .open_mesh_warnings()
+            .into_iter()
+            .map(|w| format!("target '{}': {w}", m.name)),
+    );
+    let landmarks =
+        read_landmarks(&m.landmarks).map_err(|e| named("anatomy.meshes.landmarks", e))?;
+    if landmarks.iter().all(|s| s.points.is_empty()) {
+        return Err(Error::invalid(
+            "anatomy.meshes.landmarks",
+            format!(
+                "target '{}': {} holds no landmarks",
+                m.name,
+                m.landmarks.display()
+            ),
+        ));
+    }
+    Ok(MeshInput { scene, landmarks })
 }
 
 /// A landmark marker: a small sphere rendered alone, so its blob centroid measures the landmark.
@@ -119,6 +181,13 @@ impl Context {
                 soft_tissue: false,
                 ..PhantomOptions::default()
             })
+            .map_err(|e| match e {
+                // The grid-size limit names the phantom's option; here it is this config key.
+                Error::Invalid { field, message } if field.starts_with("voxel_mm") => {
+                    Error::invalid(format!("anatomy.{field}"), message)
+                }
+                other => other,
+            })
         };
         let t = &timings;
         // Anatomy is built in parallel over targets (each build is deterministic).
@@ -152,8 +221,8 @@ impl Context {
             built.push(build_target(cfg, phantom, name, t)?);
         }
         drop(phantoms);
-        for m in &cfg.anatomy.meshes {
-            built.push(mesh_target(cfg, m, t)?);
+        for (m, input) in cfg.anatomy.meshes.iter().zip(inputs.meshes) {
+            built.push(mesh_target(cfg, m, input, t)?);
         }
         for input in inputs.ct {
             built.extend(ct::build_targets(cfg, input, t, pool)?);
@@ -316,27 +385,17 @@ fn target_with_landmarks(
     })
 }
 
-/// A target from the user's mesh files and landmarks JSON.
-fn mesh_target(cfg: &StudyConfig, m: &MeshTarget, timings: &Timings) -> Result<Target> {
-    let (meshes, sets) = timings.time(Phase::Anatomy, 1, || -> Result<_> {
-        let meshes = m
-            .files
-            .iter()
-            .map(|f| {
-                Ok(SceneMesh {
-                    mesh: Arc::new(read_mesh(f)?),
-                    mu_per_mm: m.mu_per_mm,
-                    object: m.name.clone(),
-                })
-            })
-            .collect::<Result<Vec<_>>>()?;
-        Ok((meshes, read_landmarks(&m.landmarks)?))
-    })?;
-    let renderer = timings.time(Phase::Scene, 1, || {
-        cfg.geometry.backend.renderer(RenderScene::new(meshes)?)
-    })?;
-    let several = sets.len() > 1;
-    target_with_landmarks(cfg, &m.name, renderer, sets, several, timings)
+/// A target from the user's mesh files and landmarks JSON (read by [`load_inputs`]).
+fn mesh_target(
+    cfg: &StudyConfig,
+    m: &MeshTarget,
+    input: MeshInput,
+    timings: &Timings,
+) -> Result<Target> {
+    let MeshInput { scene, landmarks } = input;
+    let renderer = timings.time(Phase::Scene, 1, || cfg.geometry.backend.renderer(scene))?;
+    let several = landmarks.len() > 1;
+    target_with_landmarks(cfg, &m.name, renderer, landmarks, several, timings)
 }
 
 fn marker(cfg: &StudyConfig, name: &str, position: DVec3) -> Result<Marker> {

@@ -1,0 +1,161 @@
+//! Limits on the work a study config may ask for, checked by arithmetic before any unit is enumerated
+//! (enumerating `trials = 1000000000` would itself take gigabytes): the number of work units (each is a
+//! file under `units/`), the registration trials in all, and the trials in one unit (the resume
+//! granularity: a unit is redone whole after an interruption).
+
+use super::{Experiment, StudyConfig};
+use crate::{Error, Result};
+
+/// At most this many work units (the default study has 1 476).
+pub const MAX_UNITS: u64 = 100_000;
+/// At most this many registration trials in all (the default study runs 25 920).
+pub const MAX_REGISTRATION_TRIALS: u64 = 1_000_000;
+/// At most this many trials in one unit (the default is 20).
+pub const MAX_TRIALS_PER_UNIT: usize = 10_000;
+
+/// The work a config asks for, counted without enumerating it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WorkEstimate {
+    /// Projection units: targets × views × perturbations.
+    pub projection_units: u64,
+    /// Registration cells: targets × methods × Δf values × piercing shifts.
+    pub registration_cells: u64,
+    /// Registration units: cells × ⌈trials / trials_per_unit⌉.
+    pub registration_units: u64,
+    /// Registration trials: cells × trials.
+    pub registration_trials: u64,
+}
+
+impl WorkEstimate {
+    /// Every unit of the study.
+    pub fn units(&self) -> u64 {
+        self.projection_units
+            .saturating_add(self.registration_units)
+    }
+}
+
+impl StudyConfig {
+    /// Counts the study's units and trials (saturating, so an absurd config cannot overflow).
+    pub fn work_estimate(&self) -> WorkEstimate {
+        let n = |x: usize| x as u64;
+        // The counts of `units::targets` and `units::projection_perturbations` (the test below checks
+        // them against enumeration).
+        let a = &self.anatomy;
+        let ct_targets: u64 =
+            a.ct.iter()
+                .map(|c| n(c.levels.len()) + u64::from(c.segment))
+                .sum();
+        let n_targets = n(a.levels.len())
+            + u64::from(a.segment && !a.levels.is_empty())
+            + n(a.meshes.len())
+            + ct_targets;
+        let g = &self.perturbations;
+        let nonzero = g.piercing_px.iter().filter(|p| **p != 0.0).count();
+        let n_perturbations = n(g.df_px.len()
+            + nonzero
+            + g.df_px.len().min(nonzero)
+            + g.skew_px.len()
+            + g.pixel_scale.len());
+        let projection_units =
+            if self.runs(Experiment::Projection) || self.runs(Experiment::Landmarks) {
+                n_targets
+                    .saturating_mul(n(self.geometry.views.len()))
+                    .saturating_mul(n_perturbations)
+            } else {
+                0
+            };
+        let r = &self.registration;
+        let (cells, chunks) = if self.runs(Experiment::Registration) {
+            let cells = n_targets
+                .saturating_mul(n(r.methods.len()))
+                .saturating_mul(n(r.df_px.len()))
+                .saturating_mul(n(r.piercing_px.len()));
+            (cells, n(r.trials.div_ceil(r.trials_per_unit.max(1))))
+        } else {
+            (0, 0)
+        };
+        WorkEstimate {
+            projection_units,
+            registration_cells: cells,
+            registration_units: cells.saturating_mul(chunks),
+            registration_trials: if cells == 0 {
+                0
+            } else {
+                cells.saturating_mul(n(r.trials))
+            },
+        }
+    }
+
+    /// Refuses a config whose work exceeds the limits above, naming the key and the estimate.
+    pub(super) fn check_work(&self) -> Result<()> {
+        let r = &self.registration;
+        if r.trials_per_unit > MAX_TRIALS_PER_UNIT {
+            return Err(Error::invalid(
+                "registration.trials_per_unit",
+                format!(
+                    "{} trials in one work unit; at most {MAX_TRIALS_PER_UNIT} (a unit is the resume \
+                     granularity and runs on one thread)",
+                    r.trials_per_unit
+                ),
+            ));
+        }
+        let w = self.work_estimate();
+        if w.registration_trials > MAX_REGISTRATION_TRIALS {
+            return Err(Error::invalid(
+                "registration.trials",
+                format!(
+                    "{} trials × {} registration cells (targets × methods × df_px × piercing_px) = {} \
+                     trials; at most {MAX_REGISTRATION_TRIALS}",
+                    r.trials, w.registration_cells, w.registration_trials
+                ),
+            ));
+        }
+        if w.units() > MAX_UNITS {
+            return Err(Error::invalid(
+                "the study grid",
+                format!(
+                    "{} work units ({} projection: targets × geometry.views × perturbations; {} \
+                     registration: cells × ⌈registration.trials / registration.trials_per_unit⌉); at \
+                     most {MAX_UNITS}",
+                    w.units(),
+                    w.projection_units,
+                    w.registration_units
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::study::units::{enumerate_units, projection_perturbations, targets};
+
+    #[test]
+    fn the_estimate_counts_what_enumeration_makes() {
+        let mut skewed = StudyConfig::quick();
+        skewed.perturbations.skew_px = vec![1.0, 2.0];
+        skewed.perturbations.pixel_scale = vec![1.01];
+        skewed.perturbations.piercing_px = vec![0.0, 5.0, 10.0, 20.0];
+        for mut cfg in [StudyConfig::default(), StudyConfig::quick(), skewed] {
+            cfg.registration.trials = 7;
+            cfg.registration.trials_per_unit = 3;
+            assert_eq!(
+                cfg.work_estimate().projection_units,
+                (targets(&cfg).len() * 2 * projection_perturbations(&cfg).len()) as u64
+            );
+            let units = enumerate_units(&cfg).unwrap();
+            let w = cfg.work_estimate();
+            assert_eq!(w.units(), units.len() as u64);
+            let trials: usize = units
+                .iter()
+                .map(|u| match u {
+                    crate::study::units::Unit::Registration { count, .. } => *count,
+                    _ => 0,
+                })
+                .sum();
+            assert_eq!(w.registration_trials, trials as u64);
+        }
+    }
+}
