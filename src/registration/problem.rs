@@ -11,6 +11,7 @@ use std::collections::BTreeMap;
 use glam::{DVec2, DVec3};
 use serde::Deserialize;
 
+use crate::anatomy::landmarks::unique_keys;
 use crate::geometry::{Intrinsics, RigidTransform, View};
 use crate::math::symmetric_eigen;
 use crate::{Error, Result};
@@ -54,6 +55,7 @@ struct ViewJson {
     #[serde(rename = "K")]
     k: [[f64; 3]; 3],
     world_to_camera: [[f64; 4]; 4],
+    #[serde(deserialize_with = "unique_keys")]
     observed: BTreeMap<String, [f64; 2]>,
     #[serde(default)]
     width: Option<u32>,
@@ -64,6 +66,7 @@ struct ViewJson {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ProblemJson {
+    #[serde(deserialize_with = "unique_keys")]
     landmarks_3d: BTreeMap<String, [f64; 3]>,
     views: Vec<ViewJson>,
     #[serde(default)]
@@ -171,6 +174,17 @@ impl RegistrationProblem {
         }
         if self.views.is_empty() {
             return Err(Error::invalid("views", "the problem has no view"));
+        }
+        for (vi, ov) in self.views.iter().enumerate() {
+            let name = &ov.view.name;
+            if let Some(first) = self.views[..vi].iter().position(|o| &o.view.name == name) {
+                return Err(Error::invalid(
+                    format!("views[{vi}].name"),
+                    format!(
+                        "'{name}' is also the name of views[{first}]: view names must be unique"
+                    ),
+                ));
+            }
         }
         for (vi, ov) in self.views.iter().enumerate() {
             ov.view.intrinsics.validate()?;

@@ -58,9 +58,11 @@ pub fn check_header(head: &[u8]) -> Result<Framing, String> {
     let first = [head[0], head[1], head[2], head[3]];
     let (le, be) = (i32::from_le_bytes(first), i32::from_be_bytes(first));
     if le == 540 || be == 540 {
-        return Err("NIfTI-2 file: only NIfTI-1 is supported (the nifti crate reads NIfTI-1); \
+        return Err(
+            "NIfTI-2 file: only NIfTI-1 is supported (the nifti crate reads NIfTI-1); \
                     convert with nibabel or `c3d` to NIfTI-1"
-            .into());
+                .into(),
+        );
     }
     let big_endian = match (le, be) {
         (348, _) => false,
@@ -79,9 +81,11 @@ pub fn check_header(head: &[u8]) -> Result<Framing, String> {
         return Err(bad_magic());
     }
     if &head[344..348] == b"ni1\0" {
-        return Err("a header-only NIfTI-1 file (magic \"ni1\", an .hdr/.img pair): only \
+        return Err(
+            "a header-only NIfTI-1 file (magic \"ni1\", an .hdr/.img pair): only \
                     single-file .nii or .nii.gz volumes are supported"
-            .into());
+                .into(),
+        );
     }
     let raw = Raw {
         b: head,
@@ -226,6 +230,10 @@ mod tests {
             big[40 + 2 * i..42 + 2 * i].copy_from_slice(&30000i16.to_le_bytes());
         }
         assert!(check_header(&big).unwrap_err().contains("voxels"));
-        assert!(check_header(&header()[..100]).unwrap_err().contains("truncated"));
+        assert!(
+            check_header(&header()[..100])
+                .unwrap_err()
+                .contains("truncated")
+        );
     }
 }
