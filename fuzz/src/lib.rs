@@ -14,8 +14,11 @@ use spinedrr::geometry::{CArm, Intrinsics, Perturbation};
 use spinedrr::registration::LoadedProblem;
 use spinedrr::study::StudyConfig;
 
+/// A fuzz target: it takes any bytes and must return (not panic, not hang).
+pub type Target = fn(&[u8]);
+
 /// Every target: its name (the folder under `fuzz/corpus/`) and its function.
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+pub const TARGETS: &[(&str, Target)] = &[
     ("stl_binary", stl_binary),
     ("stl_ascii", stl_ascii),
     ("obj", obj),
@@ -117,9 +120,11 @@ pub fn problem_json(data: &[u8]) {
     }
 }
 
+/// Both landmark readers: the per-level file (`study`, `phantom`) and `compare --landmarks`.
 pub fn landmarks_json(data: &[u8]) {
     if let Some(t) = text(data) {
         let _ = landmarks_from_json(t, origin());
+        let _ = spinedrr::analysis::parse_landmarks(t, "fuzz-input");
     }
 }
 

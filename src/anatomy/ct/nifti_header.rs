@@ -94,16 +94,15 @@ pub fn check_header(head: &[u8]) -> Result<Framing, String> {
     let voxels = check_dims(&raw)?;
     let code = raw.i16(70);
     let bitpix = raw.i16(72);
-    if let Some(size) = datatype_bytes(code)
-        && i32::from(bitpix) != 8 * size as i32
-    {
+    // A known but unsupported datatype (RGB, complex) is reported by the decoder, which names it.
+    let size = datatype_bytes(code).ok_or_else(|| format!("unknown datatype code {code}"))?;
+    if i32::from(bitpix) != 8 * size as i32 {
         return Err(format!(
             "bitpix = {bitpix} does not match datatype {code} ({} bits per voxel)",
             8 * size
         ));
     }
-    // An unknown or unsupported datatype is reported by the decoder, which names the type.
-    let bytes_per_voxel = datatype_bytes(code).unwrap_or(1) as u64;
+    let bytes_per_voxel = size as u64;
     let vox_offset = raw.f32(108);
     if !(vox_offset.is_finite() && vox_offset.fract() == 0.0 && vox_offset >= 352.0) {
         return Err(format!(
@@ -225,6 +224,8 @@ mod tests {
         }
         let e = patch(72, &8i16.to_le_bytes());
         assert!(e.contains("bitpix = 8"), "{e}");
+        let e = patch(70, &9999i16.to_le_bytes());
+        assert!(e.contains("datatype code 9999"), "{e}");
         let mut big = header();
         for i in 1..=3 {
             big[40 + 2 * i..42 + 2 * i].copy_from_slice(&30000i16.to_le_bytes());
