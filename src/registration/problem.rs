@@ -242,6 +242,12 @@ fn check_not_collinear(points: impl Iterator<Item = DVec3> + Clone) -> Result<()
         }
     }
     let w = symmetric_eigen(s).values;
+    if !w.iter().all(|v| v.is_finite()) {
+        return Err(Error::invalid(
+            "landmarks_3d",
+            "the landmark coordinates are too large to compute with (their spread overflows)",
+        ));
+    }
     if w[2] <= 0.0 || w[1] <= 1e-10 * w[2] {
         return Err(Error::invalid(
             "landmarks_3d",
