@@ -188,6 +188,13 @@ fn mesh_counts_beyond_the_file_are_refused_before_allocating() {
         err.contains("rows.ply") && err.contains("4000000000 rows"),
         "{err}"
     );
+    // Elements without properties read no bytes: their rows are bounded in total, so they cannot spin.
+    let f = ply(d, "spin.ply", &"element pad 30\n".repeat(4), &[0u8; 40]);
+    let err = refused(d, &["--mesh", &f]);
+    assert!(
+        err.contains("spin.ply") && err.contains("120 rows in all"),
+        "{err}"
+    );
     // A face list whose length word says 4·10⁹ indices.
     let mut body: Vec<u8> = [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.]]
         .iter()

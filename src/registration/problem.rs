@@ -145,14 +145,18 @@ impl RegistrationProblem {
 
     /// Indices of the landmarks observed in at least two views.
     pub fn multi_view_landmarks(&self) -> Vec<usize> {
-        (0..self.model_points.len())
-            .filter(|&i| {
-                let seen = self.views.iter();
-                seen.filter(|v| v.observed.iter().any(|&(j, _)| j == i))
-                    .count()
-                    >= 2
-            })
-            .collect()
+        // Views that observe each landmark (a view listing a landmark twice counts once).
+        let n = self.model_points.len();
+        let (mut views_seeing, mut last_view) = (vec![0usize; n], vec![usize::MAX; n]);
+        for (vi, v) in self.views.iter().enumerate() {
+            for &(j, _) in &v.observed {
+                if j < n && last_view[j] != vi {
+                    last_view[j] = vi;
+                    views_seeing[j] += 1;
+                }
+            }
+        }
+        (0..n).filter(|&i| views_seeing[i] >= 2).collect()
     }
 
     /// Checks sizes, finiteness, landmark indices, the minimum landmark count (4 for one view, 3 seen in
@@ -175,9 +179,10 @@ impl RegistrationProblem {
         if self.views.is_empty() {
             return Err(Error::invalid("views", "the problem has no view"));
         }
+        let mut first_of: BTreeMap<&str, usize> = BTreeMap::new();
         for (vi, ov) in self.views.iter().enumerate() {
-            let name = &ov.view.name;
-            if let Some(first) = self.views[..vi].iter().position(|o| &o.view.name == name) {
+            let name = ov.view.name.as_str();
+            if let Some(first) = first_of.insert(name, vi) {
                 return Err(Error::invalid(
                     format!("views[{vi}].name"),
                     format!(
@@ -281,13 +286,18 @@ impl LoadedProblem {
             serde_json::from_str(text).map_err(|e| Error::format(origin, e.to_string()))?;
         let in_origin = |e: Error| Error::format(origin, e.to_string());
         let names: Vec<String> = pj.landmarks_3d.keys().cloned().collect();
+        let index: BTreeMap<&str, usize> = names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| (n.as_str(), i))
+            .collect();
         let model_points = pj.landmarks_3d.values().map(|&p| DVec3::from(p)).collect();
         let mut views = Vec::with_capacity(pj.views.len());
         for (vi, vj) in pj.views.iter().enumerate() {
             let view = view_from_json(vj, vi).map_err(in_origin)?;
             let mut observed = Vec::with_capacity(vj.observed.len());
             for (name, &x) in &vj.observed {
-                let i = names.iter().position(|n| n == name).ok_or_else(|| {
+                let i = *index.get(name.as_str()).ok_or_else(|| {
                     in_origin(Error::invalid(
                         format!("views[{vi}].observed.{name}"),
                         "no landmark of that name in landmarks_3d",

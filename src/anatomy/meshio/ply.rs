@@ -159,8 +159,8 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<TriMesh> {
             .map_err(|_| Error::format(path, "ASCII PLY body is not UTF-8"))?;
         Values::Ascii(text.split_ascii_whitespace())
     };
-    // Every row reads at least one byte, so a count beyond the body's length is a corrupt header; checked
-    // before the rows are read so a huge count can neither allocate nor spin.
+    // Every row reads at least one byte, so more rows than the body has bytes is a corrupt header; checked
+    // (per element and in total) before the rows are read, so huge counts can neither allocate nor spin.
     let body_len = bytes.len() - body_start;
     if let Some(el) = elements.iter().find(|e| e.count > body_len) {
         return Err(Error::format(
@@ -168,6 +168,15 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<TriMesh> {
             format!(
                 "PLY element {} declares {} rows but the body holds only {body_len} bytes",
                 el.name, el.count
+            ),
+        ));
+    }
+    let rows: usize = elements.iter().map(|e| e.count).sum();
+    if rows > body_len {
+        return Err(Error::format(
+            path,
+            format!(
+                "PLY elements declare {rows} rows in all but the body holds only {body_len} bytes"
             ),
         ));
     }
