@@ -139,13 +139,14 @@ fn check_dims(raw: &Raw) -> Result<u64, String> {
             used[i]
         ));
     }
-    let voxels: u64 = used.iter().map(|&n| n as u64).product();
-    if voxels > MAX_VOXELS {
+    // Seven extents of up to 32767 overflow u64: count in u128 (at most 2^105).
+    let voxels: u128 = used.iter().map(|&n| n as u128).product();
+    if voxels > u128::from(MAX_VOXELS) {
         return Err(format!(
             "dim = {used:?} declares {voxels} voxels, more than the {MAX_VOXELS} this reader accepts"
         ));
     }
-    Ok(voxels)
+    Ok(voxels as u64)
 }
 
 fn magic_ok(head: &[u8]) -> bool {
@@ -231,6 +232,13 @@ mod tests {
             big[40 + 2 * i..42 + 2 * i].copy_from_slice(&30000i16.to_le_bytes());
         }
         assert!(check_header(&big).unwrap_err().contains("voxels"));
+        // Found by fuzzing: seven extents of 32767 overflowed the u64 voxel count.
+        let mut seven = header();
+        for i in 0..8 {
+            let d = if i == 0 { 7i16 } else { i16::MAX };
+            seven[40 + 2 * i..42 + 2 * i].copy_from_slice(&d.to_le_bytes());
+        }
+        assert!(check_header(&seven).unwrap_err().contains("voxels"));
         assert!(
             check_header(&header()[..100])
                 .unwrap_err()
