@@ -164,3 +164,76 @@ fn bad_input_fails_with_a_clear_error() {
         assert!(err.contains(expect), "expected '{expect}' in: {err}");
     }
 }
+
+#[test]
+fn repeated_view_names_and_landmark_keys_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut twice = problem_json(&landmarks(), &["ap", "lat"]);
+    twice["views"][1]["name"] = json!("ap");
+    let good = problem_json(&landmarks(), &["ap", "lat"]).to_string();
+    // The same key twice in one JSON object (serde would keep the last value silently).
+    let dup_key = good.replacen(
+        "\"corner_ant_inf\":",
+        "\"corner_ant_inf\":[1.0,2.0,3.0],\"corner_ant_inf\":",
+        1,
+    );
+    assert_ne!(dup_key, good);
+    for (text, args, expect) in [
+        (twice.to_string(), vec![], "views[1].name"),
+        (
+            good.clone(),
+            vec!["--view", "lat", "--view", "lat"],
+            "'lat' is also",
+        ),
+        (dup_key, vec![], "\"corner_ant_inf\" appears twice"),
+    ] {
+        let (ok, err, r) = run(dir.path(), &text, &args);
+        assert!(!ok && r.is_none(), "{expect}: must fail");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(
+            err.contains("P.json") && err.contains(expect),
+            "'{expect}' in: {err}"
+        );
+    }
+}
+
+#[test]
+fn a_solve_that_does_not_converge_warns_and_fails_unless_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = problem_json(&landmarks(), &["ap", "lat"]).to_string();
+    let args = [
+        "--init-rot-deg",
+        "60",
+        "--seed",
+        "4",
+        "--max-iterations",
+        "1",
+    ];
+    let (ok, err, r) = run(dir.path(), &text, &args);
+    assert!(!ok, "a non-converged solve must exit non-zero");
+    assert!(!err.contains("panicked"), "{err}");
+    for want in [
+        "did not converge",
+        "--allow-unconverged",
+        "rotation error",
+        "R.json",
+    ] {
+        assert!(err.contains(want), "'{want}' in: {err}");
+    }
+    // The result is still written, saying so.
+    let r = r.expect("the pose is written even when not converged");
+    assert_eq!(r["converged"], json!(false));
+    assert_eq!(r["iterations"], json!(1));
+    let mut accepted = args.to_vec();
+    accepted.push("--allow-unconverged");
+    let (ok, err, r2) = run(dir.path(), &text, &accepted);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("warning") && err.contains("did not converge"),
+        "{err}"
+    );
+    assert_eq!(r2, Some(r));
+    // A converged solve says nothing on stderr.
+    let (ok, err, _) = run(dir.path(), &text, &["--init-rot-deg", "60", "--seed", "4"]);
+    assert!(ok && err.is_empty(), "{err}");
+}

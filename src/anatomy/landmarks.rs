@@ -33,18 +33,44 @@ struct LevelJson {
     units: String,
     #[serde(default = "default_frame")]
     frame: String,
+    #[serde(deserialize_with = "unique_keys")]
     landmarks: BTreeMap<String, [f64; 3]>,
+}
+
+/// Deserialises a JSON object into a map, refusing a key that appears twice (serde's maps keep the last
+/// value silently). Use with `#[serde(deserialize_with = "unique_keys")]`.
+pub fn unique_keys<'de, D, V>(d: D) -> std::result::Result<BTreeMap<String, V>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    V: Deserialize<'de>,
+{
+    struct Unique<V>(std::marker::PhantomData<V>);
+    impl<'de, V: Deserialize<'de>> serde::de::Visitor<'de> for Unique<V> {
+        type Value = BTreeMap<String, V>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("an object with distinct keys")
+        }
+        fn visit_map<A: serde::de::MapAccess<'de>>(
+            self,
+            mut access: A,
+        ) -> std::result::Result<Self::Value, A::Error> {
+            let mut map = BTreeMap::new();
+            while let Some((k, v)) = access.next_entry::<String, V>()? {
+                if map.contains_key(&k) {
+                    return Err(serde::de::Error::custom(format!(
+                        "key \"{k}\" appears twice in one object"
+                    )));
+                }
+                map.insert(k, v);
+            }
+            Ok(map)
+        }
+    }
+    d.deserialize_map(Unique(std::marker::PhantomData))
 }
 
 fn default_frame() -> String {
     "world RAS+".to_string()
-}
-
-#[derive(Deserialize)]
-#[serde(untagged)]
-enum FileJson {
-    Many(Vec<LevelJson>),
-    One(LevelJson),
 }
 
 impl Landmarks {
@@ -74,12 +100,25 @@ pub fn landmarks_to_json(sets: &[Landmarks]) -> Result<String> {
 
 /// Parses the file format above; `path` names the source in errors.
 pub fn landmarks_from_json(text: &str, path: &Path) -> Result<Vec<Landmarks>> {
-    let parsed: FileJson = serde_json::from_str(text)
-        .map_err(|e| Error::format(path, format!("landmarks JSON: {e}")))?;
-    let list = match parsed {
-        FileJson::Many(v) => v,
-        FileJson::One(l) => vec![l],
+    let bad = |e: serde_json::Error| Error::format(path, format!("landmarks JSON: {e}"));
+    // An array of levels or one level, told apart by the first character so the inner error (and the
+    // duplicate-key check, which a `serde_json::Value` would lose) reaches the user.
+    let list: Vec<LevelJson> = if text.trim_start().starts_with('[') {
+        serde_json::from_str(text).map_err(bad)?
+    } else {
+        vec![serde_json::from_str(text).map_err(bad)?]
     };
+    if list.is_empty() {
+        return Err(Error::format(path, "the landmarks file holds no level"));
+    }
+    for (i, l) in list.iter().enumerate() {
+        if list[..i].iter().any(|m| m.level == l.level) {
+            return Err(Error::format(
+                path,
+                format!("level {:?} appears twice: give each level once", l.level),
+            ));
+        }
+    }
     list.into_iter()
         .map(|l| {
             if l.units != "mm" {
@@ -146,6 +185,18 @@ mod tests {
             landmarks_from_json(one, Path::new("y.json")).unwrap(),
             vec![l]
         );
+    }
+
+    #[test]
+    fn repeated_names_and_empty_files_are_refused() {
+        let twice = r#"{"level":"L3","units":"mm","landmarks":{"a":[0,0,0],"a":[1,1,1]}}"#;
+        let e = landmarks_from_json(twice, Path::new("lm.json")).unwrap_err();
+        assert!(e.to_string().contains("\"a\" appears twice"), "{e}");
+        let l3 = r#"{"level":"L3","units":"mm","landmarks":{"a":[0,0,0]}}"#;
+        let e = landmarks_from_json(&format!("[{l3},{l3}]"), Path::new("lm.json")).unwrap_err();
+        assert!(e.to_string().contains("\"L3\" appears twice"), "{e}");
+        let e = landmarks_from_json("[]", Path::new("lm.json")).unwrap_err();
+        assert!(e.to_string().contains("lm.json") && e.to_string().contains("no level"));
     }
 
     #[test]

@@ -22,7 +22,7 @@ pub use isosurface::{
 };
 pub use landmarks::{Landmarks, read_landmarks, write_landmarks};
 pub use mesh::{MeshCheck, Structure, TriMesh};
-pub use meshio::{MeshFormat, read_mesh, write_mesh, write_mesh_as};
+pub use meshio::{MeshFormat, parse_mesh, read_mesh, write_mesh, write_mesh_as};
 pub use phantom::{Phantom, PhantomOptions, Tissue, VertebraModel, build_phantom};
 pub use tissue::{MU_WATER_PER_MM, mu_from_hu, tissue_hu, tissue_mu};
 pub use vertebra::{Level, Morphometry, VertebraShape, parse_levels};

@@ -40,6 +40,10 @@ pub struct Args {
     /// Output JSON: {"R", "t", "residual_px", "iterations", "converged"} (+ errors when truth is known).
     #[arg(long)]
     out: PathBuf,
+    /// Accept a solve that did not converge: still warn on stderr, but exit 0. Without it a
+    /// non-converged solve writes --out (with "converged": false) and exits non-zero.
+    #[arg(long)]
+    allow_unconverged: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -103,5 +107,36 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(&out)?;
     spinedrr::io::write_atomic_bytes(&a.out, text.as_bytes())
         .with_context(|| format!("writing {}", a.out.display()))?;
+    if !r.converged {
+        let what = unconverged_summary(&a, &r, &out);
+        if !a.allow_unconverged {
+            bail!("{what}; pass --allow-unconverged to accept it");
+        }
+        eprintln!("warning: {what} (accepted: --allow-unconverged)");
+    }
     Ok(())
+}
+
+/// One line saying the solve did not converge, with what it reached; `out` is the written result.
+fn unconverged_summary(
+    a: &Args,
+    r: &spinedrr::registration::RegistrationResult,
+    out: &serde_json::Value,
+) -> String {
+    let mut s = format!(
+        "{} registration of {} did not converge after {} iteration(s) (--max-iterations {}): \
+         residual {:.3} px",
+        a.method,
+        a.problem.display(),
+        r.iterations,
+        a.max_iterations,
+        r.residual_px
+    );
+    if let Some(e) = out["rot_err_deg"].as_f64() {
+        s += &format!(", rotation error {e:.3}°");
+    }
+    if let Some(e) = out["trans_err_mm"].as_f64() {
+        s += &format!(", translation error {e:.3} mm");
+    }
+    s + &format!("; the pose was written to {}", a.out.display())
 }

@@ -142,11 +142,12 @@ impl GeometryConfig {
             return Err(Error::invalid("view", "the geometry has no [[view]]"));
         }
         let mut views: Vec<View> = Vec::with_capacity(self.views.len());
+        let mut names = std::collections::BTreeSet::new();
         for vc in &self.views {
             if vc.name.trim().is_empty() {
                 return Err(Error::invalid("view.name", "must not be empty"));
             }
-            if views.iter().any(|v| v.name == vc.name) {
+            if !names.insert(vc.name.as_str()) {
                 return Err(Error::invalid(
                     "view.name",
                     format!("'{}' appears twice", vc.name),

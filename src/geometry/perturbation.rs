@@ -74,6 +74,7 @@ impl Perturbation {
         if spec.is_empty() || spec == "none" {
             return Ok(p);
         }
+        let mut seen: Vec<&str> = Vec::new();
         for item in spec.split(',') {
             let item = item.trim();
             let (key, value) = item.split_once('=').ok_or_else(|| {
@@ -83,6 +84,13 @@ impl Perturbation {
                 )
             })?;
             let key = key.trim();
+            if seen.contains(&key) {
+                return Err(Error::invalid(
+                    format!("perturbation {key}"),
+                    format!("'{key}' is given twice in '{spec}': give each key once"),
+                ));
+            }
+            seen.push(key);
             let value: f64 = value.trim().parse().map_err(|_| {
                 Error::invalid(
                     format!("perturbation {key}"),
@@ -188,9 +196,28 @@ mod tests {
 
     #[test]
     fn rejects_bad_specs() {
-        for s in ["dz=3", "df", "df=abc", "alpha=0", "df=nan", "sx=-1"] {
+        for s in [
+            "dz=3",
+            "df",
+            "df=abc",
+            "alpha=0",
+            "df=nan",
+            "sx=-1",
+            "df=1e999",
+            "df=1,,dcx=2",
+            "none,df=1",
+            "=3",
+        ] {
             let e = Perturbation::parse(s).unwrap_err().to_string();
             assert!(e.contains("perturbation"), "{s}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_repeated_key_is_refused_naming_it() {
+        for (s, key) in [("df=100,df=200", "df"), ("dcx=1, sy=1.1 ,dcx=1", "dcx")] {
+            let e = Perturbation::parse(s).unwrap_err().to_string();
+            assert!(e.contains(&format!("'{key}' is given twice")), "{s}: {e}");
         }
     }
 

@@ -11,6 +11,7 @@ use std::collections::BTreeMap;
 use glam::{DVec2, DVec3};
 use serde::Deserialize;
 
+use crate::anatomy::landmarks::unique_keys;
 use crate::geometry::{Intrinsics, RigidTransform, View};
 use crate::math::symmetric_eigen;
 use crate::{Error, Result};
@@ -54,6 +55,7 @@ struct ViewJson {
     #[serde(rename = "K")]
     k: [[f64; 3]; 3],
     world_to_camera: [[f64; 4]; 4],
+    #[serde(deserialize_with = "unique_keys")]
     observed: BTreeMap<String, [f64; 2]>,
     #[serde(default)]
     width: Option<u32>,
@@ -64,6 +66,7 @@ struct ViewJson {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ProblemJson {
+    #[serde(deserialize_with = "unique_keys")]
     landmarks_3d: BTreeMap<String, [f64; 3]>,
     views: Vec<ViewJson>,
     #[serde(default)]
@@ -142,14 +145,18 @@ impl RegistrationProblem {
 
     /// Indices of the landmarks observed in at least two views.
     pub fn multi_view_landmarks(&self) -> Vec<usize> {
-        (0..self.model_points.len())
-            .filter(|&i| {
-                let seen = self.views.iter();
-                seen.filter(|v| v.observed.iter().any(|&(j, _)| j == i))
-                    .count()
-                    >= 2
-            })
-            .collect()
+        // Views that observe each landmark (a view listing a landmark twice counts once).
+        let n = self.model_points.len();
+        let (mut views_seeing, mut last_view) = (vec![0usize; n], vec![usize::MAX; n]);
+        for (vi, v) in self.views.iter().enumerate() {
+            for &(j, _) in &v.observed {
+                if j < n && last_view[j] != vi {
+                    last_view[j] = vi;
+                    views_seeing[j] += 1;
+                }
+            }
+        }
+        (0..n).filter(|&i| views_seeing[i] >= 2).collect()
     }
 
     /// Checks sizes, finiteness, landmark indices, the minimum landmark count (4 for one view, 3 seen in
@@ -171,6 +178,18 @@ impl RegistrationProblem {
         }
         if self.views.is_empty() {
             return Err(Error::invalid("views", "the problem has no view"));
+        }
+        let mut first_of: BTreeMap<&str, usize> = BTreeMap::new();
+        for (vi, ov) in self.views.iter().enumerate() {
+            let name = ov.view.name.as_str();
+            if let Some(first) = first_of.insert(name, vi) {
+                return Err(Error::invalid(
+                    format!("views[{vi}].name"),
+                    format!(
+                        "'{name}' is also the name of views[{first}]: view names must be unique"
+                    ),
+                ));
+            }
         }
         for (vi, ov) in self.views.iter().enumerate() {
             ov.view.intrinsics.validate()?;
@@ -228,6 +247,12 @@ fn check_not_collinear(points: impl Iterator<Item = DVec3> + Clone) -> Result<()
         }
     }
     let w = symmetric_eigen(s).values;
+    if !w.iter().all(|v| v.is_finite()) {
+        return Err(Error::invalid(
+            "landmarks_3d",
+            "the landmark coordinates are too large to compute with (their spread overflows)",
+        ));
+    }
     if w[2] <= 0.0 || w[1] <= 1e-10 * w[2] {
         return Err(Error::invalid(
             "landmarks_3d",
@@ -261,13 +286,18 @@ impl LoadedProblem {
             serde_json::from_str(text).map_err(|e| Error::format(origin, e.to_string()))?;
         let in_origin = |e: Error| Error::format(origin, e.to_string());
         let names: Vec<String> = pj.landmarks_3d.keys().cloned().collect();
+        let index: BTreeMap<&str, usize> = names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| (n.as_str(), i))
+            .collect();
         let model_points = pj.landmarks_3d.values().map(|&p| DVec3::from(p)).collect();
         let mut views = Vec::with_capacity(pj.views.len());
         for (vi, vj) in pj.views.iter().enumerate() {
             let view = view_from_json(vj, vi).map_err(in_origin)?;
             let mut observed = Vec::with_capacity(vj.observed.len());
             for (name, &x) in &vj.observed {
-                let i = names.iter().position(|n| n == name).ok_or_else(|| {
+                let i = *index.get(name.as_str()).ok_or_else(|| {
                     in_origin(Error::invalid(
                         format!("views[{vi}].observed.{name}"),
                         "no landmark of that name in landmarks_3d",

@@ -6,6 +6,7 @@
 
 mod mask;
 mod nifti;
+mod nifti_header;
 mod surface;
 
 use glam::{DMat4, DVec3};
@@ -13,7 +14,11 @@ use glam::{DMat4, DVec3};
 use crate::{Error, Result};
 
 pub use mask::VoxelMask;
-pub use nifti::{affine_from_header, read_ct, read_labels, write_ct, write_labels};
+pub use nifti::{
+    affine_from_header, read_ct, read_ct_from, read_labels, read_labels_from, write_ct,
+    write_labels,
+};
+pub use nifti_header::MAX_VOXELS;
 pub use surface::{
     MAX_SMOOTH_ITERATIONS, SurfaceOptions, label_surface, largest_component, taubin_smooth,
 };

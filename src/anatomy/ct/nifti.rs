@@ -13,31 +13,70 @@ use std::io::{BufReader, Cursor, Read};
 use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DMat4, DQuat, DVec3, DVec4};
-use nifti::{InMemNiftiObject, NiftiError, NiftiHeader, NiftiObject, NiftiType};
+use nifti::{InMemNiftiVolume, NiftiError, NiftiHeader, NiftiType};
+
+use super::nifti_header::{HEADER_BYTES, check_header};
 
 use super::{CtVolume, LabelMap, Volume};
 use crate::{Error, Result};
 
 /// Reads a CT volume (any integer or float datatype) as Hounsfield units, `scl_slope`/`scl_inter` applied.
+/// A volume holding NaN or infinite voxels is refused (with their count and the first one).
 pub fn read_ct(path: &Path) -> Result<CtVolume> {
-    let (header, values) = read_f32(path)?;
-    volume_from(path, &header, values)
+    read_ct_from(open(path)?, path)
+}
+
+/// [`read_ct`] of a file's bytes (gzip or not, detected by the magic); `origin` names it in errors.
+pub fn read_ct_from(source: impl Read, origin: &Path) -> Result<CtVolume> {
+    let (header, values) = read_f32(source, origin)?;
+    check_finite(&header, &values, origin)?;
+    volume_from(origin, &header, values)
 }
 
 /// Reads a segmentation label map. Values must be integers in `0..=65535` (any datatype).
 pub fn read_labels(path: &Path) -> Result<LabelMap> {
-    let (header, values) = read_f32(path)?;
+    read_labels_from(open(path)?, path)
+}
+
+/// [`read_labels`] of a file's bytes (gzip or not); `origin` names it in errors.
+pub fn read_labels_from(source: impl Read, origin: &Path) -> Result<LabelMap> {
+    let (header, values) = read_f32(source, origin)?;
     let mut labels = Vec::with_capacity(values.len());
     for (n, &v) in values.iter().enumerate() {
         if !(v >= 0.0 && v <= u16::MAX as f32 && v.fract() == 0.0) {
             return Err(Error::format(
-                path,
+                origin,
                 format!("voxel {n} has value {v}, not a label (an integer in 0..=65535)"),
             ));
         }
         labels.push(v as u16);
     }
-    volume_from(path, &header, labels)
+    volume_from(origin, &header, labels)
+}
+
+fn open(path: &Path) -> Result<BufReader<File>> {
+    Ok(BufReader::new(
+        File::open(path).map_err(|e| Error::io(path, e))?,
+    ))
+}
+
+/// Refuses non-finite voxels, naming how many and the first (linear index and `(i, j, k)`).
+fn check_finite(h: &NiftiHeader, values: &[f32], origin: &Path) -> Result<()> {
+    let Some(first) = values.iter().position(|v| !v.is_finite()) else {
+        return Ok(());
+    };
+    let count = values.iter().filter(|v| !v.is_finite()).count();
+    let (nx, ny) = (h.dim[1].max(1) as usize, h.dim[2].max(1) as usize);
+    let (i, j, k) = (first % nx, first / nx % ny, first / (nx * ny));
+    Err(Error::format(
+        origin,
+        format!(
+            "{count} voxel(s) are not finite (NaN or infinite, after scl_slope/scl_inter); the \
+             first is voxel {first} at (i, j, k) = ({i}, {j}, {k}) with value {}: replace them \
+             with a Hounsfield value (e.g. -1000 for air) before rendering",
+            values[first]
+        ),
+    ))
 }
 
 /// Writes a CT volume as float32 NIfTI-1 (gzip-compressed when the name ends in `.gz`), atomically.
@@ -145,15 +184,14 @@ fn spatial_dims(path: &Path, h: &NiftiHeader) -> Result<[usize; 3]> {
     Ok([h.dim[1] as usize, h.dim[2] as usize, h.dim[3] as usize])
 }
 
-/// Opens a NIfTI file (gzip detected by its magic bytes, not its name) and decodes the voxels to f32.
-fn read_f32(path: &Path) -> Result<(NiftiHeader, Vec<f32>)> {
-    let obj = read_object(path)?;
-    let header = obj.header().clone();
+/// Reads a NIfTI stream (gzip detected by its magic bytes, not its name) and decodes the voxels to f32.
+fn read_f32(source: impl Read, path: &Path) -> Result<(NiftiHeader, Vec<f32>)> {
+    let (header, raw) = read_raw(source, path)?;
     spatial_dims(path, &header)?;
     let datatype = header
         .data_type()
         .map_err(|_| Error::format(path, format!("unknown datatype code {}", header.datatype)))?;
-    let vol = obj.into_volume();
+    let vol = InMemNiftiVolume::from_raw_data(&header, raw).map_err(|e| nifti_err(path, e))?;
     let bad = |e: NiftiError| Error::format(path, format!("voxel data: {e}"));
     let mut values: Vec<f32> = match datatype {
         NiftiType::Uint8 => cast(vol.into_nifti_typed_data::<u8>().map_err(bad)?),
@@ -198,28 +236,49 @@ mod num_f64 {
     impl_to_f64!(u8, i8, u16, i16, u32, i32, f64);
 }
 
-fn read_object(path: &Path) -> Result<InMemNiftiObject> {
-    let mut file = BufReader::new(File::open(path).map_err(|e| Error::io(path, e))?);
+/// The checked header and exactly the voxel bytes it declares. Nothing is allocated from a declared size:
+/// the framing is checked first ([`check_header`]), and the data buffer grows only with bytes actually
+/// read, so a header claiming gigabytes in a short file is reported as truncated.
+fn read_raw(source: impl Read, path: &Path) -> Result<(NiftiHeader, Vec<u8>)> {
+    let mut source = source;
     let mut magic = [0u8; 2];
-    let n = read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
+    let n = read_up_to(&mut source, &mut magic).map_err(|e| Error::io(path, e))?;
     let head = Cursor::new(magic[..n].to_vec());
     let mut stream: Box<dyn Read> = if n == 2 && magic == [0x1f, 0x8b] {
-        Box::new(flate2::read::GzDecoder::new(head.chain(file)))
+        Box::new(flate2::read::GzDecoder::new(head.chain(source)))
     } else {
-        Box::new(head.chain(file))
+        Box::new(head.chain(source))
     };
-    // Peek sizeof_hdr to name NIfTI-2 (540) instead of reporting a bad magic.
-    let mut first = [0u8; 4];
-    let got = read_up_to(&mut stream, &mut first).map_err(|e| nifti_err(path, e.into()))?;
-    if got == 4 && (i32::from_le_bytes(first) == 540 || i32::from_be_bytes(first) == 540) {
+    let mut hdr = [0u8; HEADER_BYTES];
+    let got = read_up_to(&mut stream, &mut hdr).map_err(|e| nifti_err(path, e.into()))?;
+    let framing = check_header(&hdr[..got]).map_err(|m| Error::format(path, m))?;
+    let header = NiftiHeader::from_reader(&hdr[..]).map_err(|e| nifti_err(path, e))?;
+    // Extensions (between the header and vox_offset) carry nothing spinedrr uses: skip them.
+    let gap = framing.data_offset - HEADER_BYTES as u64;
+    let skipped = std::io::copy(&mut (&mut stream).take(gap), &mut std::io::sink())
+        .map_err(|e| nifti_err(path, e.into()))?;
+    if skipped < gap {
         return Err(Error::format(
             path,
-            "NIfTI-2 file: only NIfTI-1 is supported (the nifti crate reads NIfTI-1); convert with \
-             nibabel or `c3d` to NIfTI-1",
+            format!(
+                "vox_offset = {}: the file ends after {} bytes, before the voxel data begins",
+                framing.data_offset,
+                HEADER_BYTES as u64 + skipped
+            ),
         ));
     }
-    let stream = Cursor::new(first[..got].to_vec()).chain(stream);
-    InMemNiftiObject::from_reader(stream).map_err(|e| nifti_err(path, e))
+    let mut raw = Vec::new();
+    let read = (&mut stream)
+        .take(framing.data_bytes)
+        .read_to_end(&mut raw)
+        .map_err(|e| nifti_err(path, e.into()))?;
+    if (read as u64) < framing.data_bytes {
+        return Err(nifti_err(
+            path,
+            NiftiError::IncompatibleLength(read, framing.data_bytes as usize),
+        ));
+    }
+    Ok((header, raw))
 }
 
 fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {

@@ -62,22 +62,30 @@ impl MeshFormat {
 pub fn read_mesh(path: &Path) -> Result<TriMesh> {
     let format = MeshFormat::from_path(path)?;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let mut mesh = match format {
-        MeshFormat::StlBinary | MeshFormat::StlAscii => stl::parse(&bytes, path)?,
-        MeshFormat::Obj => obj::parse(&bytes, path)?,
-        MeshFormat::PlyAscii | MeshFormat::PlyBinary => ply::parse(&bytes, path)?,
-    };
-    if mesh.triangles.is_empty() {
-        return Err(Error::format(path, "the file holds no triangles"));
-    }
-    mesh.validate(&path.display().to_string())
-        .map_err(|e| Error::format(path, e.to_string()))?;
+    let mut mesh = parse_mesh(&bytes, format, path)?;
     if mesh.name.is_empty() {
         mesh.name = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
     }
+    Ok(mesh)
+}
+
+/// Parses a mesh file's bytes: `format` picks STL, OBJ or PLY (the STL and PLY flavours come from the
+/// content), `origin` names the source in errors. The mesh is validated (triangles present, finite
+/// vertices, indices in range); its name is the file's own (`solid`, `o`) or empty.
+pub fn parse_mesh(bytes: &[u8], format: MeshFormat, origin: &Path) -> Result<TriMesh> {
+    let mesh = match format {
+        MeshFormat::StlBinary | MeshFormat::StlAscii => stl::parse(bytes, origin)?,
+        MeshFormat::Obj => obj::parse(bytes, origin)?,
+        MeshFormat::PlyAscii | MeshFormat::PlyBinary => ply::parse(bytes, origin)?,
+    };
+    if mesh.triangles.is_empty() {
+        return Err(Error::format(origin, "the file holds no triangles"));
+    }
+    mesh.validate(&origin.display().to_string())
+        .map_err(|e| Error::format(origin, e.to_string()))?;
     Ok(mesh)
 }
 

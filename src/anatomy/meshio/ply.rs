@@ -159,6 +159,27 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<TriMesh> {
             .map_err(|_| Error::format(path, "ASCII PLY body is not UTF-8"))?;
         Values::Ascii(text.split_ascii_whitespace())
     };
+    // Every row reads at least one byte, so more rows than the body has bytes is a corrupt header; checked
+    // (per element and in total) before the rows are read, so huge counts can neither allocate nor spin.
+    let body_len = bytes.len() - body_start;
+    if let Some(el) = elements.iter().find(|e| e.count > body_len) {
+        return Err(Error::format(
+            path,
+            format!(
+                "PLY element {} declares {} rows but the body holds only {body_len} bytes",
+                el.name, el.count
+            ),
+        ));
+    }
+    let rows: usize = elements.iter().map(|e| e.count).sum();
+    if rows > body_len {
+        return Err(Error::format(
+            path,
+            format!(
+                "PLY elements declare {rows} rows in all but the body holds only {body_len} bytes"
+            ),
+        ));
+    }
     let mut mesh = TriMesh::default();
     let mut fans = Vec::new(); // triangles per face, to repeat a face's label over its fan
     for el in &elements {
@@ -172,8 +193,16 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<TriMesh> {
             let mut xyz = [0.0; 3];
             for p in &el.props {
                 if let Some(count_ty) = p.list {
-                    let n = values.next(count_ty).ok_or_else(truncated)? as usize;
-                    let mut idx = Vec::with_capacity(n);
+                    let n = values.next(count_ty).ok_or_else(truncated)?;
+                    if !(n >= 0.0 && n.fract() == 0.0 && n <= body_len as f64) {
+                        return Err(Error::format(
+                            path,
+                            format!("PLY {} {row}: bad list length {n}", el.name),
+                        ));
+                    }
+                    let n = n as usize;
+                    // Grows with the values read, not with the declared length.
+                    let mut idx = Vec::with_capacity(n.min(64));
                     for _ in 0..n {
                         idx.push(values.next(p.ty).ok_or_else(truncated)?);
                     }
