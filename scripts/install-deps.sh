@@ -25,6 +25,6 @@ if [ "$(id -u)" -ne 0 ]; then
   fi
 fi
 echo "installing system packages: ${missing[*]}" >&2
-export DEBIAN_FRONTEND=noninteractive
+export DEBIAN_FRONTEND=noninteractive DEBCONF_NOWARNINGS=yes
 $sudo apt-get update -qq
 $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
