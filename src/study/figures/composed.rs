@@ -136,10 +136,11 @@ viridis scale from 0 to {:.3e} for every pane, so colours compare across views a
     }
     if !tables.landmarks.is_empty() {
         for o in overlay::landmark_overlays(out, &tables.landmarks, &figs)? {
+            let views: Vec<String> = o.views.iter().map(|v| v.to_uppercase()).collect();
             let title = format!(
                 "{}: landmark displacement, {}",
                 o.target,
-                o.views.join(" beside ").to_uppercase()
+                views.join(" beside ")
             );
             let what = format!(
                 "the {} landmarks on the reference DRR, reference position (green circle), position \
@@ -148,6 +149,12 @@ arrow) and the homography prediction H·x at the same magnification (blue cross)
                 o.landmarks, o.df_px, o.gain
             );
             entries.push(c.entry(Section::Landmarks, &o.file, &title, &what, true));
+            for (v, upper) in o.views.iter().zip(&views) {
+                let file = format!("landmark_overlay_{}_{v}.png", o.target);
+                let title = format!("{}: landmarks, {upper} alone", o.target);
+                let what = "as the composed figure, one view at its own arrow magnification";
+                entries.push(c.entry(Section::Landmarks, &file, &title, what, false));
+            }
         }
     }
     let reg = &tables.registration_summary;

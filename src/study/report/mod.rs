@@ -5,6 +5,7 @@
 mod comparison;
 mod findings;
 pub mod latex;
+mod layout;
 mod paper;
 
 use std::fmt::Write as _;
@@ -12,17 +13,25 @@ use std::path::Path;
 
 pub use comparison::{landmark_table, registration_table, silhouette_table};
 pub use latex::PaperTable;
+pub use layout::slug;
 pub use paper::{PAPER_RESULTS_TOML, PaperResults};
 
 use comparison::{ap_joint_dice_min, paper_ranges, projection_row, summary_range};
 
 use super::config::StudyConfig;
+use super::figures::{self, Section};
 use super::schema::{LandmarkRow, ProjectionRow, RegistrationSummaryRow, StudyTables};
 use super::timings::{RunFacts, TimingRow, to_markdown};
 use super::units::targets;
+use crate::Result;
 use crate::io::write_atomic_bytes;
 use crate::render::Backend;
-use crate::{Error, Result};
+
+const PROJECTION: &str = "Projection: silhouettes and difference images";
+const LANDMARKS: &str = "Landmarks: displacement under a focal offset";
+const REGISTRATION: &str = "Registration: Kabsch vs direct";
+const MEASUREMENT: &str = "How each measurement is made";
+const TIMINGS: &str = "Where the time goes (this invocation)";
 
 /// Writes `out/report.md`; everything above the timing section depends only on the config and the
 /// tables, the timing section (`rows`, `run`) on this invocation.
@@ -49,19 +58,35 @@ configuration is `study.toml`.\n",
         cfg.geometry.binning,
         cfg.geometry.backend_name()
     );
+    let figs = figures::manifest::read(&out.join("figures"))?;
+    let experiments = [
+        (!tables.projection.is_empty(), PROJECTION),
+        (!tables.landmarks.is_empty(), LANDMARKS),
+        (!tables.registration_summary.is_empty(), REGISTRATION),
+    ];
+    let mut headings = vec!["Findings".to_string()];
+    headings.extend(experiments.iter().filter(|e| e.0).map(|e| e.1.to_string()));
+    headings.extend([MEASUREMENT, "Products", TIMINGS].map(String::from));
+    layout::contents(&mut md, &headings);
     findings::section(&mut md, tables, &paper, &first);
-    renderers_section(&mut md, cfg);
-    list_dir(&mut md, out, "tables", "Tables")?;
-    list_dir(&mut md, out, "figures", "Figures")?;
+    let mut n = 0;
     if !tables.projection.is_empty() {
+        let _ = writeln!(md, "## {PROJECTION}\n");
+        layout::figures(&mut md, &figs, Section::Projection, &mut n);
         silhouette_section(&mut md, &tables.projection, &paper, &first);
     }
     if !tables.landmarks.is_empty() {
+        let _ = writeln!(md, "## {LANDMARKS}\n");
+        layout::figures(&mut md, &figs, Section::Landmarks, &mut n);
         landmark_section(&mut md, &tables.landmarks, &paper, &first);
     }
     if !tables.registration_summary.is_empty() {
+        let _ = writeln!(md, "## {REGISTRATION}\n");
+        layout::figures(&mut md, &figs, Section::Registration, &mut n);
         registration_section(&mut md, &tables.registration_summary, &paper, &first);
     }
+    renderers_section(&mut md, cfg);
+    layout::products(&mut md, out)?;
     timings_section(&mut md, rows, run);
     write_latex_tables(out, tables, &paper, &first)?;
     write_atomic_bytes(&out.join("report.md"), md.as_bytes())
@@ -103,7 +128,7 @@ vertex at or behind the source plane is traced with Embree instead)"
 
 /// Which renderer feeds which measurement, per kind of target.
 fn renderers_section(md: &mut String, cfg: &StudyConfig) {
-    let _ = writeln!(md, "## How each measurement is made\n");
+    let _ = writeln!(md, "## {MEASUREMENT}\n");
     let _ = writeln!(
         md,
         "- Thickness DRRs (Σ μ·L through closed surfaces) are rendered by {}.",
@@ -144,7 +169,7 @@ with its JSON sidecar)."
 /// Where this invocation's time went.
 fn timings_section(md: &mut String, rows: &[TimingRow], run: &RunFacts) {
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-    let _ = writeln!(md, "## Where the time goes (this invocation)\n");
+    let _ = writeln!(md, "## {TIMINGS}\n");
     let _ = writeln!(
         md,
         "{} of {} work units ran in this invocation ({} reused from an earlier one), on {} worker \
@@ -165,30 +190,9 @@ in timings.csv.\n",
     let _ = writeln!(md, "{}", to_markdown(&rows));
 }
 
-fn list_dir(md: &mut String, out: &Path, dir: &str, title: &str) -> Result<()> {
-    let path = out.join(dir);
-    let mut names: Vec<String> = std::fs::read_dir(&path)
-        .map_err(|e| Error::io(&path, e))?
-        .filter_map(|e| e.ok())
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| !n.starts_with('.'))
-        .collect();
-    names.sort();
-    let _ = writeln!(md, "## {title}\n");
-    for n in names {
-        if n.ends_with(".png") {
-            let _ = writeln!(md, "- ![{n}]({dir}/{n})");
-        } else {
-            let _ = writeln!(md, "- [{n}]({dir}/{n})");
-        }
-    }
-    let _ = writeln!(md);
-    Ok(())
-}
-
 fn silhouette_section(md: &mut String, rows: &[ProjectionRow], paper: &PaperResults, first: &str) {
     let t = comparison::silhouette_table(rows, paper, first);
-    let _ = writeln!(md, "## {}\n", t.caption);
+    let _ = writeln!(md, "### {}\n", t.caption);
     let _ = writeln!(md, "{}", t.to_markdown());
     let _ = writeln!(
         md,
@@ -200,7 +204,7 @@ what the model gives rather than tuning to the paper.\n"
 
 fn landmark_section(md: &mut String, rows: &[LandmarkRow], paper: &PaperResults, first: &str) {
     let t = comparison::landmark_table(rows, paper, first);
-    let _ = writeln!(md, "## {}\n", t.caption);
+    let _ = writeln!(md, "### {}\n", t.caption);
     let _ = writeln!(md, "{}", t.to_markdown());
 }
 
@@ -211,7 +215,7 @@ fn registration_section(
     first: &str,
 ) {
     let t = comparison::registration_table(rows, paper, first);
-    let _ = writeln!(md, "## {}\n", t.caption);
+    let _ = writeln!(md, "### {}\n", t.caption);
     let _ = write!(md, "{}", t.to_markdown());
     let _ = writeln!(
         md,
