@@ -140,10 +140,17 @@ fn the_registration_figure_holds_every_cell_and_the_paper_bands() {
         .filter(|n| n.has_tag_name("rect") && n.attribute("opacity") == Some("0.18"))
         .count();
     assert_eq!(bands, 4);
-    // Dice/IoU: a band per view in each of the 4 panels, the paper's marks (2 LAT points per panel).
+    // Dice/IoU: a min–max band per view in the focal panels (the quick grid's joint family has one Δf:
+    // no band), and the paper's LAT values at Δf 100 and 500 as triangles in all four panels.
     let s = svg("silhouette_overlap.svg");
     let doc = roxmltree::Document::parse(&s).expect("xml");
-    assert_eq!(count(&doc, "polygon"), 2 * 4);
+    let polygons = |opacity: &str| {
+        doc.descendants()
+            .filter(|n| n.has_tag_name("polygon") && n.attribute("opacity") == Some(opacity))
+            .count()
+    };
+    assert_eq!(polygons("0.2"), 2 * 2);
+    assert_eq!(polygons("1"), 2 * 4);
     let t = texts(&doc);
     assert!(
         t.iter().any(|x| x == "AP mean over levels")
