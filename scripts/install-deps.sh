@@ -3,7 +3,8 @@
 # Idempotent: on a machine that has them all it prints nothing and exits 0.
 set -euo pipefail
 
-packages=(libembree-dev libopencv-dev clang libclang-dev pkg-config)
+# chromium: the headless browser the report test (tests/study_report.rs) opens report.html in.
+packages=(libembree-dev libopencv-dev clang libclang-dev pkg-config chromium)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
@@ -24,6 +25,6 @@ if [ "$(id -u)" -ne 0 ]; then
   fi
 fi
 echo "installing system packages: ${missing[*]}" >&2
-export DEBIAN_FRONTEND=noninteractive
+export DEBIAN_FRONTEND=noninteractive DEBCONF_NOWARNINGS=yes
 $sudo apt-get update -qq
 $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null

@@ -17,6 +17,8 @@ fn tables(out: &Path) -> Vec<(String, Vec<u8>)> {
     let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(out.join("tables"))
         .expect("tables dir")
         .map(|e| e.expect("entry").path())
+        // The CSV tables (the LaTeX renderings of the paper's tables beside them are report products).
+        .filter(|p| p.extension().is_some_and(|x| x == "csv"))
         .map(|p| {
             (
                 p.file_name().unwrap().to_string_lossy().into_owned(),

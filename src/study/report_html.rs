@@ -1,12 +1,24 @@
-//! `report.html`: the Markdown report rendered as one self-contained page (figures embedded as base64
-//! PNG data URIs, tables as HTML tables), so it can be mailed or archived as a single file. Writing to a
-//! `String` cannot fail, so `writeln!` results are discarded.
+//! `report.html`: the Markdown report rendered as one self-contained page: a table of contents whose
+//! links resolve to the sections' ids, each figure embedded as a base64 PNG preview at display size
+//! (at most [`PREVIEW_WIDTH_PX`] wide) linking to the full-resolution file, with its caption, tables as
+//! HTML tables; so the page can be mailed or archived as a single file. Writing to a `String` cannot
+//! fail, so `writeln!` results are discarded.
 
 use std::fmt::Write as _;
 use std::path::Path;
 
+use super::report::slug;
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
+
+/// Width (px) of the embedded figure previews: the page's display width.
+pub const PREVIEW_WIDTH_PX: u32 = 1000;
+
+const STYLE: &str = "body{font-family:'DejaVu Sans',sans-serif;max-width:1040px;margin:auto;\
+padding:0 16px;line-height:1.45;color:#222}h1{border-bottom:2px solid #444}h2{border-bottom:1px solid #bbb;\
+margin-top:2em}table{border-collapse:collapse;margin:0.6em 0}td,th{border:1px solid #999;padding:2px 8px}\
+th{background:#eee}figure{margin:1.2em 0}img{max-width:100%;height:auto;border:1px solid #ddd}\
+figcaption{font-size:0.9em;color:#444}nav ul{columns:2}";
 
 /// Standard base64 (RFC 4648, with padding).
 pub fn base64(bytes: &[u8]) -> String {
@@ -31,9 +43,10 @@ fn escape(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
+        .replace('"', "&quot;")
 }
 
-/// `(text, target)` of a Markdown link `[text](target)` or image `![text](target)` after the list dash.
+/// `(text, target)` of a line that is one Markdown link `[text](target)` or image `![text](target)`.
 fn link(item: &str) -> Option<(&str, &str)> {
     let item = item.trim_start_matches('!');
     let close = item.find("](")?;
@@ -73,71 +86,139 @@ fn table_row(line: &str, cell: &str) -> String {
     format!("<tr>{}</tr>\n", cells.join(""))
 }
 
-/// Renders the subset of Markdown that `report.md` uses: headings, paragraphs, link/image lists, tables.
-pub fn markdown_to_html(md: &str, out: &Path) -> Result<String> {
-    let mut h = String::from(
-        "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>spinedrr study</title>\n<style>\
-body{font-family:sans-serif;max-width:1000px;margin:auto}table{border-collapse:collapse}\
-td,th{border:1px solid #999;padding:2px 8px}img{max-width:100%}</style></head><body>\n",
-    );
-    let mut in_table = false;
-    for line in md.lines() {
-        if in_table && !line.starts_with('|') {
-            h.push_str("</table>\n");
-            in_table = false;
+/// `data:image/png;base64,…` of the PNG at `path`, downscaled to [`PREVIEW_WIDTH_PX`] wide if wider.
+fn preview_uri(path: &Path) -> Result<String> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let img = image::load_from_memory(&bytes).map_err(|e| Error::format(path, e.to_string()))?;
+    let mut rgb = img.to_rgb8();
+    if img.width() > PREVIEW_WIDTH_PX {
+        let h = (f64::from(img.height()) * f64::from(PREVIEW_WIDTH_PX) / f64::from(img.width()))
+            .round()
+            .max(1.0) as u32;
+        let filter = image::imageops::FilterType::Triangle;
+        rgb = image::imageops::resize(&rgb, PREVIEW_WIDTH_PX, h, filter);
+    }
+    posterise(&mut rgb);
+    let mut png = Vec::new();
+    let (w, h) = rgb.dimensions();
+    use image::ImageEncoder as _;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    PngEncoder::new_with_quality(&mut png, CompressionType::Best, FilterType::Adaptive)
+        .write_image(&rgb, w, h, image::ExtendedColorType::Rgb8)
+        .map_err(|e| Error::encode(format!("preview of {}", path.display()), e))?;
+    Ok(format!("data:image/png;base64,{}", base64(&png)))
+}
+
+/// Rounds every channel to the nearest of [`PREVIEW_LEVELS`] evenly spaced levels (0 and 255 kept):
+/// the anti-aliased edges of a downscaled chart otherwise make hundreds of thousands of colours, which PNG
+/// compresses poorly; with few levels the preview is a fraction of the size and looks the same at
+/// display size.
+pub fn posterise(img: &mut image::RgbImage) {
+    let step = 255.0 / f64::from(PREVIEW_LEVELS - 1);
+    for p in img.pixels_mut() {
+        for c in &mut p.0 {
+            *c = ((f64::from(*c) / step).round() * step).round() as u8;
         }
-        if let Some(t) = line.strip_prefix("## ") {
-            let _ = writeln!(h, "<h2>{}</h2>", escape(t));
+    }
+}
+
+/// Levels per channel of the embedded previews.
+pub const PREVIEW_LEVELS: u32 = 16;
+
+/// The caption of an italic `_Figure …_` line.
+fn caption(line: Option<&&str>) -> Option<String> {
+    let l = line?.trim();
+    l.strip_prefix("_Figure ")
+        .and_then(|c| c.strip_suffix('_'))
+        .map(|c| format!("Figure {c}"))
+}
+
+/// What block the renderer is inside.
+#[derive(PartialEq)]
+enum Block {
+    None,
+    Table,
+    List,
+    Nav,
+}
+
+/// Renders the subset of Markdown that `report.md` uses: headings (`##`, `###` with their [`slug`] as
+/// id), paragraphs with links, lists (the one under "Contents" as the page's `<nav>`), tables, and
+/// figures (an image line and its caption line).
+pub fn markdown_to_html(md: &str, out: &Path) -> Result<String> {
+    let mut h = format!(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>spinedrr study</title>\n\
+<style>{STYLE}</style></head><body>\n"
+    );
+    let mut block = Block::None;
+    let lines: Vec<&str> = md.lines().collect();
+    let mut i = 0;
+    while i < lines.len() {
+        let line = lines[i];
+        i += 1;
+        let close = match block {
+            Block::Table if !line.starts_with('|') => "</table>\n",
+            Block::List if !line.starts_with("- ") => "</ul>\n",
+            Block::Nav if !line.starts_with("- ") => "</ul></nav>\n",
+            _ => "",
+        };
+        if !close.is_empty() {
+            h.push_str(close);
+            block = Block::None;
+        }
+        if let Some(t) = line.strip_prefix("### ") {
+            let _ = writeln!(h, "<h3 id=\"{}\">{}</h3>", slug(t), escape(t));
+        } else if let Some(t) = line.strip_prefix("## ") {
+            let _ = writeln!(h, "<h2 id=\"{}\">{}</h2>", slug(t), escape(t));
         } else if let Some(t) = line.strip_prefix("# ") {
             let _ = writeln!(h, "<h1>{}</h1>", escape(t));
         } else if line.starts_with("|---") {
             continue;
         } else if line.starts_with('|') {
-            if !in_table {
+            if block == Block::Table {
+                h.push_str(&table_row(line, "td"));
+            } else {
                 h.push_str("<table>\n");
                 h.push_str(&table_row(line, "th"));
-                in_table = true;
-            } else {
-                h.push_str(&table_row(line, "td"));
+                block = Block::Table;
             }
         } else if let Some(item) = line.strip_prefix("- ") {
-            list_item(&mut h, item, out)?;
+            if block == Block::None {
+                // The list right under "Contents" is the page's navigation.
+                if h.trim_end().ends_with("id=\"contents\">Contents</h2>") {
+                    h.push_str("<nav><ul>\n");
+                    block = Block::Nav;
+                } else {
+                    h.push_str("<ul>\n");
+                    block = Block::List;
+                }
+            }
+            let _ = writeln!(h, "<li>{}</li>", inline(item));
+        } else if let Some((alt, target)) = line.starts_with("![").then(|| link(line)).flatten() {
+            let cap = caption(lines.get(i));
+            if cap.is_some() {
+                i += 1;
+            }
+            let uri = preview_uri(&out.join(target))?;
+            let _ = writeln!(
+                h,
+                "<figure><a href=\"{0}\"><img alt=\"{1}\" src=\"{uri}\"></a><figcaption>{2}</figcaption></figure>",
+                escape(target),
+                escape(alt),
+                cap.map_or_else(|| escape(alt), |c| inline(&c))
+            );
         } else if !line.trim().is_empty() {
             let _ = writeln!(h, "<p>{}</p>", inline(line));
         }
     }
-    if in_table {
-        h.push_str("</table>\n");
-    }
+    h.push_str(match block {
+        Block::Table => "</table>\n",
+        Block::List => "</ul>\n",
+        Block::Nav => "</ul></nav>\n",
+        Block::None => "",
+    });
     h.push_str("</body></html>\n");
     Ok(h)
-}
-
-fn list_item(h: &mut String, item: &str, out: &Path) -> Result<()> {
-    match link(item) {
-        Some((text, target)) if item.starts_with('!') => {
-            let path = out.join(target);
-            let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-            let _ = writeln!(
-                h,
-                "<figure><img alt=\"{0}\" src=\"data:image/png;base64,{1}\"><figcaption>{0}</figcaption></figure>",
-                escape(text),
-                base64(&bytes)
-            );
-        }
-        Some((text, target)) if item.starts_with('[') && item.ends_with(')') => {
-            let _ = writeln!(
-                h,
-                "<p><a href=\"{}\">{}</a></p>",
-                escape(target),
-                escape(text)
-            );
-        }
-        _ => {
-            let _ = writeln!(h, "<p>• {}</p>", inline(item));
-        }
-    }
-    Ok(())
 }
 
 /// Writes `out/report.html` from `out/report.md`.

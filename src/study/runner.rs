@@ -143,8 +143,9 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         let tables = assemble(&opts.out, &units, &fp)?;
         let n_tables = tables.write(&opts.out.join("tables"))?;
         timings.add(Phase::Tables, t0.elapsed(), n_tables as u64);
-        let n_figures =
-            timings.time(Phase::Figures, 0, || figures::write_all(&opts.out, &tables))?;
+        let n_figures = timings.time(Phase::Figures, 0, || {
+            figures::write_all(&opts.out, cfg, &tables)
+        })?;
         timings.add(Phase::Figures, std::time::Duration::ZERO, n_figures as u64);
         let rows = timings.rows(start.elapsed());
         timings.time(Phase::Report, 2, || -> Result<()> {

@@ -43,6 +43,13 @@ pub fn reference_image_path(out: &Path, target: &str, view: &str) -> PathBuf {
         .join(format!("{target}_{view}.tiff"))
 }
 
+/// Where the float difference image |A − B| of `target` in `view` at focal Δf `df_px` is written (beside
+/// the reference DRRs), the data of the report's composed heatmap panel.
+pub fn difference_image_path(out: &Path, target: &str, view: &str, df_px: f64) -> PathBuf {
+    out.join(REFERENCES_DIR)
+        .join(format!("{target}_{view}_absdiff_df{df_px}.tiff"))
+}
+
 /// The study's input files read and checked (mesh targets' surfaces and landmarks, CT volumes and label
 /// maps and their landmarks), and the warnings they raised.
 #[derive(Default)]

@@ -10,7 +10,7 @@ use crate::Result;
 use crate::analysis::{MaskPair, abs_difference, blob_centroid, image_metrics, silhouette_metrics};
 use crate::anatomy::Structure;
 use crate::geometry::{Perturbation, View, apply_homography};
-use crate::io::{ImageF32, Sidecar, sidecar_path, write_tiff_f32};
+use crate::io::{ImageF32, Sidecar, kind, sidecar_path, units, write_tiff_f32};
 use crate::render::{ThicknessDrr, ThicknessOptions};
 use crate::study::config::Experiment;
 use crate::study::schema::{Family, LandmarkRow, ProjectionRow, StructureRow, UnitRows};
@@ -63,6 +63,15 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
                 ));
                 let details = serde_json::json!({ "target": t.name });
                 crate::io::write_difference_heatmap(&path, &diff, view, q, &details)?;
+                let tiff = super::difference_image_path(&ctx.out, &t.name, &view.name, q.df_px);
+                write_tiff_f32(&tiff, &diff)?;
+                let side = Sidecar::new(
+                    kind::ABS_DIFFERENCE,
+                    units::LINE_INTEGRAL_DIFFERENCE,
+                    view,
+                    q,
+                )?;
+                side.with_details(&details)?.write(&sidecar_path(&tiff))?;
             }
             Ok(())
         })?;

@@ -1,5 +1,6 @@
-//! Line charts and multi-panel figures (plotters, bitmap backend, embedded DejaVu Sans) with labelled
-//! axes and legends placed where the lines cross them least, encoded as PNG and written atomically.
+//! Line charts and multi-panel figures (plotters, embedded DejaVu Sans) with labelled axes, legends
+//! placed where the lines cross them least, optional spread bands and reference marks (the paper's
+//! values), written as PNG and SVG through [`super::canvas`].
 
 use std::path::Path;
 use std::sync::OnceLock;
@@ -12,12 +13,37 @@ use crate::{Error, Result};
 const FONT: &[u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
 pub(super) const SIZE: (u32, u32) = (900, 600);
 
-/// One labelled line of a chart, with an optional ± spread per point (drawn as whiskers).
+/// One labelled line of a chart, with an optional ± spread per point (drawn as whiskers) or a band.
 pub struct Series {
     pub label: String,
     pub points: Vec<(f64, f64)>,
     /// Empty, or one value per point.
     pub spread: Vec<f64>,
+    /// Empty, or one (low, high) per point: a shaded band around the line (e.g. min–max over levels).
+    pub band: Vec<(f64, f64)>,
+}
+
+impl Series {
+    /// A plain line.
+    pub fn line(label: impl Into<String>, points: Vec<(f64, f64)>) -> Series {
+        Series {
+            label: label.into(),
+            points,
+            spread: Vec::new(),
+            band: Vec::new(),
+        }
+    }
+}
+
+/// A reference mark drawn over a panel (the paper's reported values), in the colour of series `colour`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Mark {
+    /// A star at (x, y).
+    Point { x: f64, y: f64, colour: usize },
+    /// A shaded horizontal band `lo ≤ y ≤ hi` across the panel.
+    Band { lo: f64, hi: f64 },
+    /// A dashed horizontal line at y.
+    Level { y: f64, colour: usize },
 }
 
 pub(super) fn plot_err(e: impl std::fmt::Display) -> Error {
@@ -39,23 +65,28 @@ pub(super) fn register_font() -> Result<()> {
 
 /// Font sizes (px) of one chart.
 #[derive(Debug, Clone, Copy)]
-struct ChartStyle {
-    caption: u32,
-    labels: u32,
+pub(super) struct ChartStyle {
+    pub caption: u32,
+    pub labels: u32,
     /// Legend font size; `None`: no legend in the chart (a figure-wide one is drawn instead).
-    legend: Option<u32>,
+    pub legend: Option<u32>,
 }
 
-const SINGLE: ChartStyle = ChartStyle {
+pub(super) const SINGLE: ChartStyle = ChartStyle {
     caption: 24,
     labels: 16,
     legend: Some(16),
 };
 
 /// The padded (x, y) ranges of the finite points (and of their error bars).
-fn ranges(series: &[Series]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+fn ranges(series: &[Series], marks: &[Mark]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for s in series {
+        for (&(x, _), &(lo, hi)) in s.points.iter().zip(&s.band) {
+            if x.is_finite() && lo.is_finite() && hi.is_finite() {
+                (y0, y1) = (y0.min(lo), y1.max(hi));
+            }
+        }
         for (i, &(x, y)) in s.points.iter().enumerate() {
             if !(x.is_finite() && y.is_finite()) {
                 continue;
@@ -68,6 +99,17 @@ fn ranges(series: &[Series]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
                 .unwrap_or(0.0);
             (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y - e), y1.max(y + e));
         }
+    }
+    for m in marks {
+        let (lo, hi) = match *m {
+            Mark::Point { x, y, .. } => {
+                (x0, x1) = (x0.min(x), x1.max(x));
+                (y, y)
+            }
+            Mark::Band { lo, hi } => (lo, hi),
+            Mark::Level { y, .. } => (y, y),
+        };
+        (y0, y1) = (y0.min(lo), y1.max(hi));
     }
     if x0 > x1 {
         (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
@@ -165,16 +207,17 @@ fn legend_box(series: &[Series], font: u32, plot_px: (f64, f64)) -> (f64, f64) {
     ((w / plot_px.0).min(1.0), (h / plot_px.1).min(1.0))
 }
 
-/// Draws `series` (lines, point markers, ± spread whiskers when given) with axes and a legend on `area`.
-fn draw_lines<DB: DrawingBackend>(
+/// Draws the panel's series (bands, lines, point markers, ± spread whiskers when given) and its marks
+/// with axes and a legend on `area`.
+pub(super) fn draw_lines<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
-    title: &str,
+    p: &Panel,
     x_label: &str,
     y_label: &str,
-    series: &[Series],
     style: ChartStyle,
 ) -> Result<()> {
-    let (xr, yr) = ranges(series);
+    let (series, marks) = (&p.series, &p.marks);
+    let (xr, yr) = ranges(series, marks);
     let (aw, ah) = area.dim_in_pixel();
     let plot_px = (
         f64::from(aw) - f64::from(4 * style.labels + 50),
@@ -182,8 +225,9 @@ fn draw_lines<DB: DrawingBackend>(
     );
     let legend_size = legend_box(series, style.legend.unwrap_or(0), plot_px);
     let legend = legend_corner(series, &xr, &yr, legend_size);
+    let (x_lo, x_hi) = (xr.start, xr.end);
     let mut chart = ChartBuilder::on(area)
-        .caption(title, ("sans-serif", style.caption))
+        .caption(&p.title, ("sans-serif", style.caption))
         .margin(15)
         .x_label_area_size(2 * style.labels + 20)
         .y_label_area_size(4 * style.labels + 20)
@@ -200,6 +244,35 @@ fn draw_lines<DB: DrawingBackend>(
         .label_style(("sans-serif", style.labels))
         .draw()
         .map_err(plot_err)?;
+    let reference = RGBColor(120, 120, 120);
+    for m in marks {
+        if let Mark::Band { lo, hi } = *m {
+            let band = Rectangle::new([(x_lo, lo), (x_hi, hi)], reference.mix(0.18).filled());
+            chart.draw_series(std::iter::once(band)).map_err(plot_err)?;
+        }
+    }
+    for (i, s) in series.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        let band: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .zip(&s.band)
+            .filter(|(p, b)| p.0.is_finite() && b.0.is_finite() && b.1.is_finite())
+            .map(|(p, b)| (p.0, b.1))
+            .chain(
+                s.points
+                    .iter()
+                    .zip(&s.band)
+                    .rev()
+                    .filter(|(p, b)| p.0.is_finite() && b.0.is_finite() && b.1.is_finite())
+                    .map(|(p, b)| (p.0, b.0)),
+            )
+            .collect();
+        if band.len() >= 4 {
+            let poly = Polygon::new(band, colour.mix(0.2).filled());
+            chart.draw_series(std::iter::once(poly)).map_err(plot_err)?;
+        }
+    }
     for (i, s) in series.iter().enumerate() {
         let colour = Palette99::pick(i).to_rgba();
         let finite = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
@@ -224,6 +297,27 @@ fn draw_lines<DB: DrawingBackend>(
             });
         chart.draw_series(whiskers).map_err(plot_err)?;
     }
+    for m in marks {
+        match *m {
+            Mark::Point { x, y, colour } => {
+                let c = Palette99::pick(colour).to_rgba();
+                let star = TriangleMarker::new((x, y), 9, c.filled());
+                chart.draw_series(std::iter::once(star)).map_err(plot_err)?;
+                let ring = Circle::new((x, y), 9, BLACK.stroke_width(1));
+                chart.draw_series(std::iter::once(ring)).map_err(plot_err)?;
+            }
+            Mark::Level { y, colour } => {
+                let c = Palette99::pick(colour).to_rgba();
+                let n = 24;
+                let dashes = (0..n).step_by(2).map(|k| {
+                    let t = |k: i32| x_lo + (x_hi - x_lo) * f64::from(k) / f64::from(n);
+                    PathElement::new(vec![(t(k), y), (t(k + 1), y)], c.stroke_width(2))
+                });
+                chart.draw_series(dashes).map_err(plot_err)?;
+            }
+            Mark::Band { .. } => {}
+        }
+    }
     if let Some(size) = style.legend {
         chart
             .configure_series_labels()
@@ -239,9 +333,9 @@ fn draw_lines<DB: DrawingBackend>(
 
 /// A legend of `labels` laid out in `cols` columns (row by row, centred in `area`): a coloured line and
 /// the label of each series (colours as in [`draw_lines`]).
-fn legend_grid<DB: DrawingBackend>(
+pub(super) fn legend_grid<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
-    labels: &[String],
+    labels: &[(String, RGBAColor)],
     font: u32,
     cols: usize,
 ) -> Result<()> {
@@ -256,8 +350,8 @@ fn legend_grid<DB: DrawingBackend>(
         plotters::style::text_anchor::HPos::Left,
         plotters::style::text_anchor::VPos::Center,
     );
-    for (i, label) in labels.iter().enumerate() {
-        let colour = Palette99::pick(i).to_rgba();
+    for (i, (label, colour)) in labels.iter().enumerate() {
+        let colour = *colour;
         let x = x0 + step_x * (i % cols) as i32 + 10;
         let y = y0 + step_y * (i / cols) as i32;
         area.draw(&PathElement::new(
@@ -272,85 +366,12 @@ fn legend_grid<DB: DrawingBackend>(
     Ok(())
 }
 
-/// Series above which a single chart gets its legend in a column beside the plot instead of inside it.
-const LEGEND_INSIDE_MAX: usize = 10;
-
-/// Draws `series` as a line chart and writes it to `path` (PNG).
-pub fn line_chart(
-    path: &Path,
-    title: &str,
-    x_label: &str,
-    y_label: &str,
-    series: &[Series],
-) -> Result<()> {
-    register_font()?;
-    let beside = series.len() > LEGEND_INSIDE_MAX;
-    let size = if beside { (SIZE.0 + 300, SIZE.1) } else { SIZE };
-    let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_err)?;
-        if beside {
-            let (plot, legend) = root.split_horizontally(SIZE.0);
-            let style = ChartStyle {
-                legend: None,
-                ..SINGLE
-            };
-            draw_lines(&plot, title, x_label, y_label, series, style)?;
-            let labels: Vec<String> = series.iter().map(|s| s.label.clone()).collect();
-            legend_grid(&legend, &labels, 15, 1)?;
-        } else {
-            draw_lines(&root, title, x_label, y_label, series, SINGLE)?;
-        }
-        root.present().map_err(plot_err)?;
-    }
-    encode_png_sized(path, buf, size)
-}
-
 /// One panel of a multi-panel figure.
 pub struct Panel {
     pub title: String,
     pub series: Vec<Series>,
-}
-
-/// Panels in a grid of `cols` columns sharing axis labels and one legend (the series of every panel are
-/// the same lines, in the same order), under one title, written to `path` (PNG). Fonts are larger than
-/// a single chart's so the figure stays readable when scaled to a page width.
-pub fn panel_chart(
-    path: &Path,
-    title: &str,
-    x_label: &str,
-    y_label: &str,
-    panels: &[Panel],
-    cols: usize,
-) -> Result<()> {
-    register_font()?;
-    let cols = cols.clamp(1, panels.len().max(1));
-    let rows = panels.len().div_ceil(cols).max(1);
-    let size = (600 * cols as u32, 110 + 500 * rows as u32);
-    let style = ChartStyle {
-        caption: 26,
-        labels: 20,
-        legend: None,
-    };
-    let labels: Vec<String> = panels
-        .iter()
-        .max_by_key(|p| p.series.len())
-        .map(|p| p.series.iter().map(|s| s.label.clone()).collect())
-        .unwrap_or_default();
-    let mut buf = vec![0u8; (size.0 * size.1 * 3) as usize];
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_err)?;
-        let root = root.titled(title, ("sans-serif", 32)).map_err(plot_err)?;
-        let (strip, root) = root.split_vertically(50);
-        legend_grid(&strip, &labels, 22, labels.len())?;
-        for (area, p) in root.split_evenly((rows, cols)).iter().zip(panels) {
-            draw_lines(area, &p.title, x_label, y_label, &p.series, style)?;
-        }
-        root.present().map_err(plot_err)?;
-    }
-    encode_png_sized(path, buf, size)
+    /// Reference marks (the paper's values) drawn over the series.
+    pub marks: Vec<Mark>,
 }
 
 pub(super) fn encode_png_sized(path: &Path, buf: Vec<u8>, size: (u32, u32)) -> Result<()> {

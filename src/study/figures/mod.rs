@@ -1,16 +1,29 @@
-//! Figures drawn from the study's typed tables: metric-vs-perturbation line charts, per-structure Dice,
-//! landmark overlays on the reference DRR, registration error panels.
+//! Figures drawn from the study's typed tables, each as PNG and SVG: the paper-style composed figures
+//! ([`composed`]: |ΔDRR| heatmap panels, AP-beside-LAT landmark overlays, pooled Dice/IoU, registration
+//! error beside the paper's ranges), and the detail charts (metric-vs-perturbation lines, per-structure
+//! Dice, per-view overlays, per-method registration panels). `figures/index.json` lists them with
+//! their captions.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
+mod canvas;
 mod chart;
+mod charts;
+mod composed;
+pub mod heatmap_panel;
 mod labels;
+pub mod manifest;
+mod overlap;
 mod overlay;
 mod registration;
 
-pub use chart::{Panel, Series, line_chart, panel_chart};
+pub use canvas::{Figure, Raster, svg_path, write_figure};
+pub use chart::{Mark, Panel, Series};
+pub use charts::{PanelChart, line_chart, panel_chart};
+pub use manifest::{FigureEntry, Section};
 
+use super::config::StudyConfig;
 use super::schema::{Family, LandmarkRow, ProjectionRow, StructureRow, StudyTables};
 use crate::{Error, Result};
 
@@ -28,11 +41,7 @@ fn grouped<R>(
     m.into_iter()
         .map(|(label, mut points)| {
             points.sort_by(|a, b| a.0.total_cmp(&b.0));
-            Series {
-                label,
-                points,
-                spread: Vec::new(),
-            }
+            Series::line(label, points)
         })
         .collect()
 }
@@ -47,11 +56,7 @@ fn mean_per_x(s: Series) -> Series {
     }
     let mut points: Vec<(f64, f64)> = m.into_values().map(|(x, y, n)| (x, y / n as f64)).collect();
     points.sort_by(|a, b| a.0.total_cmp(&b.0));
-    Series {
-        label: s.label,
-        points,
-        spread: Vec::new(),
-    }
+    Series::line(s.label, points)
 }
 
 /// The projection metrics drawn against the joint perturbation: (value, axis label, file).
@@ -69,10 +74,13 @@ const PROJECTION_FIGURES: [ProjectionMetric; 5] = [
     (|r| r.ncc, "NCC", "ncc_vs_perturbation.png"),
 ];
 
-/// Writes every figure of the non-empty `tables` to `out/figures`; returns how many PNGs `figures/`
-/// holds (with the heatmaps the units wrote). Overlays read the reference DRRs under `out`.
-pub fn write_all(out: &Path, tables: &StudyTables) -> Result<usize> {
+/// Writes every figure of the non-empty `tables` to `out/figures` (PNG and SVG) and their manifest;
+/// returns how many PNGs `figures/` holds (with the heatmaps the units wrote). Overlays read the
+/// reference DRRs under `out`, the heatmap panels the difference images.
+pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<usize> {
     let figs = out.join("figures");
+    let conditions = composed::Conditions::of(cfg, tables);
+    let mut entries = composed::write(out, cfg, tables, &conditions)?;
     let joint: Vec<&ProjectionRow> = tables
         .projection
         .iter()
@@ -87,7 +95,14 @@ pub fn write_all(out: &Path, tables: &StudyTables) -> Result<usize> {
                 |r| (r.df_px, value(r)),
             );
             let title = format!("{label} vs joint perturbation (Δf with piercing (p, p))");
-            line_chart(&figs.join(file), &title, "focal offset Δf (px)", label, &s)?;
+            line_chart(&figs.join(file), &title, "focal offset Δf (px)", label, s)?;
+            entries.push(conditions.entry(
+                Section::Projection,
+                file,
+                &title,
+                "one line per target and view, joint family",
+                false,
+            ));
         }
     }
     let lm = &tables.landmarks;
@@ -112,17 +127,51 @@ pub fn write_all(out: &Path, tables: &StudyTables) -> Result<usize> {
             .into_iter()
             .map(mean_per_x),
         );
+        let title = "Mean landmark shift vs focal offset";
+        let file = "landmark_shift_vs_df.png";
         line_chart(
-            &figs.join("landmark_shift_vs_df.png"),
-            "Mean landmark shift vs focal offset",
+            &figs.join(file),
+            title,
             "focal offset Δf (px)",
             "mean landmark shift (px)",
-            &s,
+            s,
         )?;
-        overlay::landmark_overlays(out, lm, &figs)?;
+        entries.push(conditions.entry(
+            Section::Landmarks,
+            file,
+            title,
+            "mean over the landmarks of each target and view, measured and H·x predicted, focal family",
+            false,
+        ));
     }
-    structure_figures(&tables.structures, &figs)?;
+    entries.extend(structure_figures(&tables.structures, &figs, &conditions)?);
     registration::registration_figures(&tables.registration_summary, &figs)?;
+    for target in distinct(
+        tables
+            .registration_summary
+            .iter()
+            .map(|r| r.target.as_str()),
+    ) {
+        for (tag, what) in [
+            ("rot", "rotation"),
+            ("trans", "translation"),
+            ("residual", "reprojection residual"),
+        ] {
+            let file = format!("registration_{target}_{tag}.png");
+            let title = format!("{target}: {what} error vs focal offset, every method");
+            entries.push(conditions.entry(
+                Section::Registration,
+                &file,
+                &title,
+                &format!(
+                    "a panel per method, a line per piercing shift, mean ± sd over {}",
+                    conditions.trials
+                ),
+                false,
+            ));
+        }
+    }
+    manifest::write(&figs, &entries)?;
     let n = std::fs::read_dir(&figs)
         .map_err(|e| Error::io(&figs, e))?
         .filter_map(|e| e.ok())
@@ -143,7 +192,12 @@ pub(crate) fn distinct<T: PartialEq + Clone>(values: impl IntoIterator<Item = T>
 }
 
 /// Per-structure Dice vs Δf (focal family), one figure per (target, view).
-fn structure_figures(rows: &[StructureRow], figs: &Path) -> Result<()> {
+fn structure_figures(
+    rows: &[StructureRow],
+    figs: &Path,
+    conditions: &composed::Conditions,
+) -> Result<Vec<FigureEntry>> {
+    let mut entries = Vec::new();
     let targets = distinct(rows.iter().map(|r| r.target.as_str()));
     let views = distinct(rows.iter().map(|r| r.view.as_str()));
     for target in &targets {
@@ -154,12 +208,19 @@ fn structure_figures(rows: &[StructureRow], figs: &Path) -> Result<()> {
             if s.is_empty() {
                 continue;
             }
-            let file = figs.join(format!("structures_dice_{target}_{v}.png"));
+            let file = format!("structures_dice_{target}_{v}.png");
             let title = format!("Per-structure Dice vs focal offset ({target}, {v})");
-            line_chart(&file, &title, "focal offset Δf (px)", "Dice", &s)?;
+            line_chart(&figs.join(&file), &title, "focal offset Δf (px)", "Dice", s)?;
+            entries.push(conditions.entry(
+                Section::Projection,
+                &file,
+                &title,
+                "a line per anatomical structure, focal family",
+                false,
+            ));
         }
     }
-    Ok(())
+    Ok(entries)
 }
 
 #[cfg(test)]
@@ -219,7 +280,9 @@ mod tests {
         let dir = tempfile::tempdir().expect("temp dir");
         let (lm, st) = rows(&["L1", "segment"]);
         overlay::landmark_overlays(dir.path(), &lm, dir.path()).expect("overlays");
-        structure_figures(&st, dir.path()).expect("structure figures");
+        let tables = StudyTables::default();
+        let conditions = composed::Conditions::of(&StudyConfig::default(), &tables);
+        structure_figures(&st, dir.path(), &conditions).expect("structure figures");
         for target in ["L1", "segment"] {
             for view in ["ap", "lat"] {
                 for f in [

@@ -8,7 +8,10 @@ use std::path::Path;
 use plotters::coord::{ReverseCoordTranslate, Shift};
 use plotters::prelude::*;
 
-use super::chart::{encode_png_sized, plot_err, register_font};
+use image::RgbImage;
+
+use super::canvas::{Figure, Raster, write_figure};
+use super::chart::plot_err;
 use super::labels::{PixelBox, place_labels};
 use crate::Result;
 use crate::io::{ImageF32, read_tiff_f32};
@@ -30,9 +33,27 @@ struct Point {
     predicted: (f64, f64),
 }
 
-/// One overlay per target and view (of the focal rows of `rows`), on the reference DRR under `out`.
-pub fn landmark_overlays(out: &Path, rows: &[LandmarkRow], figs: &Path) -> Result<()> {
+/// What [`landmark_overlays`] drew for one target: the AP-beside-LAT figure and its conditions.
+pub struct OverlayFigure {
+    pub target: String,
+    /// The composed figure's file name (views side by side).
+    pub file: String,
+    pub views: Vec<String>,
+    pub df_px: f64,
+    /// Arrow magnification.
+    pub gain: f64,
+    pub landmarks: usize,
+}
+
+/// One overlay per target and view (of the focal rows of `rows`), on the reference DRR under `out`,
+/// and per target the views side by side at one arrow magnification (`landmarks_<target>.png`).
+pub fn landmark_overlays(
+    out: &Path,
+    rows: &[LandmarkRow],
+    figs: &Path,
+) -> Result<Vec<OverlayFigure>> {
     let focal: Vec<&LandmarkRow> = rows.iter().filter(|r| r.family == Family::Focal).collect();
+    let mut made = Vec::new();
     for target in super::distinct(focal.iter().map(|r| r.target.as_str())) {
         let of_target: Vec<&LandmarkRow> = focal
             .iter()
@@ -43,41 +64,76 @@ pub fn landmark_overlays(out: &Path, rows: &[LandmarkRow], figs: &Path) -> Resul
             .iter()
             .map(|r| r.df_px)
             .fold(f64::NEG_INFINITY, f64::max);
-        for view in super::distinct(of_target.iter().map(|r| r.view.as_str())) {
-            let pts: Vec<Point> = of_target
-                .iter()
-                .filter(|r| r.view == view && r.df_px == df_max)
-                .map(|r| Point {
-                    name: r.landmark.clone(),
-                    reference: (r.ref_u_px, r.ref_v_px),
-                    measured: (r.meas_u_px, r.meas_v_px),
-                    predicted: (r.pred_u_px, r.pred_v_px),
-                })
-                .filter(|p| {
-                    [p.reference, p.measured, p.predicted]
-                        .iter()
-                        .all(|q| q.0.is_finite() && q.1.is_finite())
-                })
-                .collect();
+        let views = super::distinct(of_target.iter().map(|r| r.view.to_string()));
+        let mut row = Vec::new();
+        for view in &views {
+            let pts = points(&of_target, view, df_max);
             let image_path = reference_image_path(out, target, view);
             let drr = image_path
                 .exists()
                 .then(|| read_tiff_f32(&image_path))
                 .transpose()?;
-            let file = figs.join(format!("landmark_overlay_{target}_{view}.png"));
             let g = gain(&pts);
-            let title = format!(
-                "{target} {view}: landmarks at focal Δf {df_max} px (arrows ×{g}){}",
-                if drr.is_some() {
-                    ""
-                } else {
-                    " (no reference DRR found)"
-                }
-            );
-            overlay_chart(&file, &title, &pts, g, drr.as_ref())?;
+            let o = Overlay {
+                title: overlay_title(target, view, df_max, g, drr.is_some()),
+                pts,
+                g,
+                drr,
+            };
+            let file = figs.join(format!("landmark_overlay_{target}_{view}.png"));
+            let single = OverlayRow(vec![o]);
+            write_figure(&file, &single)?;
+            row.extend(single.0);
         }
+        // One magnification for every view, so AP and LAT arrows compare by length.
+        let g = row.iter().map(|o| o.g).fold(f64::INFINITY, f64::min);
+        let landmarks = row.iter().map(|o| o.pts.len()).max().unwrap_or(0);
+        for (o, view) in row.iter_mut().zip(&views) {
+            o.g = g;
+            o.title = overlay_title(target, view, df_max, g, o.drr.is_some());
+        }
+        let file = format!("landmarks_{target}.png");
+        write_figure(&figs.join(&file), &OverlayRow(row))?;
+        made.push(OverlayFigure {
+            target: target.to_string(),
+            file,
+            views,
+            df_px: df_max,
+            gain: g,
+            landmarks,
+        });
     }
-    Ok(())
+    Ok(made)
+}
+
+fn overlay_title(target: &str, view: &str, df: f64, g: f64, has_drr: bool) -> String {
+    let missing = if has_drr {
+        ""
+    } else {
+        " (no reference DRR found)"
+    };
+    format!(
+        "{target} {}: landmarks at focal Δf {df} px (arrows ×{g}){missing}",
+        view.to_uppercase()
+    )
+}
+
+/// The landmarks of one view at `df` whose reference, measured and predicted positions are all known.
+fn points(rows: &[&LandmarkRow], view: &str, df: f64) -> Vec<Point> {
+    rows.iter()
+        .filter(|r| r.view == view && r.df_px == df)
+        .map(|r| Point {
+            name: r.landmark.clone(),
+            reference: (r.ref_u_px, r.ref_v_px),
+            measured: (r.meas_u_px, r.meas_v_px),
+            predicted: (r.pred_u_px, r.pred_v_px),
+        })
+        .filter(|p| {
+            [p.reference, p.measured, p.predicted]
+                .iter()
+                .all(|q| q.0.is_finite() && q.1.is_finite())
+        })
+        .collect()
 }
 
 /// The arrow magnification: the largest of [`GAINS`] that keeps the longest arrow within a fifth of
@@ -147,27 +203,32 @@ fn grey(l: f32, scale: f32) -> RGBColor {
     RGBColor(g, g, g)
 }
 
-fn overlay_chart(
-    path: &Path,
-    title: &str,
-    pts: &[Point],
+/// One overlay: the reference DRR of a target in a view under its landmarks.
+pub(super) struct Overlay {
+    pub title: String,
+    pts: Vec<Point>,
     g: f64,
-    drr: Option<&ImageF32>,
-) -> Result<()> {
-    register_font()?;
-    let mut buf = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_err)?;
+    drr: Option<ImageF32>,
+}
+
+impl Overlay {
+    /// Draws the overlay into `area` (part of `root`, the whole figure, on which the pixel-placed
+    /// labels and legend are drawn); returns the DRR background as a raster.
+    fn draw_in<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+        area: &DrawingArea<DB, Shift>,
+    ) -> Result<Raster> {
+        let (title, pts, g) = (self.title.as_str(), &self.pts, self.g);
         // The plot's pixel size does not depend on the data ranges: measure it, then fit the window.
-        let probe = builder(&root, title)
+        let probe = builder(area, title)
             .build_cartesian_2d(0.0..1.0, 0.0..1.0)
             .map_err(plot_err)?;
         let (px, py) = probe.plotting_area().get_pixel_range();
         let aspect = f64::from(px.end - px.start) / f64::from(py.end - py.start);
         let ((u0, u1), (v0, v1)) = window(pts, g, aspect);
         // v grows downward on the detector: the y axis runs from v1 (bottom) to v0 (top).
-        let mut chart = builder(&root, title)
+        let mut chart = builder(area, title)
             .build_cartesian_2d(u0..u1, v1..v0)
             .map_err(plot_err)?;
         chart
@@ -178,55 +239,75 @@ fn overlay_chart(
             .label_style(("sans-serif", 16))
             .draw()
             .map_err(plot_err)?;
-        background(&root, &chart, drr)?;
-        markers_and_labels(&root, &mut chart, pts, g)?;
-        legend(&root, (px.start, py.start), g)?;
-        root.present().map_err(plot_err)?;
+        let raster = background(&chart, self.drr.as_ref());
+        markers_and_labels(root, &mut chart, pts, g)?;
+        legend(root, (px.start, py.start), g)?;
+        Ok(raster)
     }
-    encode_png_sized(path, buf, SIZE)
 }
 
-type Chart<'a, 'b> = ChartContext<
+/// Overlays side by side (one: a single overlay figure; AP and LAT: the paper's landmark figure).
+pub(super) struct OverlayRow(pub Vec<Overlay>);
+
+impl Figure for OverlayRow {
+    fn size(&self) -> (u32, u32) {
+        (SIZE.0 * self.0.len().max(1) as u32, SIZE.1)
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<Vec<Raster>> {
+        let areas = root.split_evenly((1, self.0.len().max(1)));
+        let mut rasters = Vec::new();
+        for (o, area) in self.0.iter().zip(&areas) {
+            rasters.push(o.draw_in(root, area)?);
+        }
+        Ok(rasters)
+    }
+}
+
+type Chart<'a, DB> = ChartContext<
     'a,
-    BitMapBackend<'b>,
+    DB,
     Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
 >;
 
 /// The reference DRR under the plot area (nearest pixel), or a flat grey without one.
-fn background(
-    root: &DrawingArea<BitMapBackend, Shift>,
-    chart: &Chart,
-    drr: Option<&ImageF32>,
-) -> Result<()> {
+fn background<DB: DrawingBackend>(chart: &Chart<DB>, drr: Option<&ImageF32>) -> Raster {
     let (px, py) = chart.plotting_area().get_pixel_range();
     let scale = drr.map_or(1.0, |d| d.max()).max(f32::MIN_POSITIVE);
-    for y in py.clone() {
-        for x in px.clone() {
-            let colour = match (drr, chart.as_coord_spec().reverse_translate((x, y))) {
-                (Some(d), Some((u, v))) => {
-                    let (iu, iv) = (u.round(), v.round());
-                    if iu >= 0.0 && iv >= 0.0 && iu < f64::from(d.width) && iv < f64::from(d.height)
-                    {
-                        grey(d.get(iu as u32, iv as u32), scale)
-                    } else {
-                        RGBColor(20, 20, 20)
-                    }
+    let (w, h) = (
+        (px.end - px.start).max(1) as u32,
+        (py.end - py.start).max(1) as u32,
+    );
+    let mut image = RgbImage::new(w, h);
+    for (dx, dy, p) in image.enumerate_pixels_mut() {
+        let (x, y) = (px.start + dx as i32, py.start + dy as i32);
+        let colour = match (drr, chart.as_coord_spec().reverse_translate((x, y))) {
+            (Some(d), Some((u, v))) => {
+                let (iu, iv) = (u.round(), v.round());
+                if iu >= 0.0 && iv >= 0.0 && iu < f64::from(d.width) && iv < f64::from(d.height) {
+                    grey(d.get(iu as u32, iv as u32), scale)
+                } else {
+                    RGBColor(20, 20, 20)
                 }
-                _ => RGBColor(90, 90, 90),
-            };
-            root.draw_pixel((x, y), &colour).map_err(plot_err)?;
-        }
+            }
+            _ => RGBColor(90, 90, 90),
+        };
+        *p = image::Rgb([colour.0, colour.1, colour.2]);
     }
-    Ok(())
+    Raster {
+        x: px.start,
+        y: py.start,
+        image,
+    }
 }
 
 const REF_COLOUR: RGBColor = RGBColor(0, 220, 90);
 const MEAS_COLOUR: RGBColor = RGBColor(255, 60, 40);
 const PRED_COLOUR: RGBColor = RGBColor(80, 170, 255);
 
-fn markers_and_labels(
-    root: &DrawingArea<BitMapBackend, Shift>,
-    chart: &mut Chart,
+fn markers_and_labels<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    chart: &mut Chart<DB>,
     pts: &[Point],
     g: f64,
 ) -> Result<()> {
@@ -320,7 +401,11 @@ fn markers_and_labels(
 }
 
 /// What the marks mean, in a box at the plot's top-left corner.
-fn legend(root: &DrawingArea<BitMapBackend, Shift>, (x, y): (i32, i32), g: f64) -> Result<()> {
+fn legend<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    (x, y): (i32, i32),
+    g: f64,
+) -> Result<()> {
     let entries = [
         ("reference position".to_string(), REF_COLOUR),
         ("measured, perturbed K".to_string(), MEAS_COLOUR),

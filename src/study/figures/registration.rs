@@ -1,12 +1,17 @@
 //! Registration figures: for every target and error quantity, one figure with a panel per method; in
 //! each panel the mean error over the trials vs Δf, one line per piercing shift, ± one standard deviation
-//! as whiskers.
+//! as whiskers. And per target the paper's comparison: rotation and translation error of Kabsch beside
+//! direct AP+LAT, the paper's reported ranges as shaded bands.
 
 use std::path::Path;
 
+use super::canvas::write_figure;
+use super::chart::Mark;
+use super::charts::PanelChart;
 use super::{Panel, Series, distinct, panel_chart};
 use crate::Result;
 use crate::study::config::RegistrationMethod;
+use crate::study::report::PaperResults;
 use crate::study::schema::RegistrationSummaryRow;
 
 /// (mean, sd) of one error quantity of a summary row.
@@ -42,7 +47,7 @@ pub fn registration_figures(rows: &[RegistrationSummaryRow], figs: &Path) -> Res
                 .collect();
             let file = figs.join(format!("registration_{target}_{tag}.png"));
             let title = format!("{target}: {label} vs focal offset, mean ± sd over trials");
-            panel_chart(&file, &title, "focal offset Δf (px)", label, &panels, 3)?;
+            panel_chart(&file, &title, "focal offset Δf (px)", label, panels, 3)?;
         }
     }
     Ok(())
@@ -79,11 +84,61 @@ fn panel(
                 label: format!("piercing ({p}, {p}) px"),
                 points: pts.iter().map(|x| (x.0, x.1)).collect(),
                 spread: pts.iter().map(|x| x.2).collect(),
+                band: Vec::new(),
             }
         })
         .collect();
     Panel {
         title: method.to_string(),
         series,
+        marks: Vec::new(),
     }
+}
+
+/// The paper's two methods, in its order.
+const PAPER_METHODS: [RegistrationMethod; 2] =
+    [RegistrationMethod::Kabsch, RegistrationMethod::DirectApLat];
+
+/// Writes `registration_paper_<target>.png` (and SVG) for every target with Kabsch or direct AP+LAT
+/// rows: rotation (top) and translation (bottom) error, Kabsch (left) beside direct AP+LAT (right), the
+/// paper's range of each as a band. Returns the targets drawn.
+pub fn paper_figures(
+    rows: &[RegistrationSummaryRow],
+    paper: &PaperResults,
+    figs: &Path,
+) -> Result<Vec<String>> {
+    let r = &paper.registration;
+    let ranges = [
+        [r.kabsch_rotation_deg, r.direct_rotation_deg],
+        [r.kabsch_translation_mm, r.direct_translation_mm],
+    ];
+    let mut drawn = Vec::new();
+    for target in distinct(rows.iter().map(|r| r.target.as_str())) {
+        let has = |m| rows.iter().any(|r| r.target == target && r.method == m);
+        if !PAPER_METHODS.iter().any(|&m| has(m)) {
+            continue;
+        }
+        let mut panels = Vec::new();
+        for (q, (quantity, label, _)) in QUANTITIES[..2].iter().enumerate() {
+            for (k, &m) in PAPER_METHODS.iter().enumerate() {
+                let mut p = panel(rows, target, m, *quantity);
+                p.title = format!("{m}: {label}");
+                let [lo, hi] = ranges[q][k];
+                p.marks.push(Mark::Band { lo, hi });
+                panels.push(p);
+            }
+        }
+        let title = format!("{target}: registration error vs focal offset, mean ± sd over trials");
+        let fig = PanelChart {
+            title: &title,
+            x_label: "focal offset Δf (px)",
+            y_labels: vec![QUANTITIES[0].1.into(), QUANTITIES[1].1.into()],
+            panels,
+            cols: 2,
+            legend_extra: vec![("grey band: the paper's range".into(), None)],
+        };
+        write_figure(&figs.join(format!("registration_paper_{target}.png")), &fig)?;
+        drawn.push(target.to_string());
+    }
+    Ok(drawn)
 }

@@ -1,0 +1,187 @@
+//! Chart figures: a single line chart and a grid of panels sharing one legend, drawn by
+//! [`super::chart`] and written as PNG and SVG by [`super::canvas`].
+
+use std::path::Path;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use super::canvas::{Figure, Raster, write_figure};
+use super::chart::{ChartStyle, Panel, SINGLE, SIZE, Series, draw_lines, legend_grid, plot_err};
+use crate::Result;
+
+/// Series above which a single chart gets its legend in a column beside the plot instead of inside it.
+const LEGEND_INSIDE_MAX: usize = 10;
+
+/// One chart: `series` with axes and a legend.
+struct LineChart<'a> {
+    panel: Panel,
+    x_label: &'a str,
+    y_label: &'a str,
+}
+
+impl Figure for LineChart<'_> {
+    fn size(&self) -> (u32, u32) {
+        if self.panel.series.len() > LEGEND_INSIDE_MAX {
+            (SIZE.0 + 300, SIZE.1)
+        } else {
+            SIZE
+        }
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<Vec<Raster>> {
+        let p = &self.panel;
+        if p.series.len() > LEGEND_INSIDE_MAX {
+            let (plot, legend) = root.split_horizontally(SIZE.0);
+            let style = ChartStyle {
+                legend: None,
+                ..SINGLE
+            };
+            draw_lines(&plot, p, self.x_label, self.y_label, style)?;
+            let labels: Vec<(String, RGBAColor)> = p
+                .series
+                .iter()
+                .enumerate()
+                .map(|(i, s)| (s.label.clone(), Palette99::pick(i).to_rgba()))
+                .collect();
+            legend_grid(&legend, &labels, 15, 1)?;
+        } else {
+            draw_lines(root, p, self.x_label, self.y_label, SINGLE)?;
+        }
+        Ok(Vec::new())
+    }
+}
+
+/// Draws `series` as a line chart and writes it to `path` (PNG) and beside it as SVG.
+pub fn line_chart(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: Vec<Series>,
+) -> Result<()> {
+    let panel = Panel {
+        title: title.to_string(),
+        series,
+        marks: Vec::new(),
+    };
+    write_figure(
+        path,
+        &LineChart {
+            panel,
+            x_label,
+            y_label,
+        },
+    )
+}
+
+/// Panels in a grid of `cols` columns sharing axis labels and one legend (the series of every panel are
+/// the same lines, in the same order), under one title. Fonts are larger than a single chart's so the
+/// figure stays readable when scaled to a page width.
+pub struct PanelChart<'a> {
+    pub title: &'a str,
+    pub x_label: &'a str,
+    /// One y label per panel row (the last one repeats).
+    pub y_labels: Vec<String>,
+    pub panels: Vec<Panel>,
+    pub cols: usize,
+    /// Extra legend entries after the series' (the paper's marks): a label and the index of the series
+    /// colour it is drawn in (`None`: grey, the colour of reference bands).
+    pub legend_extra: Vec<(String, Option<usize>)>,
+}
+
+impl PanelChart<'_> {
+    fn grid(&self) -> (usize, usize) {
+        let cols = self.cols.clamp(1, self.panels.len().max(1));
+        (self.panels.len().div_ceil(cols).max(1), cols)
+    }
+
+    /// Legend entries per row and rows of the legend strip (entries ~330 px wide).
+    fn legend_layout(&self) -> (usize, usize) {
+        let n = self
+            .panels
+            .iter()
+            .map(|p| p.series.len())
+            .max()
+            .unwrap_or(0)
+            + self.legend_extra.len();
+        let per_row = ((600 * self.grid().1) / 330).clamp(1, n.max(1));
+        (per_row, n.div_ceil(per_row).max(1))
+    }
+}
+
+impl Figure for PanelChart<'_> {
+    fn size(&self) -> (u32, u32) {
+        let (rows, cols) = self.grid();
+        let legend_rows = self.legend_layout().1 as u32;
+        (600 * cols as u32, 80 + 30 * legend_rows + 500 * rows as u32)
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<Vec<Raster>> {
+        let (rows, cols) = self.grid();
+        let style = ChartStyle {
+            caption: 26,
+            labels: 20,
+            legend: None,
+        };
+        let mut labels: Vec<(String, RGBAColor)> = self
+            .panels
+            .iter()
+            .max_by_key(|p| p.series.len())
+            .map(|p| {
+                p.series
+                    .iter()
+                    .enumerate()
+                    .map(|(i, s)| (s.label.clone(), Palette99::pick(i).to_rgba()))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let grey = RGBColor(120, 120, 120).to_rgba();
+        labels.extend(
+            self.legend_extra
+                .iter()
+                .map(|(l, c)| (l.clone(), c.map_or(grey, |i| Palette99::pick(i).to_rgba()))),
+        );
+        let (per_row, legend_rows) = self.legend_layout();
+        let root = root
+            .titled(self.title, ("sans-serif", 32))
+            .map_err(plot_err)?;
+        let (strip, root) = root.split_vertically(20 + 30 * legend_rows as i32);
+        legend_grid(&strip, &labels, 22, per_row)?;
+        for (i, (area, p)) in root
+            .split_evenly((rows, cols))
+            .iter()
+            .zip(&self.panels)
+            .enumerate()
+        {
+            let row = i / cols;
+            let y_label = self
+                .y_labels
+                .get(row)
+                .or(self.y_labels.last())
+                .map_or("", String::as_str);
+            draw_lines(area, p, self.x_label, y_label, style)?;
+        }
+        Ok(Vec::new())
+    }
+}
+
+/// [`PanelChart`] with one y label, written to `path` (PNG) and beside it as SVG.
+pub fn panel_chart(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    panels: Vec<Panel>,
+    cols: usize,
+) -> Result<()> {
+    let fig = PanelChart {
+        title,
+        x_label,
+        y_labels: vec![y_label.to_string()],
+        panels,
+        cols,
+        legend_extra: Vec::new(),
+    };
+    write_figure(path, &fig)
+}
