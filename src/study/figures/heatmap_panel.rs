@@ -148,6 +148,9 @@ impl HeatmapPanel {
         dfs: &[f64],
         units: &str,
     ) -> Result<Option<HeatmapPanel>> {
+        if views.is_empty() || dfs.is_empty() {
+            return Ok(None); // a study without heatmaps has no panel (not an empty one)
+        }
         let mut images = Vec::new();
         for view in views {
             let mut row = Vec::new();
