@@ -287,3 +287,36 @@ fn geometry_prints_a_file_that_loads_back() {
     assert!(c.status.success(), "{}", stderr(&c));
     assert!(String::from_utf8_lossy(&c.stdout).contains("view lat"));
 }
+
+#[test]
+fn the_built_in_segment_renders_in_both_views() {
+    // Unpaired rays of the L1–L5 phantom once left negative pixels, which the negative-image check
+    // (rightly) refused: an unpaired ray's sum is kept non-negative.
+    let dir = tempfile::tempdir().unwrap();
+    for view in ["ap", "lat"] {
+        let out = dir.path().join(format!("{view}.tiff"));
+        let o = spinedrr(&[
+            "render",
+            "--phantom",
+            "L1-L5",
+            "--view",
+            view,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            o.status.success() && !err.contains("panicked"),
+            "{view}: {err}"
+        );
+        let img = spinedrr::io::read_tiff_f32(&out).unwrap();
+        assert!(
+            img.data.iter().all(|&x| x >= 0.0),
+            "{view}: a negative pixel"
+        );
+        assert!(
+            img.data.iter().any(|&x| x > 1.0),
+            "{view}: the segment is on the detector"
+        );
+    }
+}

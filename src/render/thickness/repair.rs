@@ -1,5 +1,5 @@
 //! Rays whose surface crossings do not pair up (a hit lost at an edge or vertex): retraced with tiny
-//! sub-pixel offsets, and failing that kept with each mesh's contribution capped by its longest chord.
+//! sub-pixel offsets, and failing that kept within [0, Σ |μ|·longest chord] of its meshes.
 
 use super::output::RenderStats;
 use super::rays::{Scratch, trace_single};
@@ -49,8 +49,10 @@ pub(super) fn repair(
         .zip(&scene.max_chord)
         .map(|(m, c)| m.mu_per_mm.abs() * c)
         .sum();
+    // A physical scene's line integral is never negative (differential μ of nested surfaces sums to
+    // the outer tissue's μ or more): an unpaired ray's sum is kept within [0, cap].
     RayIntegral {
-        line_integral: first.line_integral.clamp(-cap, cap),
+        line_integral: first.line_integral.clamp(0.0, cap),
         ..first
     }
 }
