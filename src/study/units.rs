@@ -108,56 +108,16 @@ pub fn derive_seed(seed: u64, key: &str, index: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The projection perturbations of the grid, in table order.
+/// The projection perturbations of the grid, in table order ([`PerturbationGrid::cells`]).
 pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
-    let g = &cfg.perturbations;
-    let mut out = Vec::new();
-    let mut push = |family, perturbation| {
-        out.push(NamedPerturbation {
+    cfg.perturbations
+        .cells()
+        .into_iter()
+        .map(|(family, perturbation)| NamedPerturbation {
             family,
             perturbation,
         })
-    };
-    for &df in &g.df_px {
-        push(Family::Focal, Perturbation::focal(df));
-    }
-    let nonzero: Vec<f64> = g
-        .piercing_px
-        .iter()
-        .copied()
-        .filter(|p| *p != 0.0)
-        .collect();
-    for &p in &nonzero {
-        push(Family::Piercing, Perturbation::piercing(p, p));
-    }
-    for (&df, &p) in g.df_px.iter().zip(&nonzero) {
-        push(
-            Family::Joint,
-            Perturbation {
-                df_px: df,
-                ..Perturbation::piercing(p, p)
-            },
-        );
-    }
-    for &s in &g.skew_px {
-        push(
-            Family::Skew,
-            Perturbation {
-                skew_px: s,
-                ..Perturbation::NONE
-            },
-        );
-    }
-    for &sy in &g.pixel_scale {
-        push(
-            Family::Scale,
-            Perturbation {
-                sy,
-                ..Perturbation::NONE
-            },
-        );
-    }
-    out
+        .collect()
 }
 
 /// The targets: each phantom level, then `segment` when enabled, then the mesh targets, then per

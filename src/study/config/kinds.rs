@@ -245,3 +245,49 @@ mod tests {
         );
     }
 }
+
+/// The family of a projection perturbation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Family {
+    /// Δf alone.
+    Focal,
+    /// Piercing point shifted by (p, p).
+    Piercing,
+    /// Δf paired with a non-zero piercing shift.
+    Joint,
+    /// Skew alone.
+    Skew,
+    /// Anisotropic pixel scale alone.
+    Scale,
+}
+
+impl Family {
+    /// The table spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Focal => "focal",
+            Family::Piercing => "piercing",
+            Family::Joint => "joint",
+            Family::Skew => "skew",
+            Family::Scale => "scale",
+        }
+    }
+
+    /// The config keys whose values a perturbation of this family comes from.
+    pub fn config_keys(self) -> &'static str {
+        match self {
+            Family::Focal => "perturbations.df_px",
+            Family::Piercing => "perturbations.piercing_px",
+            Family::Joint => "perturbations.df_px / perturbations.piercing_px",
+            Family::Skew => "perturbations.skew_px",
+            Family::Scale => "perturbations.pixel_scale",
+        }
+    }
+}
+
+impl std::fmt::Display for Family {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}

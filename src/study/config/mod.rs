@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::{Level, parse_levels};
-use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig};
+use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig, Perturbation};
 use crate::render::Backend;
 use crate::{Error, Result};
 
@@ -17,7 +17,7 @@ mod kinds;
 mod limits;
 mod validate;
 
-pub use kinds::{Experiment, RegistrationMethod};
+pub use kinds::{Experiment, Family, RegistrationMethod};
 pub use limits::{MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate};
 
 /// The target of the phantom levels studied together (`anatomy.segment`).
@@ -159,6 +159,52 @@ pub struct PerturbationGrid {
     pub skew_px: Vec<f64>,
     /// Anisotropic pixel-scale factors applied to fy (family `scale`).
     pub pixel_scale: Vec<f64>,
+}
+
+impl PerturbationGrid {
+    /// The projection perturbations of the grid with their families, in table order: each Δf alone,
+    /// each non-zero piercing shift alone, Δf paired in order with the non-zero shifts, skews, scales.
+    pub fn cells(&self) -> Vec<(Family, Perturbation)> {
+        let nonzero: Vec<f64> = self
+            .piercing_px
+            .iter()
+            .copied()
+            .filter(|p| *p != 0.0)
+            .collect();
+        let mut out: Vec<(Family, Perturbation)> = Vec::new();
+        out.extend(
+            self.df_px
+                .iter()
+                .map(|&d| (Family::Focal, Perturbation::focal(d))),
+        );
+        out.extend(
+            nonzero
+                .iter()
+                .map(|&p| (Family::Piercing, Perturbation::piercing(p, p))),
+        );
+        out.extend(self.df_px.iter().zip(&nonzero).map(|(&df_px, &p)| {
+            let q = Perturbation {
+                df_px,
+                ..Perturbation::piercing(p, p)
+            };
+            (Family::Joint, q)
+        }));
+        out.extend(self.skew_px.iter().map(|&skew_px| {
+            let q = Perturbation {
+                skew_px,
+                ..Perturbation::NONE
+            };
+            (Family::Skew, q)
+        }));
+        out.extend(self.pixel_scale.iter().map(|&sy| {
+            let q = Perturbation {
+                sy,
+                ..Perturbation::NONE
+            };
+            (Family::Scale, q)
+        }));
+        out
+    }
 }
 
 /// `[registration]`: the Monte-Carlo registration experiment.

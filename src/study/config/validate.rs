@@ -82,49 +82,13 @@ impl StudyConfig {
     /// Every perturbed K of the grid (projection cells in every view, registration cells in every
     /// view) must be a valid camera: fails before the first unit, naming the key and value.
     fn validate_grid_intrinsics(&self, carm: &CArm) -> Result<()> {
-        let g = &self.perturbations;
-        let nonzero: Vec<f64> = g
-            .piercing_px
-            .iter()
-            .copied()
-            .filter(|p| *p != 0.0)
-            .collect();
-        let with = |df_px: f64, p: f64| Perturbation {
-            df_px,
-            ..Perturbation::piercing(p, p)
-        };
         // The cells of `units::projection_perturbations`, each with the keys its values come from.
-        let mut cells: Vec<(&str, Perturbation)> = Vec::new();
-        cells.extend(
-            g.df_px
-                .iter()
-                .map(|&d| ("perturbations.df_px", Perturbation::focal(d))),
-        );
-        cells.extend(
-            nonzero
-                .iter()
-                .map(|&p| ("perturbations.piercing_px", with(0.0, p))),
-        );
-        cells.extend(g.df_px.iter().zip(&nonzero).map(|(&d, &p)| {
-            (
-                "perturbations.df_px / perturbations.piercing_px",
-                with(d, p),
-            )
-        }));
-        cells.extend(g.skew_px.iter().map(|&s| {
-            let q = Perturbation {
-                skew_px: s,
-                ..Perturbation::NONE
-            };
-            ("perturbations.skew_px", q)
-        }));
-        cells.extend(g.pixel_scale.iter().map(|&sy| {
-            let q = Perturbation {
-                sy,
-                ..Perturbation::NONE
-            };
-            ("perturbations.pixel_scale", q)
-        }));
+        let cells: Vec<(&str, Perturbation)> = self
+            .perturbations
+            .cells()
+            .into_iter()
+            .map(|(family, q)| (family.config_keys(), q))
+            .collect();
         let views: Vec<_> = carm
             .views
             .iter()
@@ -143,7 +107,10 @@ impl StudyConfig {
         let r = &self.registration;
         for &df in &r.df_px {
             for &pp in &r.piercing_px {
-                let q = with(df, pp);
+                let q = Perturbation {
+                    df_px: df,
+                    ..Perturbation::piercing(pp, pp)
+                };
                 for v in &carm.views {
                     q.apply(&v.intrinsics).map_err(|e| {
                         Error::invalid(

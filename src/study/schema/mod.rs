@@ -8,48 +8,12 @@
 pub mod num;
 mod tables;
 
-use std::fmt;
-
 use serde::{Deserialize, Serialize};
 
+pub use super::config::Family;
 use super::config::RegistrationMethod;
 
 pub use tables::{StudyTables, TableRow, mean_sd, read_rows, write_rows};
-
-/// The family of a projection perturbation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Family {
-    /// Δf alone.
-    Focal,
-    /// Piercing point shifted by (p, p).
-    Piercing,
-    /// Δf paired with a non-zero piercing shift.
-    Joint,
-    /// Skew alone.
-    Skew,
-    /// Anisotropic pixel scale alone.
-    Scale,
-}
-
-impl Family {
-    /// The table spelling.
-    pub fn name(self) -> &'static str {
-        match self {
-            Family::Focal => "focal",
-            Family::Piercing => "piercing",
-            Family::Joint => "joint",
-            Family::Skew => "skew",
-            Family::Scale => "scale",
-        }
-    }
-}
-
-impl fmt::Display for Family {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
 
 /// Whole-object silhouette, contour and image-similarity metrics (table `projection.csv`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
