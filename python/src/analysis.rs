@@ -149,7 +149,7 @@ pub fn register<'py>(
             "problem must be a dict (the problem JSON document) or its JSON text",
         ));
     };
-    let args = lib::RegisterArgs {
+    let args = lib::RegisterRequest {
         method: method.to_string(),
         views: views.unwrap_or_default(),
         noise_px,

@@ -10,10 +10,7 @@ use glam::DVec3;
 use spinedrr::anatomy::ct::VoxelMask;
 use spinedrr::anatomy::landmarks::landmarks_to_json;
 use spinedrr::anatomy::{PhantomOptions, Structure, build_phantom, parse_levels};
-use spinedrr::registration::{
-    LoadedProblem, Method, RegistrationOptions, add_pixel_noise, model_centroid, perturb_pose,
-    pose_errors,
-};
+use spinedrr::registration::LoadedProblem;
 use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
 use spinedrr::render::{RenderScene, ThicknessOptions, ThicknessRenderer};
 
@@ -255,80 +252,13 @@ pub fn landmark(name: String, p: [f64; 3]) -> Landmark {
     }
 }
 
-/// The options of `spinedrr register` besides the problem.
-pub struct RegisterArgs {
-    pub method: String,
-    pub views: Vec<String>,
-    pub noise_px: f64,
-    pub seed: u64,
-    pub init_rot_deg: Option<f64>,
-    pub init_trans_mm: Option<f64>,
-    pub max_iterations: usize,
-}
+pub use spinedrr::registration::RegisterRequest;
 
-/// `spinedrr register` on a problem JSON document: the same steps (view selection, noise, initial
-/// pose from the truth) and the same output record as its `R.json`.
-///
-/// Seam: these steps live in `src/cli/register.rs` today; when the library grows one function for
-/// them, this body becomes that call.
-pub fn register(problem_json: &str, a: &RegisterArgs) -> Result<serde_json::Value> {
-    let method = Method::parse(&a.method)?;
+/// `spinedrr register` on a problem JSON document: the library's one run of it (view selection, noise,
+/// initial pose from the truth), returning the record `R.json` holds.
+pub fn register(problem_json: &str, req: &RegisterRequest) -> Result<serde_json::Value> {
     let loaded = LoadedProblem::from_json_str(problem_json, "problem")?;
-    let mut problem = loaded.problem;
-    if !a.views.is_empty() {
-        problem = problem.select_views(&a.views)?;
-    }
-    if !(a.noise_px.is_finite() && a.noise_px >= 0.0) {
-        return Err(Error::invalid(
-            "noise_px",
-            format!("must be a non-negative number, got {}", a.noise_px),
-        ));
-    }
-    if a.noise_px > 0.0 {
-        problem = add_pixel_noise(&problem, a.noise_px, a.seed);
-    }
-    let mut init = loaded.init;
-    if a.init_rot_deg.is_some() || a.init_trans_mm.is_some() {
-        let Some(truth) = loaded.truth else {
-            return Err(Error::invalid(
-                "init_rot_deg/init_trans_mm",
-                "they perturb the truth, but the problem has no \"truth\"",
-            ));
-        };
-        let (deg, mm) = (
-            a.init_rot_deg.unwrap_or(0.0),
-            a.init_trans_mm.unwrap_or(0.0),
-        );
-        if !(deg.is_finite() && mm.is_finite()) {
-            return Err(Error::invalid(
-                "init_rot_deg/init_trans_mm",
-                "must be finite",
-            ));
-        }
-        let centre = truth.apply(model_centroid(&problem));
-        init = Some(perturb_pose(&truth, deg, mm, centre, a.seed));
-    }
-    let opts = RegistrationOptions {
-        init,
-        max_iterations: a.max_iterations,
-        ..Default::default()
-    };
-    let r = spinedrr::registration::register(&problem, method, &opts)?;
-    let mut out = serde_json::json!({
-        "R": r.pose.rotation_rows(),
-        "t": r.pose.translation.to_array(),
-        "residual_px": r.residual_px,
-        "iterations": r.iterations,
-        "converged": r.converged,
-        "method": a.method,
-        "views": problem.views.iter().map(|v| v.view.name.clone()).collect::<Vec<_>>(),
-    });
-    if let Some(truth) = loaded.truth {
-        let e = pose_errors(&r.pose, &truth);
-        out["rot_err_deg"] = serde_json::json!(e.rot_err_deg);
-        out["trans_err_mm"] = serde_json::json!(e.trans_err_mm);
-    }
-    Ok(out)
+    Ok(spinedrr::registration::run_request(loaded, req)?.record)
 }
 
 /// Shared, immutable mesh handle (render scenes hold meshes by `Arc`).

@@ -4,11 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use serde_json::json;
-use spinedrr::registration::{
-    LoadedProblem, Method, RegistrationOptions, add_pixel_noise, model_centroid, perturb_pose,
-    pose_errors, register,
-};
+use spinedrr::registration::{LoadedProblem, RegisterOutcome, RegisterRequest, run_request};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -47,63 +43,22 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let method = Method::parse(&a.method)?;
     let loaded = LoadedProblem::read(&a.problem)
         .with_context(|| format!("reading problem {}", a.problem.display()))?;
-    let mut problem = loaded.problem;
-    if !a.views.is_empty() {
-        problem = problem
-            .select_views(&a.views)
-            .with_context(|| format!("selecting views in {}", a.problem.display()))?;
-    }
-    if !(a.noise_px.is_finite() && a.noise_px >= 0.0) {
-        bail!(
-            "invalid --noise-px: must be a non-negative number, got {}",
-            a.noise_px
-        );
-    }
-    if a.noise_px > 0.0 {
-        problem = add_pixel_noise(&problem, a.noise_px, a.seed);
-    }
-    let mut init = loaded.init;
-    if a.init_rot_deg.is_some() || a.init_trans_mm.is_some() {
-        let Some(truth) = loaded.truth else {
-            bail!(
-                "--init-rot-deg/--init-trans-mm perturb the truth, but {} has no \"truth\"",
-                a.problem.display()
-            );
-        };
-        let (deg, mm) = (
-            a.init_rot_deg.unwrap_or(0.0),
-            a.init_trans_mm.unwrap_or(0.0),
-        );
-        if !(deg.is_finite() && mm.is_finite()) {
-            bail!("invalid --init-rot-deg/--init-trans-mm: must be finite");
-        }
-        let centre = truth.apply(model_centroid(&problem));
-        init = Some(perturb_pose(&truth, deg, mm, centre, a.seed));
-    }
-    let opts = RegistrationOptions {
-        init,
+    let req = RegisterRequest {
+        method: a.method.clone(),
+        views: a.views.clone(),
+        noise_px: a.noise_px,
+        seed: a.seed,
+        init_rot_deg: a.init_rot_deg,
+        init_trans_mm: a.init_trans_mm,
         max_iterations: a.max_iterations,
-        ..Default::default()
     };
-    let r = register(&problem, method, &opts)
+    let RegisterOutcome {
+        result: r,
+        record: out,
+    } = run_request(loaded, &req)
         .with_context(|| format!("registering {} with {}", a.problem.display(), a.method))?;
-    let mut out = json!({
-        "R": r.pose.rotation_rows(),
-        "t": r.pose.translation.to_array(),
-        "residual_px": r.residual_px,
-        "iterations": r.iterations,
-        "converged": r.converged,
-        "method": a.method,
-        "views": problem.views.iter().map(|v| v.view.name.clone()).collect::<Vec<_>>(),
-    });
-    if let Some(truth) = loaded.truth {
-        let e = pose_errors(&r.pose, &truth);
-        out["rot_err_deg"] = json!(e.rot_err_deg);
-        out["trans_err_mm"] = json!(e.trans_err_mm);
-    }
     let text = serde_json::to_string_pretty(&out)?;
     spinedrr::io::write_atomic_bytes(&a.out, text.as_bytes())
         .with_context(|| format!("writing {}", a.out.display()))?;

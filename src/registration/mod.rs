@@ -12,6 +12,7 @@ mod kabsch;
 mod lm;
 mod pnp;
 mod problem;
+mod request;
 mod synth;
 
 use glam::DVec3;
@@ -21,6 +22,7 @@ pub use kabsch::{fit_rigid, register_kabsch, triangulate};
 pub use lm::{cost, register_direct};
 pub use pnp::{PnpSolver, opencv_project_points, register_opencv};
 pub use problem::{LoadedProblem, ObservedView, RegistrationProblem};
+pub use request::{RegisterOutcome, RegisterRequest, run_request};
 pub use synth::{SplitMix64, add_pixel_noise, perturb_pose};
 
 use crate::geometry::{RigidTransform, rotation_angle_deg};

@@ -1,0 +1,98 @@
+//! One registration as `spinedrr register` (and Python's `register`) runs it on a problem file: select
+//! views, add pixel noise, start from the truth perturbed when asked, solve, and the `R.json` record.
+
+use serde_json::{Value, json};
+
+use super::{
+    LoadedProblem, Method, RegistrationOptions, RegistrationResult, add_pixel_noise,
+    model_centroid, perturb_pose, pose_errors, register,
+};
+use crate::{Error, Result};
+
+/// The options of a registration run besides the problem.
+#[derive(Debug, Clone)]
+pub struct RegisterRequest {
+    /// `direct | kabsch | opencv | opencv-sqpnp` (as [`Method::parse`] reads it).
+    pub method: String,
+    /// Use only these views (empty: all views of the problem).
+    pub views: Vec<String>,
+    /// Standard deviation (px) of Gaussian noise added to every observation.
+    pub noise_px: f64,
+    /// Seed of the noise and of the initial-pose perturbation.
+    pub seed: u64,
+    /// Start from the truth rotated by this angle (deg) about a random axis (needs the truth).
+    pub init_rot_deg: Option<f64>,
+    /// Start from the truth translated by this distance (mm) in a random direction (needs the truth).
+    pub init_trans_mm: Option<f64>,
+    /// Iteration cap of the direct solver.
+    pub max_iterations: usize,
+}
+
+/// What a run produced: the solver's result and the `R.json` record (`R`, `t`, `residual_px`,
+/// `iterations`, `converged`, `method`, `views`, and `rot_err_deg`, `trans_err_mm` when the truth is
+/// known).
+#[derive(Debug, Clone)]
+pub struct RegisterOutcome {
+    pub result: RegistrationResult,
+    pub record: Value,
+}
+
+/// Runs `req` on `loaded`.
+pub fn run_request(loaded: LoadedProblem, req: &RegisterRequest) -> Result<RegisterOutcome> {
+    let method = Method::parse(&req.method)?;
+    let mut problem = loaded.problem;
+    if !req.views.is_empty() {
+        problem = problem.select_views(&req.views)?;
+    }
+    if !(req.noise_px.is_finite() && req.noise_px >= 0.0) {
+        return Err(Error::invalid(
+            "noise_px",
+            format!("must be a non-negative number, got {}", req.noise_px),
+        ));
+    }
+    if req.noise_px > 0.0 {
+        problem = add_pixel_noise(&problem, req.noise_px, req.seed);
+    }
+    let mut init = loaded.init;
+    if req.init_rot_deg.is_some() || req.init_trans_mm.is_some() {
+        let Some(truth) = loaded.truth else {
+            return Err(Error::invalid(
+                "init_rot_deg/init_trans_mm",
+                "they perturb the truth, but the problem has no \"truth\"",
+            ));
+        };
+        let (deg, mm) = (
+            req.init_rot_deg.unwrap_or(0.0),
+            req.init_trans_mm.unwrap_or(0.0),
+        );
+        if !(deg.is_finite() && mm.is_finite()) {
+            return Err(Error::invalid(
+                "init_rot_deg/init_trans_mm",
+                "must be finite",
+            ));
+        }
+        let centre = truth.apply(model_centroid(&problem));
+        init = Some(perturb_pose(&truth, deg, mm, centre, req.seed));
+    }
+    let opts = RegistrationOptions {
+        init,
+        max_iterations: req.max_iterations,
+        ..Default::default()
+    };
+    let result = register(&problem, method, &opts)?;
+    let mut record = json!({
+        "R": result.pose.rotation_rows(),
+        "t": result.pose.translation.to_array(),
+        "residual_px": result.residual_px,
+        "iterations": result.iterations,
+        "converged": result.converged,
+        "method": req.method,
+        "views": problem.views.iter().map(|v| v.view.name.clone()).collect::<Vec<_>>(),
+    });
+    if let Some(truth) = loaded.truth {
+        let e = pose_errors(&result.pose, &truth);
+        record["rot_err_deg"] = json!(e.rot_err_deg);
+        record["trans_err_mm"] = json!(e.trans_err_mm);
+    }
+    Ok(RegisterOutcome { result, record })
+}
