@@ -5,6 +5,8 @@ set -euo pipefail
 
 # chromium: the headless browser the report test (tests/study_report.rs) opens report.html in.
 packages=(libembree-dev libopencv-dev clang libclang-dev pkg-config chromium)
+# slurm-wlm, munge: the single-node cluster tests/study_slurm.rs starts (scripts/slurm-local.sh).
+packages+=(slurm-wlm munge)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
