@@ -6,6 +6,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args as ClapArgs;
 use spinedrr::study::runner::max_threads;
+use spinedrr::study::shard::Shard;
+use spinedrr::study::slurm::{self, SlurmOptions};
 use spinedrr::study::{RunOptions, StudyConfig, run_study};
 
 #[derive(ClapArgs)]
@@ -30,6 +32,36 @@ pub struct Args {
     /// Print where the time went (also written to OUT/timings.csv and the report).
     #[arg(long)]
     timings: bool,
+    /// Run only shard I of N (0 ≤ I < N) of the work units, writing their unit files into OUT; no
+    /// tables or report (`--assemble` builds them once every shard has run). Shards are balanced by
+    /// expected cost and may run at the same time on one OUT (a shared filesystem). Inside a Slurm job
+    /// array, SLURM_ARRAY_TASK_ID / SLURM_ARRAY_TASK_COUNT are used when --shard is not given.
+    #[arg(long, value_name = "I/N", conflicts_with_all = ["assemble", "slurm"])]
+    shard: Option<String>,
+    /// Build the tables, figures and report from the unit files of all shards in OUT; runs no unit and
+    /// fails, naming them, when units are missing.
+    #[arg(long, conflicts_with_all = ["slurm", "max_units"])]
+    assemble: bool,
+    /// Write a Slurm job array (one task per shard, only the shards with missing units) and an
+    /// assemble job that waits for it (`--dependency=afterok`) into OUT/slurm/; with --submit, submit
+    /// them. Needs a filesystem shared with the compute nodes at the same paths.
+    #[arg(long)]
+    slurm: bool,
+    /// Slurm partition of both jobs (default: the cluster's default).
+    #[arg(long, requires = "slurm")]
+    partition: Option<String>,
+    /// Slurm time limit of each job (e.g. 30:00 or 1-00:00:00).
+    #[arg(long, requires = "slurm")]
+    time: Option<String>,
+    /// CPUs of each array task (also its worker threads).
+    #[arg(long, requires = "slurm", default_value_t = 2)]
+    cpus_per_task: usize,
+    /// Number of shards (array tasks).
+    #[arg(long, requires = "slurm", default_value_t = 8)]
+    array_size: usize,
+    /// Submit the jobs with sbatch and print their ids (else only write the scripts).
+    #[arg(long, requires = "slurm")]
+    submit: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -50,13 +82,34 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         None if a.quick => StudyConfig::quick(),
         None => StudyConfig::default(),
     };
+    if a.slurm {
+        return run_slurm(&a, &cfg);
+    }
+    let shard = match &a.shard {
+        Some(s) => Some(Shard::parse(s)?),
+        None if a.assemble => None,
+        None => Shard::from_env()?,
+    };
     let opts = RunOptions {
         out: a.out.clone(),
         threads: a.threads,
         max_units: a.max_units,
         progress: true,
+        shard,
+        assemble_only: a.assemble,
     };
     let s = run_study(&cfg, &opts).context("running the study")?;
+    if let Some(sh) = shard {
+        eprintln!(
+            "shard {sh}: {} units ({} reused, {} run) written to {}; `spinedrr study --assemble` \
+             builds the report once every shard has run",
+            s.total_units,
+            s.skipped_units,
+            s.ran_units,
+            a.out.join("units").display()
+        );
+        return Ok(());
+    }
     if a.timings {
         eprintln!("{:<48} {:>7} {:>9}  count", "phase", "clock", "seconds");
         for r in &s.timings {
@@ -89,5 +142,58 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             s.total_units
         );
     }
+    Ok(())
+}
+
+/// `--slurm`: the scripts (and with `--submit` the jobs) of this study's shards.
+fn run_slurm(a: &Args, cfg: &StudyConfig) -> anyhow::Result<()> {
+    let absolute = |p: &std::path::Path| -> anyhow::Result<PathBuf> {
+        Ok(if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            std::env::current_dir()
+                .context("reading the working directory")?
+                .join(p)
+        })
+    };
+    let exe = std::env::current_exe().context("locating the spinedrr binary")?;
+    let mut command = vec![exe.display().to_string(), "study".to_string()];
+    if let Some(c) = &a.config {
+        command.extend(["--config".to_string(), absolute(c)?.display().to_string()]);
+    }
+    if a.quick {
+        command.push("--quick".into());
+    }
+    let out = absolute(&a.out)?;
+    let opts = SlurmOptions {
+        partition: a.partition.clone(),
+        time: a.time.clone(),
+        cpus_per_task: a.cpus_per_task,
+        array_size: a.array_size,
+        command,
+    };
+    let plan = slurm::prepare(cfg, &out, &opts).context("preparing the Slurm jobs")?;
+    let shards: Vec<String> = plan.pending_shards.iter().map(|s| s.to_string()).collect();
+    eprintln!(
+        "{} of {} units missing; shards to run: {} of {}; scripts in {}",
+        plan.missing_units,
+        plan.total_units,
+        if shards.is_empty() {
+            "none".to_string()
+        } else {
+            shards.join(",")
+        },
+        plan.shards,
+        out.join(slurm::SLURM_DIR).display()
+    );
+    if !a.submit {
+        eprintln!("submit with: {}", plan.submit_script.display());
+        return Ok(());
+    }
+    let ids = slurm::submit(&out, &plan).context("submitting the Slurm jobs")?;
+    if let Some(id) = &ids.array_job {
+        println!("array job {id}");
+    }
+    println!("assemble job {}", ids.assemble_job);
     Ok(())
 }

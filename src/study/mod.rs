@@ -8,6 +8,7 @@
 //!
 //! Data flows one way: config → units → experiments → rows (unit files) → tables → figures, report.
 
+pub mod cohort;
 pub mod config;
 pub mod experiments;
 pub mod figures;
@@ -15,6 +16,8 @@ pub mod report;
 pub mod report_html;
 pub mod runner;
 pub mod schema;
+pub mod shard;
+pub mod slurm;
 pub mod timings;
 pub mod units;
 

@@ -17,6 +17,7 @@ use rayon::prelude::*;
 use super::config::StudyConfig;
 use super::experiments::{self, Context};
 use super::schema::StudyTables;
+use super::shard::{self, Shard};
 use super::timings::{Phase, RunFacts, TimingRow, Timings, to_csv};
 use super::units::{Unit, UnitFile, derive_seed, enumerate_units};
 use super::{figures, report, report_html};
@@ -33,6 +34,26 @@ pub struct RunOptions {
     pub max_units: Option<usize>,
     /// Show a progress bar (only when stderr is a terminal and not in CI).
     pub progress: bool,
+    /// Run only this shard's units ([`super::shard`]); tables, figures and report are left to an
+    /// `assemble_only` run.
+    pub shard: Option<Shard>,
+    /// Run no unit: build tables, figures and report from the unit files present, and fail, naming
+    /// them, when units are missing.
+    pub assemble_only: bool,
+}
+
+impl RunOptions {
+    /// Options for an unsharded run into `out` (rayon's threads, no limit, no progress bar).
+    pub fn new(out: impl Into<PathBuf>) -> RunOptions {
+        RunOptions {
+            out: out.into(),
+            threads: None,
+            max_units: None,
+            progress: false,
+            shard: None,
+            assemble_only: false,
+        }
+    }
 }
 
 /// What a run did.
@@ -84,45 +105,65 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     let timings = Arc::new(Timings::default());
     cfg.validate()?;
     let pool = thread_pool(opts.threads)?;
+    // A cohort's cases become CT entries (checked once, then cached in OUT/cohort/).
+    let resolved = super::cohort::resolve(cfg, &opts.out)?;
+    let cfg = &resolved;
     let fp = fingerprint(cfg)?;
     let toml = config_toml(cfg)?;
     let units = enumerate_units(cfg)?;
+    // This invocation's units: a shard's, or all.
+    let mine: Vec<&Unit> = match opts.shard {
+        Some(s) => shard::units_of(cfg, &units, s),
+        None => units.iter().collect(),
+    };
+    let is_pending = |u: &Unit| load_unit(&unit_path(&opts.out, &u.id()), &fp).is_none();
     // What is pending, read before the lock only to decide whether the anatomy must be built.
-    let work_before = opts.max_units != Some(0)
-        && units
-            .iter()
-            .any(|u| load_unit(&unit_path(&opts.out, &u.id()), &fp).is_none());
+    let work_before =
+        !opts.assemble_only && opts.max_units != Some(0) && mine.iter().any(|u| is_pending(u));
     let build_start = Instant::now();
     let mut ctx = if work_before {
-        Some(build_context(cfg, opts, &timings, &pool)?)
+        let pending: Vec<&Unit> = mine.iter().copied().filter(|u| is_pending(u)).collect();
+        Some(build_context(cfg, &pending, opts, &timings, &pool)?)
     } else {
         None
     };
     let mut build_wall = build_start.elapsed();
     create_dir(&opts.out)?;
-    let _lock = OutputLock::acquire(&opts.out)?;
-    clear_foreign_products(&opts.out, &toml, &fp)?;
-    for d in ["units", "tables", "figures", experiments::REFERENCES_DIR] {
-        create_dir(&opts.out.join(d))?;
-        io::remove_stale_temporaries(&opts.out.join(d));
+    let dirs = ["units", "tables", "figures", experiments::REFERENCES_DIR];
+    // A shard shares the folder with the other shards: no lock, no clearing, no removal of
+    // temporaries (another host's live process cannot be told from a dead one).
+    let _lock = match opts.shard {
+        Some(_) => {
+            shard::prepare_folder(&opts.out, &toml, &dirs)?;
+            None
+        }
+        None => Some(claim_folder(&opts.out, &toml, &fp)?),
+    };
+    if opts.assemble_only {
+        let missing = missing_units(&opts.out, &units, &fp);
+        if !missing.is_empty() {
+            let shards = super::slurm::planned_shards(&opts.out)
+                .map(|n| (n, shard::shards_with(cfg, &units, &missing, n)));
+            return Err(shard::missing_units_error(
+                &opts.out, &units, &missing, shards,
+            ));
+        }
     }
-    io::remove_stale_temporaries(&opts.out);
-    let pending: Vec<&Unit> = units
-        .iter()
-        .filter(|u| load_unit(&unit_path(&opts.out, &u.id()), &fp).is_none())
-        .collect();
-    let skipped = units.len() - pending.len();
+    let pending: Vec<&Unit> = mine.iter().copied().filter(|u| is_pending(u)).collect();
+    let skipped = mine.len() - pending.len();
     let todo: Vec<&Unit> = pending
         .iter()
         .take(opts.max_units.unwrap_or(usize::MAX))
         .copied()
         .collect();
-    write_atomic_bytes(&opts.out.join("study.toml"), toml.as_bytes())?;
+    if opts.shard.is_none() {
+        write_atomic_bytes(&opts.out.join("study.toml"), toml.as_bytes())?;
+    }
     if !todo.is_empty() {
         let t0 = Instant::now();
         let mut ctx = match ctx.take() {
             Some(c) => c,
-            None => build_context(cfg, opts, &timings, &pool)?,
+            None => build_context(cfg, &todo, opts, &timings, &pool)?,
         };
         build_wall += t0.elapsed();
         timings.add(Phase::Build, build_wall, ctx.targets.len() as u64);
@@ -131,17 +172,19 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         run_units(&ctx, &pool, opts, &fp, &todo)?;
         timings.add(Phase::Units, t0.elapsed(), todo.len() as u64);
     }
-    let complete = todo.len() == pending.len();
+    // A shard never assembles (the other shards' units may still be running).
+    let complete = opts.shard.is_none() && todo.len() == pending.len();
     let threads = pool.current_num_threads();
     let run = RunFacts {
         threads,
-        total_units: units.len(),
+        total_units: mine.len(),
         ran_units: todo.len(),
     };
     if complete {
         let t0 = Instant::now();
         let tables = assemble(&opts.out, &units, &fp)?;
-        let n_tables = tables.write(&opts.out.join("tables"))?;
+        let n_tables = tables.write(&opts.out.join("tables"))?
+            + super::cohort::write_tables(&opts.out, cfg, &tables)?;
         timings.add(Phase::Tables, t0.elapsed(), n_tables as u64);
         let n_figures = timings.time(Phase::Figures, 0, || {
             figures::write_all(&opts.out, cfg, &tables)
@@ -154,9 +197,13 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         })?;
     }
     let rows = timings.rows(start.elapsed());
-    write_atomic_bytes(&opts.out.join("timings.csv"), &to_csv(&rows)?)?;
+    let timings_file = match opts.shard {
+        Some(s) => format!("timings-{}.csv", s.tag()),
+        None => "timings.csv".to_string(),
+    };
+    write_atomic_bytes(&opts.out.join(timings_file), &to_csv(&rows)?)?;
     Ok(RunSummary {
-        total_units: units.len(),
+        total_units: mine.len(),
         skipped_units: skipped,
         ran_units: todo.len(),
         complete,
@@ -164,14 +211,42 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     })
 }
 
-/// Reads the inputs (printing their warnings), builds the targets and checks that every cell puts its
-/// target on the detector; touches no file.
+/// Claims the output folder `out` (which must exist) for this process: takes its lock, clears the
+/// products of another config, creates the product folders and removes stale temporaries.
+pub(super) fn claim_folder(out: &Path, toml: &str, fp: &str) -> Result<OutputLock> {
+    let lock = OutputLock::acquire(out)?;
+    clear_foreign_products(out, toml, fp)?;
+    for d in ["units", "tables", "figures", experiments::REFERENCES_DIR] {
+        create_dir(&out.join(d))?;
+        io::remove_stale_temporaries(&out.join(d));
+    }
+    io::remove_stale_temporaries(out);
+    Ok(lock)
+}
+
+/// The config's canonical TOML and fingerprint.
+pub(super) fn config_identity(cfg: &StudyConfig) -> Result<(String, String)> {
+    Ok((config_toml(cfg)?, fingerprint(cfg)?))
+}
+
+/// The positions in `units` of those without a unit file of fingerprint `fp` under `out`.
+pub(super) fn missing_units(out: &Path, units: &[Unit], fp: &str) -> Vec<usize> {
+    (0..units.len())
+        .filter(|&i| load_unit(&unit_path(out, &units[i].id()), fp).is_none())
+        .collect()
+}
+
+/// Reads the inputs the `units` need (printing their warnings), builds their targets and checks that
+/// every cell puts its target on the detector; touches no file. Anatomy no unit of this invocation
+/// studies is not read ([`shard::restrict_config`]).
 fn build_context(
     cfg: &StudyConfig,
+    units: &[&Unit],
     opts: &RunOptions,
     timings: &Arc<Timings>,
     pool: &rayon::ThreadPool,
 ) -> Result<Context> {
+    let cfg = &shard::restrict_config(cfg, units);
     let inputs = timings.time(Phase::Anatomy, 0, || experiments::load_inputs(cfg))?;
     for w in &inputs.warnings {
         eprintln!("warning: {w}");
@@ -404,7 +479,8 @@ fn clear_foreign_products(out: &Path, toml: &str, fp: &str) -> Result<()> {
     let entries = std::fs::read_dir(out).map_err(|e| Error::io(out, e))?;
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        if (name.starts_with("report.") || name == "timings.csv") && e.path().is_file() {
+        let timings = name == "timings.csv" || name.starts_with("timings-shard-");
+        if (name.starts_with("report.") || timings) && e.path().is_file() {
             std::fs::remove_file(e.path()).map_err(|err| Error::io(e.path(), err))?;
             removed.push(name);
         }

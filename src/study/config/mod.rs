@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::cohort::dataset::DatasetConfig;
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::{Level, parse_levels};
 use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig, Perturbation};
@@ -55,6 +56,10 @@ pub struct AnatomyConfig {
     pub meshes: Vec<MeshTarget>,
     /// CT volumes with a vertebra segmentation: each listed level studied as one target.
     pub ct: Vec<CtTarget>,
+    /// Datasets of CT cases (`[[anatomy.dataset]]`): each readable case becomes CT targets as a
+    /// `[[anatomy.ct]]` entry does (see `study::cohort`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub dataset: Vec<DatasetConfig>,
 }
 
 /// `[[anatomy.meshes]]`: one target made of closed surface files (STL/OBJ/PLY, world mm) and a landmarks
@@ -249,6 +254,7 @@ impl Default for AnatomyConfig {
             marker_radius_mm: 2.0,
             meshes: Vec::new(),
             ct: Vec::new(),
+            dataset: Vec::new(),
         }
     }
 }
@@ -312,6 +318,7 @@ impl StudyConfig {
                 marker_radius_mm: 4.0,
                 meshes: Vec::new(),
                 ct: Vec::new(),
+                dataset: Vec::new(),
             },
             ..StudyConfig::default()
         }
@@ -381,6 +388,9 @@ impl StudyConfig {
         for m in &mut self.anatomy.meshes {
             m.files.iter_mut().for_each(fix);
             fix(&mut m.landmarks);
+        }
+        for d in &mut self.anatomy.dataset {
+            fix(&mut d.folder);
         }
         for c in &mut self.anatomy.ct {
             fix(&mut c.ct);

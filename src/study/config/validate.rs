@@ -12,12 +12,17 @@ impl StudyConfig {
     /// Checks every key before any work; errors name the key and the value.
     pub fn validate(&self) -> Result<()> {
         let a = &self.anatomy;
-        if a.levels.is_empty() && a.meshes.is_empty() && a.ct.is_empty() {
+        if a.levels.is_empty() && a.meshes.is_empty() && a.ct.is_empty() && a.dataset.is_empty() {
             return Err(Error::invalid(
                 "anatomy.levels",
-                "must list at least one level (or give [[anatomy.meshes]] or [[anatomy.ct]])",
+                "must list at least one level (or give [[anatomy.meshes]], [[anatomy.ct]] or \
+                 [[anatomy.dataset]])",
             ));
         }
+        for d in &a.dataset {
+            d.check()?;
+        }
+        unique("anatomy.dataset.name", &a.dataset, |d| d.name.clone())?;
         if self.experiments.is_empty() {
             return Err(Error::invalid(
                 "experiments",

@@ -10,6 +10,7 @@ use std::path::Path;
 mod canvas;
 mod chart;
 mod charts;
+pub mod cohort;
 mod composed;
 pub mod heatmap_panel;
 mod labels;
@@ -170,6 +171,9 @@ pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<
                 false,
             ));
         }
+    }
+    if let Some((m, rows)) = super::cohort::cohort_of(out, cfg, tables) {
+        entries.extend(cohort::write(&figs, &rows, m.cases.len())?);
     }
     manifest::write(&figs, &entries)?;
     let n = std::fs::read_dir(&figs)

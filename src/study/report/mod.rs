@@ -2,6 +2,7 @@
 //! made, the products, and the paper's reported figures (`reference/paper-results.toml`, embedded)
 //! beside ours. Writing to a `String` cannot fail, so `writeln!` results are discarded (`let _`).
 
+pub mod cohort;
 mod comparison;
 mod findings;
 pub mod latex;
@@ -65,10 +66,14 @@ configuration is `study.toml`.\n",
         (!tables.registration_summary.is_empty(), REGISTRATION),
     ];
     let mut headings = vec!["Findings".to_string()];
+    if !cfg.anatomy.dataset.is_empty() {
+        headings.push(cohort::HEADING.to_string());
+    }
     headings.extend(experiments.iter().filter(|e| e.0).map(|e| e.1.to_string()));
     headings.extend([MEASUREMENT, "Products", TIMINGS].map(String::from));
     layout::contents(&mut md, &headings);
     findings::section(&mut md, tables, &paper, &first);
+    cohort::section(&mut md, out, cfg, tables);
     let mut n = 0;
     if !tables.projection.is_empty() {
         let _ = writeln!(md, "## {PROJECTION}\n");

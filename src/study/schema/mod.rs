@@ -5,6 +5,7 @@
 //!
 //! f64 cells are written with `{}` Display and read back exactly (see [`num`]).
 
+pub mod cohort;
 pub mod num;
 mod tables;
 
