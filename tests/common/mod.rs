@@ -38,6 +38,17 @@ impl Spinedrr {
         self
     }
 
+    /// Sets an environment variable of the run.
+    pub fn env(mut self, key: impl AsRef<OsStr>, value: impl AsRef<OsStr>) -> Self {
+        self.0.env(key, value);
+        self
+    }
+
+    /// The command itself (to spawn it and wait later).
+    pub fn command(self) -> Command {
+        self.0
+    }
+
     /// Runs to completion and returns the exit status with the captured stdout and stderr.
     pub fn output(mut self) -> Output {
         self.0.output().expect("running spinedrr")

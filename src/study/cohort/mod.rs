@@ -269,27 +269,15 @@ pub fn prepare(cfg: &StudyConfig, out: &Path) -> Result<Option<Manifest>> {
                     Err(l) => m.left_out.push(l),
                 }
             }
+            // A strict dataset's bad case stops the run before anything is written.
+            strict_check(datasets, &m)?;
             let dir = out.join(COHORT_DIR);
             std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
             write_json(&manifest_path(out), &m)?;
             m
         }
     };
-    for l in &manifest.left_out {
-        let strict = datasets.iter().any(|d| d.name == l.dataset && d.strict);
-        if strict {
-            return Err(Error::invalid(
-                "anatomy.dataset (strict = true)",
-                format!(
-                    "dataset '{}', case '{}': {} cannot be used: {}",
-                    l.dataset,
-                    l.case,
-                    l.file.display(),
-                    l.reason
-                ),
-            ));
-        }
-    }
+    strict_check(datasets, &manifest)?;
     if manifest.cases.is_empty() {
         return Err(Error::invalid(
             "anatomy.dataset",
@@ -314,6 +302,27 @@ pub fn prepare(cfg: &StudyConfig, out: &Path) -> Result<Option<Manifest>> {
         );
     }
     Ok(Some(manifest))
+}
+
+/// The error for the first case left out of a dataset with `strict = true`, naming the file.
+fn strict_check(datasets: &[DatasetConfig], m: &Manifest) -> Result<()> {
+    match m
+        .left_out
+        .iter()
+        .find(|l| datasets.iter().any(|d| d.name == l.dataset && d.strict))
+    {
+        Some(l) => Err(Error::invalid(
+            "anatomy.dataset (strict = true)",
+            format!(
+                "dataset '{}', case '{}': {} cannot be used: {}",
+                l.dataset,
+                l.case,
+                l.file.display(),
+                l.reason
+            ),
+        )),
+        None => Ok(()),
+    }
 }
 
 /// `cfg` with every case of `manifest` appended as an `[[anatomy.ct]]` entry.
