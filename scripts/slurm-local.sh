@@ -136,6 +136,14 @@ start() {
 }
 
 stop() {
+  # Jobs first (their slurmstepd processes would outlive slurmd), then the daemons.
+  if pid_alive "$(read_pid "$dir/run/slurmctld.pid")" && [ -f "$conf" ]; then
+    SLURM_CONF=$conf scancel --full --quiet --user="$(id -un)" 2>/dev/null || true
+    for _ in $(seq 100); do
+      [ -z "$(SLURM_CONF=$conf squeue -h -o %i 2>/dev/null)" ] && break
+      sleep 0.1
+    done
+  fi
   stop_pidfile "$dir/run/slurmd.pid"
   stop_pidfile "$dir/run/slurmctld.pid"
   # munged only when this script started it.
