@@ -142,7 +142,7 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     if opts.assemble_only {
         let missing = missing_units(&opts.out, &units, &fp);
         if !missing.is_empty() {
-            let shards = super::slurm::planned_shards(&opts.out)
+            let shards = shard::planned_shards(&opts.out)
                 .map(|n| (n, shard::shards_with(cfg, &units, &missing, n)));
             return Err(shard::missing_units_error(
                 &opts.out, &units, &missing, shards,

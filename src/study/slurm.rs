@@ -24,7 +24,7 @@ use crate::io::{write_atomic_bytes, write_json};
 use crate::{Error, Result};
 
 /// The folder of the scripts, the plan and the job logs.
-pub const SLURM_DIR: &str = "slurm";
+pub const SLURM_DIR: &str = shard::PLAN_DIR;
 
 /// How to submit.
 #[derive(Debug, Clone)]
@@ -61,14 +61,6 @@ pub struct SlurmPlan {
 pub struct Submitted {
     pub array_job: Option<String>,
     pub assemble_job: String,
-}
-
-/// The shard count of the plan in `out`, when `--slurm` wrote one.
-pub fn planned_shards(out: &Path) -> Option<usize> {
-    let text = std::fs::read_to_string(out.join(SLURM_DIR).join("plan.json")).ok()?;
-    serde_json::from_str::<SlurmPlan>(&text)
-        .ok()
-        .map(|p| p.shards)
 }
 
 /// `0-3,5,7-9`: a Slurm `--array` list of sorted ids.

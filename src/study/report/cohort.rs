@@ -52,7 +52,7 @@ fn lat_ap_ratios(rows: &[LandmarkRow], case_of: &CaseOf, df: f64) -> Vec<(String
     out
 }
 
-fn pooled<'a>(rows: &'a [CohortRow], keep: impl Fn(&CohortRow) -> bool) -> Option<&'a CohortRow> {
+fn pooled(rows: &[CohortRow], keep: impl Fn(&CohortRow) -> bool) -> Option<&CohortRow> {
     rows.iter().find(|r| r.scope == "pooled" && keep(r))
 }
 
