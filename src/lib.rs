@@ -20,6 +20,7 @@
 
 pub mod analysis;
 pub mod anatomy;
+pub mod calibration;
 pub mod error;
 pub mod geometry;
 pub mod io;

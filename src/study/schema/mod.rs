@@ -5,6 +5,7 @@
 //!
 //! f64 cells are written with `{}` Display and read back exactly (see [`num`]).
 
+mod calibration;
 pub mod num;
 mod tables;
 
@@ -13,6 +14,9 @@ use serde::{Deserialize, Serialize};
 pub use super::config::Family;
 use super::config::RegistrationMethod;
 
+pub use calibration::{
+    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, TOLERANCE_THRESHOLDS_PX,
+};
 pub use tables::{StudyTables, TableRow, mean_sd, read_rows, write_rows};
 
 /// Whole-object silhouette, contour and image-similarity metrics (table `projection.csv`).
@@ -167,4 +171,6 @@ pub struct UnitRows {
     pub landmarks: Vec<LandmarkRow>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub registration: Vec<RegistrationRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub calibration: Vec<CalibrationRow>,
 }

@@ -6,7 +6,7 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use super::{
-    LandmarkRow, ProjectionRow, RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
+    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, LandmarkRow, ProjectionRow, RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
 };
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
@@ -67,6 +67,9 @@ pub struct StudyTables {
     pub landmarks: Vec<LandmarkRow>,
     pub registration: Vec<RegistrationRow>,
     pub registration_summary: Vec<RegistrationSummaryRow>,
+    pub calibration: Vec<CalibrationRow>,
+    pub calibration_tolerance: Vec<CalibrationToleranceRow>,
+    pub calibration_ambiguity: Vec<CalibrationAmbiguityRow>,
 }
 
 impl StudyTables {
@@ -79,8 +82,11 @@ impl StudyTables {
             t.structures.extend(u.structures);
             t.landmarks.extend(u.landmarks);
             t.registration.extend(u.registration);
+            t.calibration.extend(u.calibration);
         }
         t.registration_summary = summarize_registration(&t.registration);
+        t.calibration_tolerance = super::calibration::tolerance(&t.calibration);
+        t.calibration_ambiguity = super::calibration::ambiguity(&t.calibration);
         t
     }
 
@@ -99,6 +105,9 @@ impl StudyTables {
         put(dir, &self.landmarks, &mut n)?;
         put(dir, &self.registration, &mut n)?;
         put(dir, &self.registration_summary, &mut n)?;
+        put(dir, &self.calibration, &mut n)?;
+        put(dir, &self.calibration_tolerance, &mut n)?;
+        put(dir, &self.calibration_ambiguity, &mut n)?;
         Ok(n)
     }
 
@@ -111,6 +120,9 @@ impl StudyTables {
             landmarks: read_rows(&dir)?,
             registration: read_rows(&dir)?,
             registration_summary: read_rows(&dir)?,
+            calibration: read_rows(&dir)?,
+            calibration_tolerance: read_rows(&dir)?,
+            calibration_ambiguity: read_rows(&dir)?,
         })
     }
 }
