@@ -19,6 +19,11 @@ fn cv(e: opencv::Error) -> Error {
     Error::from(e)
 }
 
+/// OpenCV's LM stops when the parameter step is below this fraction of the parameters (relative L2
+/// norm): 1e-12 of fx = 4500 px is 5e-9 px. (Its default, DBL_EPSILON, is never reached by a converged
+/// solve, which then runs to the iteration cap.)
+const CONVERGED_REL_STEP: f64 = 1e-12;
+
 /// The distortion-free flags.
 fn flags() -> i32 {
     use opencv::calib3d::*;
@@ -86,8 +91,8 @@ pub fn calibrate_camera(
     let mut tvecs: Vector<Mat> = Vector::new();
     let criteria = TermCriteria::new(
         opencv::core::TermCriteria_COUNT + opencv::core::TermCriteria_EPS,
-        200,
-        f64::EPSILON,
+        100,
+        CONVERGED_REL_STEP,
     )
     .map_err(cv)?;
     let rms = opencv::calib3d::calibrate_camera(

@@ -353,11 +353,12 @@ fn ambiguity_figure(
     amb: &[CalibrationAmbiguityRow],
     c: &Conditions,
 ) -> Result<Option<FigureEntry>> {
-    let best = amb
-        .iter()
-        .filter(|a| a.protocol == Protocol::Full)
-        .chain(amb.iter())
-        .max_by(|a, b| a.ratio.total_cmp(&b.ratio));
+    let largest = |p: Option<Protocol>| {
+        amb.iter()
+            .filter(|a| p.is_none_or(|p| a.protocol == p))
+            .max_by(|a, b| a.ratio.total_cmp(&b.ratio))
+    };
+    let best = largest(Some(Protocol::Full)).or_else(|| largest(None));
     let Some(a) = best else {
         return Ok(None);
     };

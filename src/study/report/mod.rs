@@ -2,6 +2,7 @@
 //! made, the products, and the paper's reported figures (`reference/paper-results.toml`, embedded)
 //! beside ours. Writing to a `String` cannot fail, so `writeln!` results are discarded (`let _`).
 
+mod calibration;
 mod comparison;
 mod findings;
 pub mod latex;
@@ -63,6 +64,7 @@ configuration is `study.toml`.\n",
         (!tables.projection.is_empty(), PROJECTION),
         (!tables.landmarks.is_empty(), LANDMARKS),
         (!tables.registration_summary.is_empty(), REGISTRATION),
+        (!tables.calibration.is_empty(), calibration::HEADING),
     ];
     let mut headings = vec!["Findings".to_string()];
     headings.extend(experiments.iter().filter(|e| e.0).map(|e| e.1.to_string()));
@@ -85,6 +87,7 @@ configuration is `study.toml`.\n",
         layout::figures(&mut md, &figs, Section::Registration, &mut n);
         registration_section(&mut md, &tables.registration_summary, &paper, &first);
     }
+    calibration::section(&mut md, cfg, tables, &figs, &mut n);
     renderers_section(&mut md, cfg);
     layout::products(&mut md, out)?;
     timings_section(&mut md, rows, run);
