@@ -4,7 +4,9 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use spinedrr::calibration::acquisition::with_noise;
-use spinedrr::calibration::{CalibrationPhantom, CalibrationSetup, SetupOptions, calibrate, run_trial};
+use spinedrr::calibration::{
+    CalibrationPhantom, CalibrationSetup, SetupOptions, calibrate, run_trial,
+};
 use spinedrr::geometry::CArm;
 
 fn bench(c: &mut Criterion) {

@@ -57,7 +57,12 @@ fn noise_free_plate_and_helix_recover_k_and_every_pose() {
         }
         for (v, est) in carm.views.iter().zip(&r.views) {
             let e = pose_err(&est.world_to_camera, &v.world_to_camera);
-            assert!(e <= 1e-6, "{} view {}: extrinsics error {e:e}", phantom.name, v.name);
+            assert!(
+                e <= 1e-6,
+                "{} view {}: extrinsics error {e:e}",
+                phantom.name,
+                v.name
+            );
         }
         assert!(r.calibration.rms_px < 1e-4, "{}", r.calibration.rms_px);
         assert!(r.heldout_err_mm < 1e-3, "{}", r.heldout_err_mm);
@@ -67,7 +72,8 @@ fn noise_free_plate_and_helix_recover_k_and_every_pose() {
 #[test]
 fn noise_free_helix_with_skew_recovers_the_skew() {
     // Our K carries a skew; the 3-D method estimates it (Zhang's, like OpenCV, holds it at 0).
-    let text = spinedrr::geometry::DEFAULT_GEOMETRY_TOML.replace("# skew_px = 0.0", "skew_px = 3.5");
+    let text =
+        spinedrr::geometry::DEFAULT_GEOMETRY_TOML.replace("# skew_px = 0.0", "skew_px = 3.5");
     let carm = CArm::from_toml_str(&text, "skewed").unwrap();
     let setup = CalibrationSetup::new(
         &carm,
@@ -77,7 +83,11 @@ fn noise_free_helix_with_skew_recovers_the_skew() {
     .unwrap();
     let r = run_trial(&setup, 0.0, 1).unwrap();
     let e = k_err(&r.k(), &carm.views[0].intrinsics);
-    assert!(e <= 1e-6 && (r.k().skew - 3.5).abs() < 1e-3, "{e:e} {:?}", r.k());
+    assert!(
+        e <= 1e-6 && (r.k().skew - 3.5).abs() < 1e-3,
+        "{e:e} {:?}",
+        r.k()
+    );
 }
 
 #[test]
@@ -95,7 +105,12 @@ fn our_dlt_lm_and_opencv_agree_on_the_same_noisy_helix_data() {
         let ours = bundle::refine(&init, &images, &bbs, Skew::Fixed, 200).unwrap();
         let (cv, _) = calibrate_camera(&images, &bbs, k0.width, k0.height, Some(&init.k)).unwrap();
         let e = k_err(&ours.geometry.k, &cv.k);
-        assert!(e <= 1e-6, "seed {seed}: K differs by {e:e}: {:?} vs {:?}", ours.geometry.k, cv.k);
+        assert!(
+            e <= 1e-6,
+            "seed {seed}: K differs by {e:e}: {:?} vs {:?}",
+            ours.geometry.k,
+            cv.k
+        );
         for (a, b) in ours.geometry.poses.iter().zip(&cv.poses) {
             let e = pose_err(a, b);
             assert!(e <= 1e-6, "seed {seed}: pose differs by {e:e}");
@@ -121,8 +136,7 @@ fn our_rq_decomposition_matches_opencv_decompose_projection_matrix() {
         // which a unit-Frobenius P (last row ~1e-7) feels: give it P scaled so M's last row is a unit
         // vector (P is homogeneous, the scale changes nothing else).
         let m3 = (p[(2, 0)].powi(2) + p[(2, 1)].powi(2) + p[(2, 2)].powi(2)).sqrt();
-        let rows: [[f64; 4]; 3] =
-            std::array::from_fn(|r| std::array::from_fn(|c| p[(r, c)] / m3));
+        let rows: [[f64; 4]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| p[(r, c)] / m3));
         let (kc, rc, centre) = decompose_projection_matrix(&rows).unwrap();
         // OpenCV leaves the signs free (P is homogeneous): K D, D R with D = diag(sign K_ii) has a
         // positive diagonal, and R's sign follows det R = +1.
@@ -137,19 +151,28 @@ fn our_rq_decomposition_matches_opencv_decompose_projection_matrix() {
         for r in 0..3 {
             for c in 0..3 {
                 let (a, b) = (ours[r][c], kc[r][c]);
-                assert!((a - b).abs() <= 1e-9 * ours[0][0], "K[{r}][{c}]: {a} vs {b}");
+                assert!(
+                    (a - b).abs() <= 1e-9 * ours[0][0],
+                    "K[{r}][{c}]: {a} vs {b}"
+                );
             }
         }
         let rr = pose.rotation_rows();
         for r in 0..3 {
             for c in 0..3 {
-                assert!((rr[r][c] - rc[r][c]).abs() < 1e-9, "R[{r}][{c}]: {rr:?} vs {rc:?}");
+                assert!(
+                    (rr[r][c] - rc[r][c]).abs() < 1e-9,
+                    "R[{r}][{c}]: {rr:?} vs {rc:?}"
+                );
             }
         }
         let ours_centre = RigidTransform::new(pose.rotation, pose.translation)
             .inverse()
             .translation;
-        assert!((ours_centre - centre).length() < 1e-6 * centre.length(), "{ours_centre} vs {centre}");
+        assert!(
+            (ours_centre - centre).length() < 1e-6 * centre.length(),
+            "{ours_centre} vs {centre}"
+        );
         // And K [R | t] is the DLT's P up to scale.
         let view = spinedrr::geometry::View::new("v", k, pose);
         for x in &world {
@@ -177,6 +200,9 @@ fn corr(a: &[f64], b: &[f64]) -> f64 {
     cov / (va * vb).sqrt()
 }
 
+/// A named intrinsic parameter.
+type Param = fn(&Intrinsics) -> f64;
+
 /// Monte-Carlo sd of (fx, fy, cx, cy[, skew]) against `σ √diag (JᵀJ)⁻¹` at the truth.
 fn check_first_order(phantom: CalibrationPhantom, tilt_deg: f64, sigma: f64, skew: Skew) {
     let carm = CArm::default_paper();
@@ -193,7 +219,7 @@ fn check_first_order(phantom: CalibrationPhantom, tilt_deg: f64, sigma: f64, ske
     let trials: Vec<Intrinsics> = (0..200)
         .map(|i| run_trial(&setup, sigma, trial_seed(11, i)).unwrap().k())
         .collect();
-    let mut params: Vec<(&str, fn(&Intrinsics) -> f64)> = vec![
+    let mut params: Vec<(&str, Param)> = vec![
         ("fx", |k| k.fx),
         ("fy", |k| k.fy),
         ("cx", |k| k.cx),
@@ -257,5 +283,8 @@ fn plate_focal_length_trades_against_depth_and_tilt_shrinks_but_keeps_the_direct
         );
         sds.push(sd(&fx));
     }
-    assert!(sds[0] > sds[1] && sds[1] > sds[2], "sd(fx) by tilt 2°, 10°, 45°: {sds:?}");
+    assert!(
+        sds[0] > sds[1] && sds[1] > sds[2],
+        "sd(fx) by tilt 2°, 10°, 45°: {sds:?}"
+    );
 }

@@ -35,14 +35,34 @@ fn a_helix_run_writes_one_row_per_trial_and_view_and_the_phantom_it_used() {
     std::fs::write(&file, text).unwrap();
     let out = dir.path().join("out");
     let (ok, err) = calibrate(
-        &["--phantom", file.to_str().unwrap(), "--noise-px", "0.2", "--trials", "6"],
+        &[
+            "--phantom",
+            file.to_str().unwrap(),
+            "--noise-px",
+            "0.2",
+            "--trials",
+            "6",
+        ],
         &out,
     );
     assert!(ok, "{err}");
     let mut r = csv::Reader::from_path(out.join("calibrations.csv")).unwrap();
     let header = r.headers().unwrap().clone();
-    for col in ["trial", "view", "fx", "fy", "cx", "cy", "skew", "reprojection_rms_px", "heldout_err_mm"] {
-        assert!(header.iter().any(|h| h == col), "{col} missing from {header:?}");
+    for col in [
+        "trial",
+        "view",
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "skew",
+        "reprojection_rms_px",
+        "heldout_err_mm",
+    ] {
+        assert!(
+            header.iter().any(|h| h == col),
+            "{col} missing from {header:?}"
+        );
     }
     let rows: Vec<csv::StringRecord> = r.records().map(|x| x.unwrap()).collect();
     assert_eq!(rows.len(), 6 * 2, "6 trials × AP, LAT");
@@ -74,30 +94,82 @@ fn bad_input_fails_clearly_and_writes_nothing() {
         std::fs::write(&p, serde_json::json!({ "bbs_mm": bbs }).to_string()).unwrap();
         p.to_str().unwrap().to_string()
     };
-    let few = write("few.json", serde_json::json!([[0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 10], [10, 10, 10]]));
-    let line = write("line.json", serde_json::json!([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3], [4, 4, 4], [5, 5, 5], [6, 6, 6]]));
+    let few = write(
+        "few.json",
+        serde_json::json!([[0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 10], [10, 10, 10]]),
+    );
+    let line = write(
+        "line.json",
+        serde_json::json!([
+            [0, 0, 0],
+            [1, 1, 1],
+            [2, 2, 2],
+            [3, 3, 3],
+            [4, 4, 4],
+            [5, 5, 5],
+            [6, 6, 6]
+        ]),
+    );
     let flat = write(
         "flat.json",
-        serde_json::json!([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 0], [5, 5, 0], [20, 5, 0], [5, 20, 0]]),
+        serde_json::json!([
+            [0, 0, 0],
+            [10, 0, 0],
+            [0, 10, 0],
+            [10, 10, 0],
+            [5, 5, 0],
+            [20, 5, 0],
+            [5, 20, 0]
+        ]),
     );
     let huge = write(
         "huge.json",
-        serde_json::json!([[-900, 0, 0], [900, 0, 0], [0, -900, 0], [0, 900, 0], [0, 0, -900], [0, 0, 900], [300, 300, 300]]),
+        serde_json::json!([
+            [-900, 0, 0],
+            [900, 0, 0],
+            [0, -900, 0],
+            [0, 900, 0],
+            [0, 0, -900],
+            [0, 0, 900],
+            [300, 300, 300]
+        ]),
     );
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (vec!["--phantom", &few, "--noise-px", "0.1"], "at least 6"),
         (vec!["--phantom", &line, "--noise-px", "0.1"], "collinear"),
-        (vec!["--phantom", &flat, "--noise-px", "0.1", "--method", "dlt"], "coplanar"),
+        (
+            vec!["--phantom", &flat, "--noise-px", "0.1", "--method", "dlt"],
+            "coplanar",
+        ),
         (vec!["--phantom", &huge, "--noise-px", "0.1"], "off the"),
-        (vec!["--phantom", "helix", "--noise-px=-0.5"], "must be a finite number ≥ 0"),
-        (vec!["--phantom", "plate", "--noise-px", "0.1", "--trials", "0"], "trials"),
-        (vec!["--phantom", "helix", "--noise-px", "0.1", "--method", "zhang"], "not planar"),
+        (
+            vec!["--phantom", "helix", "--noise-px=-0.5"],
+            "must be a finite number ≥ 0",
+        ),
+        (
+            vec!["--phantom", "plate", "--noise-px", "0.1", "--trials", "0"],
+            "trials",
+        ),
+        (
+            vec![
+                "--phantom",
+                "helix",
+                "--noise-px",
+                "0.1",
+                "--method",
+                "zhang",
+            ],
+            "not planar",
+        ),
     ];
     for (args, expect) in cases {
         let out = dir.path().join("out");
         let (ok, err) = calibrate(&args, &out);
         assert!(!ok, "{args:?} succeeded");
-        assert!(err.contains(expect), "{args:?}: expected '{expect}' in: {err}");
+        assert!(
+            err.contains(expect),
+            "{args:?}: expected '{expect}' in: {err}"
+        );
         assert!(!out.exists(), "{args:?} wrote {}", out.display());
     }
 }

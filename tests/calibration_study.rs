@@ -113,7 +113,11 @@ silhouette_trials = 1
     let header = r.headers().unwrap().clone();
     let col = |n: &str| header.iter().position(|h| h == n).unwrap();
     let rows: Vec<csv::StringRecord> = r.records().map(|x| x.unwrap()).collect();
-    assert_eq!(rows.len(), 2 * 2 * 6 * 2 * 2, "phantoms × σ × trials × protocols × views");
+    assert_eq!(
+        rows.len(),
+        2 * 2 * 6 * 2 * 2,
+        "phantoms × σ × trials × protocols × views"
+    );
     // The law recomputed from each intrinsic row's K: the largest |H x − x| over the L1 landmarks.
     let carm = CArm::default_paper();
     let landmarks = l1_landmarks();
@@ -157,8 +161,17 @@ silhouette_trials = 1
     }
     assert_eq!(checked, 48);
     let dice: Vec<f64> = rows.iter().map(|r| f(r, "dice")).collect();
-    assert_eq!(dice.iter().filter(|d| d.is_finite()).count(), 2 * 2 * 1 * 2 * 2);
-    assert!(dice.iter().filter(|d| d.is_finite()).all(|d| (0.0..=1.0).contains(d)));
+    // silhouette_trials = 1: trial 0 of each (phantom, σ), in both protocols and views.
+    let silhouette_rows = 2 * 2 * 2 * 2;
+    assert_eq!(
+        dice.iter().filter(|d| d.is_finite()).count(),
+        silhouette_rows
+    );
+    assert!(
+        dice.iter()
+            .filter(|d| d.is_finite())
+            .all(|d| (0.0..=1.0).contains(d))
+    );
     // The full estimated geometry compensates on the anatomy what K_est alone does not.
     let mean_dice = |protocol: &str| {
         let v: Vec<f64> = rows
@@ -169,7 +182,12 @@ silhouette_trials = 1
             .collect();
         v.iter().sum::<f64>() / v.len() as f64
     };
-    assert!(mean_dice("full") > mean_dice("intrinsic"), "{} {}", mean_dice("full"), mean_dice("intrinsic"));
+    assert!(
+        mean_dice("full") > mean_dice("intrinsic"),
+        "{} {}",
+        mean_dice("full"),
+        mean_dice("intrinsic")
+    );
     assert!(mean_dice("full") > 0.9, "{}", mean_dice("full"));
     let tol = std::fs::read_to_string(out.join("tables/calibration_tolerance.csv")).unwrap();
     assert_eq!(tol.lines().count(), 1 + 2 * 2 * 2 * 3);
@@ -184,6 +202,9 @@ silhouette_trials = 1
         assert!(img.width() > 500, "{f}");
     }
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    assert!(report.contains("Calibration in the loop"), "report lacks the section");
+    assert!(
+        report.contains("Calibration in the loop"),
+        "report lacks the section"
+    );
     assert!(report.contains("Tolerance: how good must the calibration be?"));
 }

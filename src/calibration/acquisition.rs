@@ -103,8 +103,9 @@ pub fn ideal_images(
                 let x = check_on_detector(&view, pts[i], &what)?;
                 let x = match renderer {
                     None => x,
-                    Some(r) => rendered_centroid(&view, pts[i], r)?
-                        .ok_or_else(|| Error::invalid(what, "its rendered blob is cut by the detector edge"))?,
+                    Some(r) => rendered_centroid(&view, pts[i], r)?.ok_or_else(|| {
+                        Error::invalid(what, "its rendered blob is cut by the detector edge")
+                    })?,
                 };
                 observed.push((i, x));
             }

@@ -90,7 +90,11 @@ pub fn jacobian(
             let p = q + pose.translation;
             let iz = 1.0 / p.z;
             let (xn, yn) = (p.x * iz, p.y * iz);
-            let du = DVec3::new(k.fx * iz, k.skew * iz, -(k.fx * p.x + k.skew * p.y) * iz * iz);
+            let du = DVec3::new(
+                k.fx * iz,
+                k.skew * iz,
+                -(k.fx * p.x + k.skew * p.y) * iz * iz,
+            );
             let dv = DVec3::new(0.0, k.fy * iz, -k.fy * p.y * iz * iz);
             // u: fx, fy, cx, cy, s
             j[(row, 0)] = xn;

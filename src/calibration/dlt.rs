@@ -23,7 +23,22 @@ fn normalise_3d(x: &[DVec3]) -> nalgebra::Matrix4<f64> {
     let d = x.iter().map(|p| (*p - c).length()).sum::<f64>() / x.len() as f64;
     let s = 3f64.sqrt() / d.max(1e-300);
     nalgebra::Matrix4::new(
-        s, 0.0, 0.0, -s * c.x, 0.0, s, 0.0, -s * c.y, 0.0, 0.0, s, -s * c.z, 0.0, 0.0, 0.0, 1.0,
+        s,
+        0.0,
+        0.0,
+        -s * c.x,
+        0.0,
+        s,
+        0.0,
+        -s * c.y,
+        0.0,
+        0.0,
+        s,
+        -s * c.z,
+        0.0,
+        0.0,
+        0.0,
+        1.0,
     )
 }
 
@@ -88,7 +103,11 @@ pub fn dlt(world: &[DVec3], pixels: &[DVec2]) -> Result<Matrix3x4<f64>> {
 /// `P = λ K [R | t]` decomposed by RQ: K upper triangular with a positive diagonal and `K[2][2] = 1`,
 /// R a rotation (det +1), t the translation. Returns the intrinsics (detector size `width × height`)
 /// and the pose.
-pub fn decompose(p: &Matrix3x4<f64>, width: u32, height: u32) -> Result<(Intrinsics, RigidTransform)> {
+pub fn decompose(
+    p: &Matrix3x4<f64>,
+    width: u32,
+    height: u32,
+) -> Result<(Intrinsics, RigidTransform)> {
     let mut p = *p;
     let m: Matrix3<f64> = p.fixed_view::<3, 3>(0, 0).into_owned();
     if m.determinant() < 0.0 {

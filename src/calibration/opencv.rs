@@ -86,7 +86,10 @@ pub fn calibrate_camera(
         None => Mat::from_slice_2d(&[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0f64]])
             .map_err(cv)?,
     };
-    let mut dist = Mat::from_slice(&[0.0f64; 5]).map_err(cv)?.try_clone().map_err(cv)?;
+    let mut dist = Mat::from_slice(&[0.0f64; 5])
+        .map_err(cv)?
+        .try_clone()
+        .map_err(cv)?;
     let mut rvecs: Vector<Mat> = Vector::new();
     let mut tvecs: Vector<Mat> = Vector::new();
     let criteria = TermCriteria::new(
@@ -128,9 +131,12 @@ pub fn calibrate_camera(
     ))
 }
 
+/// K (row-major, K[2][2] = 1), R (row-major) and the camera centre (world).
+pub type Decomposition = ([[f64; 3]; 3], [[f64; 3]; 3], DVec3);
+
 /// OpenCV `decomposeProjectionMatrix` of `p` (row-major 3×4): K (normalised to K[2][2] = 1), the rotation
 /// and the camera centre (world).
-pub fn decompose_projection_matrix(p: &[[f64; 4]; 3]) -> Result<([[f64; 3]; 3], [[f64; 3]; 3], DVec3)> {
+pub fn decompose_projection_matrix(p: &[[f64; 4]; 3]) -> Result<Decomposition> {
     let pm = Mat::from_slice_2d(p).map_err(cv)?;
     let (mut k, mut r, mut c) = (Mat::default(), Mat::default(), Mat::default());
     opencv::calib3d::decompose_projection_matrix_def(&pm, &mut k, &mut r, &mut c).map_err(cv)?;

@@ -183,7 +183,10 @@ pub fn trial_seed(seed: u64, i: usize) -> u64 {
 
 /// Validates the request, then runs every trial in parallel (`progress` is called once per finished
 /// trial). Nothing is written.
-pub fn run_request(req: &CalibrateRequest, progress: &(dyn Fn() + Sync)) -> Result<CalibrateOutcome> {
+pub fn run_request(
+    req: &CalibrateRequest,
+    progress: &(dyn Fn() + Sync),
+) -> Result<CalibrateOutcome> {
     check_sigma(req.noise_px)?;
     req.method.check(&req.phantom)?;
     if req.trials == 0 || req.trials > MAX_TRIALS {
@@ -242,7 +245,11 @@ pub fn run_request(req: &CalibrateRequest, progress: &(dyn Fn() + Sync)) -> Resu
             })
             .collect(),
         fit_bbs: setup.fit_bbs.clone(),
-        heldout_bbs_world_mm: setup.heldout_world.iter().map(|p: &DVec3| p.to_array()).collect(),
+        heldout_bbs_world_mm: setup
+            .heldout_world
+            .iter()
+            .map(|p: &DVec3| p.to_array())
+            .collect(),
         options: req.options,
         noise_px: req.noise_px,
         trials: req.trials,
@@ -270,7 +277,8 @@ pub fn write_outcome(out: &Path, o: &CalibrateOutcome) -> Result<()> {
     let [csv_path, json_path] = product_paths(out);
     let mut w = csv::Writer::from_writer(Vec::new());
     for r in &o.rows {
-        w.serialize(r).map_err(|e| Error::encode("calibrations.csv", e))?;
+        w.serialize(r)
+            .map_err(|e| Error::encode("calibrations.csv", e))?;
     }
     let bytes = w
         .into_inner()

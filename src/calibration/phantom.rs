@@ -74,7 +74,11 @@ impl CalibrationPhantom {
                 ))
             })
             .collect();
-        Self::checked(format!("plate {rows}x{cols} @ {pitch_mm} mm"), bbs_mm, "plate")
+        Self::checked(
+            format!("plate {rows}x{cols} @ {pitch_mm} mm"),
+            bbs_mm,
+            "plate",
+        )
     }
 
     /// The default plate: 10 × 10 BBs at 10 mm pitch (90 mm across).
@@ -91,7 +95,11 @@ impl CalibrationPhantom {
                 format!("needs 6..{MAX_BBS} BBs, got {n}"),
             ));
         }
-        for (k, v) in [("radius_mm", radius_mm), ("height_mm", height_mm), ("turns", turns)] {
+        for (k, v) in [
+            ("radius_mm", radius_mm),
+            ("height_mm", height_mm),
+            ("turns", turns),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(Error::invalid(
                     format!("helix {k}"),
@@ -131,7 +139,11 @@ impl CalibrationPhantom {
                 format!("expected {{\"bbs_mm\": [[x, y, z], ...]}}: {e}"),
             )
         })?;
-        let bbs: Vec<[f64; 3]> = f.bbs_mm.iter().map(|p| f32_exact(DVec3::from(*p))).collect();
+        let bbs: Vec<[f64; 3]> = f
+            .bbs_mm
+            .iter()
+            .map(|p| f32_exact(DVec3::from(*p)))
+            .collect();
         let name = f.name.unwrap_or_else(|| origin.to_string());
         Self::checked(name, bbs, origin).map_err(|e| match e {
             Error::Invalid { message, .. } | Error::Format { message, .. } => {
@@ -189,7 +201,11 @@ impl CalibrationPhantom {
                 format!(
                     "{} BBs: a {} phantom needs at least {need} (the unknowns of {})",
                     pts.len(),
-                    if kind == PhantomKind::Planar { "planar" } else { "3-D" },
+                    if kind == PhantomKind::Planar {
+                        "planar"
+                    } else {
+                        "3-D"
+                    },
                     if kind == PhantomKind::Planar {
                         "a homography per pose, 8"
                     } else {
@@ -200,14 +216,14 @@ impl CalibrationPhantom {
         }
         let mut p = CalibrationPhantom { name, kind, bbs_mm };
         if kind == PhantomKind::Planar {
-            p.to_plane_frame();
+            p.move_to_plane_frame();
         }
         Ok(p)
     }
 
     /// Moves a planar phantom into its own plane frame: centroid at the origin, plane z = 0 (what Zhang's
     /// method expects of the object points).
-    fn to_plane_frame(&mut self) {
+    fn move_to_plane_frame(&mut self) {
         let pts = self.points();
         let c = centroid(&pts);
         let (_, axes) = principal_axes(&pts, c);
@@ -320,7 +336,9 @@ pub fn placements(
             if poses_per_view < 2 {
                 return Err(Error::invalid(
                     "poses_per_view",
-                    format!("Zhang's method needs at least 2 plate poses per view, got {poses_per_view}"),
+                    format!(
+                        "Zhang's method needs at least 2 plate poses per view, got {poses_per_view}"
+                    ),
                 ));
             }
             let mut out = Vec::new();
@@ -348,15 +366,19 @@ mod tests {
 
     #[test]
     fn shapes_are_classified_and_bad_phantoms_named() {
-        assert_eq!(CalibrationPhantom::default_plate().kind, PhantomKind::Planar);
+        assert_eq!(
+            CalibrationPhantom::default_plate().kind,
+            PhantomKind::Planar
+        );
         assert_eq!(CalibrationPhantom::default_plate().bbs_mm.len(), 100);
         assert_eq!(
             CalibrationPhantom::default_helix().kind,
             PhantomKind::Volumetric
         );
-        let e = CalibrationPhantom::from_json_str(r#"{"bbs_mm": [[0,0,0],[1,1,1],[2,2,2]]}"#, "f.json")
-            .unwrap_err()
-            .to_string();
+        let e =
+            CalibrationPhantom::from_json_str(r#"{"bbs_mm": [[0,0,0],[1,1,1],[2,2,2]]}"#, "f.json")
+                .unwrap_err()
+                .to_string();
         assert!(e.contains("f.json") && e.contains("collinear"), "{e}");
         let e = CalibrationPhantom::from_json_str(
             r#"{"bbs_mm": [[0,0,0],[1,0,0],[0,1,0],[0,0,1],[1,1,1]]}"#,

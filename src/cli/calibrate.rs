@@ -11,13 +11,15 @@ use spinedrr::calibration::{CalibrationPhantom, Detection, SetupOptions};
 use spinedrr::geometry::CArm;
 
 #[derive(clap::Args)]
-#[command(after_help = "Each trial images the phantom with the true geometry (--geometry or the built-in \
+#[command(
+    after_help = "Each trial images the phantom with the true geometry (--geometry or the built-in \
 AP + LAT C-arm), adds Gaussian detection noise of --noise-px to every BB, and calibrates: a plate (or a \
 planar FILE) by Zhang's method (OpenCV calibrateCamera: fx, fy, cx, cy free, skew fixed at 0, no \
 distortion), a helix (or a 3-D FILE) by a normalised DLT per view, RQ, then LM of one K with skew and \
 the poses. calibrations.csv has one row per trial and view: K_est, the view's estimated world→camera \
 pose and its error, the reprojection RMS and the mean 3-D error of held-out BBs triangulated from all \
-views. phantom.json records the BB centres, the true K and views, and every placement imaged.")]
+views. phantom.json records the BB centres, the true K and views, and every placement imaged."
+)]
 pub struct Args {
     /// plate (10 × 10 BBs, 10 mm pitch, 5 tilted poses per view), helix (40 BBs, r 40 mm, 2 turns over
     /// 80 mm, one image per view) or FILE.json: {"name"?: "...", "bbs_mm": [[x, y, z], ...]}.
@@ -64,7 +66,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .with_context(|| format!("reading phantom {file}"))?,
     };
     let carm = match &a.geometry {
-        Some(p) => CArm::from_file(p).with_context(|| format!("reading geometry {}", p.display()))?,
+        Some(p) => {
+            CArm::from_file(p).with_context(|| format!("reading geometry {}", p.display()))?
+        }
         None => CArm::default_paper(),
     };
     let req = CalibrateRequest {

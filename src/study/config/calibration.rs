@@ -152,7 +152,10 @@ impl CalibrationSection {
     /// Checks every key (phantom files are read and checked here too).
     pub fn validate(&self) -> Result<()> {
         if self.phantoms.is_empty() {
-            return Err(Error::invalid("calibration.phantoms", "must list at least one phantom"));
+            return Err(Error::invalid(
+                "calibration.phantoms",
+                "must list at least one phantom",
+            ));
         }
         for (i, p) in self.phantoms.iter().enumerate() {
             if self.phantoms[..i].contains(p) {
@@ -164,7 +167,10 @@ impl CalibrationSection {
             Self::phantom(p)?;
         }
         if self.noise_px.is_empty() {
-            return Err(Error::invalid("calibration.noise_px", "must list at least one σ"));
+            return Err(Error::invalid(
+                "calibration.noise_px",
+                "must list at least one σ",
+            ));
         }
         for &s in &self.noise_px {
             if !(s.is_finite() && s >= 0.0) {
@@ -177,11 +183,17 @@ impl CalibrationSection {
         if self.trials == 0 || self.trials > MAX_CALIBRATION_TRIALS {
             return Err(Error::invalid(
                 "calibration.trials",
-                format!("must be between 1 and {MAX_CALIBRATION_TRIALS}, got {}", self.trials),
+                format!(
+                    "must be between 1 and {MAX_CALIBRATION_TRIALS}, got {}",
+                    self.trials
+                ),
             ));
         }
         if self.trials_per_unit == 0 {
-            return Err(Error::invalid("calibration.trials_per_unit", "must be at least 1"));
+            return Err(Error::invalid(
+                "calibration.trials_per_unit",
+                "must be at least 1",
+            ));
         }
         if self.protocols.is_empty() {
             return Err(Error::invalid(
@@ -196,7 +208,10 @@ impl CalibrationSection {
             ));
         }
         if self.poses_per_view < 2 {
-            return Err(Error::invalid("calibration.poses_per_view", "must be at least 2"));
+            return Err(Error::invalid(
+                "calibration.poses_per_view",
+                "must be at least 2",
+            ));
         }
         Ok(())
     }

@@ -25,7 +25,7 @@ use crate::study::units::derive_seed;
 use crate::{Error, Result};
 
 /// The target the calibration experiment measures: `calibration.target`, else the study's first.
-pub fn calibration_target<'a>(ctx: &'a Context) -> Result<&'a Target> {
+pub fn calibration_target(ctx: &Context) -> Result<&Target> {
     match &ctx.cfg.calibration.target {
         Some(name) => ctx.target(name),
         None => ctx
@@ -75,7 +75,7 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
     let mut rows = UnitRows::default();
     for trial in cell.first..cell.first + cell.count {
         let seed = derive_seed(ctx.cfg.seed, &cell.seed_key(), trial as u64);
-        let r = ctx.timings.time(Phase::Registration, 1, || {
+        let r = ctx.timings.time(Phase::Calibration, 1, || {
             run_trial(&setup, cell.noise_px, seed)
         })?;
         for &protocol in &c.protocols {
@@ -83,7 +83,9 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
                 Protocol::Intrinsic => &r.intrinsic_only,
                 Protocol::Full => &r.views,
             };
-            let reg = registration(&carm, views, &landmarks);
+            let reg = ctx.timings.time(Phase::Registration, 1, || {
+                registration(&carm, views, &landmarks)
+            });
             for (truth, est) in carm.views.iter().zip(views) {
                 let shifts = landmark_shifts(truth, est, &landmarks);
                 let n = shifts.len().max(1) as f64;
@@ -97,7 +99,11 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
                     Protocol::Full => f64::NAN,
                 };
                 let (dice, chamfer, hd95) = if trial < c.silhouette_trials {
-                    let i = carm.views.iter().position(|v| v.name == truth.name).unwrap_or(0);
+                    let i = carm
+                        .views
+                        .iter()
+                        .position(|v| v.name == truth.name)
+                        .unwrap_or(0);
                     silhouettes(ctx, t, est, &references[i])?
                 } else {
                     (f64::NAN, f64::NAN, f64::NAN)
@@ -224,6 +230,8 @@ fn silhouettes(
         reference: reference.masks()?.union(),
         perturbed: b.masks()?.union(),
     };
-    let s = ctx.timings.time(Phase::Metrics, 1, || silhouette_metrics(&pair))?;
+    let s = ctx
+        .timings
+        .time(Phase::Metrics, 1, || silhouette_metrics(&pair))?;
     Ok((s.dice, s.chamfer_mean_px, s.hd95_px))
 }

@@ -7,7 +7,9 @@
 
 use super::{Context, Reference, Target};
 use crate::Result;
-use crate::analysis::{MaskPair, abs_difference, image_metrics, marker_centroid, silhouette_metrics};
+use crate::analysis::{
+    MaskPair, abs_difference, image_metrics, marker_centroid, silhouette_metrics,
+};
 use crate::anatomy::Structure;
 use crate::geometry::{Perturbation, View, apply_homography};
 use crate::io::{ImageF32, Sidecar, kind, sidecar_path, units, write_tiff_f32};
@@ -226,7 +228,12 @@ fn structures(
 /// search disc is not wholly on the detector.
 fn measure(ctx: &Context, m: &super::Marker, view: &View) -> Result<Option<DVec2>> {
     ctx.timings.time(Phase::RenderMarkers, 1, || {
-        marker_centroid(&m.renderer, view, m.position, ctx.cfg.anatomy.marker_radius_mm)
+        marker_centroid(
+            &m.renderer,
+            view,
+            m.position,
+            ctx.cfg.anatomy.marker_radius_mm,
+        )
     })
 }
 

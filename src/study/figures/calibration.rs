@@ -153,9 +153,10 @@ fn draw_scatter<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &ScatterPa
         }};
     }
     if p.log {
-        body!(b
-            .build_cartesian_2d(xr.log_scale(), yr.log_scale())
-            .map_err(plot_err)?);
+        body!(
+            b.build_cartesian_2d(xr.log_scale(), yr.log_scale())
+                .map_err(plot_err)?
+        );
     } else {
         body!(b.build_cartesian_2d(xr, yr).map_err(plot_err)?);
     }
@@ -172,7 +173,10 @@ fn of<'a>(rows: &'a [CalibrationRow], protocol: Protocol, view: &str) -> Vec<&'a
 /// Mean over (phantom, σ) cells of the within-cell correlation (what the RMS tells about the landmark
 /// error once the noise level is known).
 fn within_cell_correlation(rows: &[&CalibrationRow], x: fn(&CalibrationRow) -> f64) -> f64 {
-    let cells = distinct(rows.iter().map(|r| (r.phantom.clone(), r.noise_px.to_bits())));
+    let cells = distinct(
+        rows.iter()
+            .map(|r| (r.phantom.clone(), r.noise_px.to_bits())),
+    );
     let cs: Vec<f64> = cells
         .iter()
         .map(|(p, s)| {
@@ -200,8 +204,16 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
     let phantoms = distinct(rows.iter().map(|r| r.phantom.clone()));
     type Axis = (fn(&CalibrationRow) -> f64, &'static str, &'static str);
     let axes: [Axis; 2] = [
-        (|r| r.reprojection_rms_px, "phantom reprojection RMS (px)", "RMS"),
-        (|r| r.heldout_err_mm, "held-out BB 3-D error (mm)", "held-out"),
+        (
+            |r| r.reprojection_rms_px,
+            "phantom reprojection RMS (px)",
+            "RMS",
+        ),
+        (
+            |r| r.heldout_err_mm,
+            "held-out BB 3-D error (mm)",
+            "held-out",
+        ),
     ];
     for view in &views {
         let mut panels = Vec::new();
@@ -386,8 +398,14 @@ fn ambiguity_figure(
                     .collect(),
             )],
             highlight: vec![
-                (format!(" A (trial {})", a.trial_a), (a.rms_a_px, a.shift_a_px)),
-                (format!(" B (trial {})", a.trial_b), (a.rms_b_px, a.shift_b_px)),
+                (
+                    format!(" A (trial {})", a.trial_a),
+                    (a.rms_a_px, a.shift_a_px),
+                ),
+                (
+                    format!(" B (trial {})", a.trial_b),
+                    (a.rms_b_px, a.shift_b_px),
+                ),
             ],
             log: false,
         },

@@ -42,7 +42,13 @@ fn num(v: f64, digits: usize) -> String {
 }
 
 /// Writes the section (nothing when the experiment did not run).
-pub fn section(md: &mut String, cfg: &StudyConfig, tables: &StudyTables, figs: &[FigureEntry], n: &mut usize) {
+pub fn section(
+    md: &mut String,
+    cfg: &StudyConfig,
+    tables: &StudyTables,
+    figs: &[FigureEntry],
+    n: &mut usize,
+) {
     let rows = &tables.calibration;
     if rows.is_empty() {
         return;
@@ -73,7 +79,9 @@ distances of the rendered silhouette for the first {} trials of each cell.\n",
         c.trials,
         c.poses_per_view,
         c.tilt_deg,
-        c.target.clone().unwrap_or_else(|| "the first target".into()),
+        c.target
+            .clone()
+            .unwrap_or_else(|| "the first target".into()),
         c.silhouette_trials
     );
     layout::figures(md, figs, Section::Calibration, n);
@@ -107,7 +115,10 @@ landmark shift.\n"
     }
     let _ = writeln!(md, "| {} |", header.join(" | "));
     let _ = writeln!(md, "|{}", "---|".repeat(header.len()));
-    let cells = distinct(rows.iter().map(|r| (r.phantom.clone(), r.noise_px.to_bits())));
+    let cells = distinct(
+        rows.iter()
+            .map(|r| (r.phantom.clone(), r.noise_px.to_bits())),
+    );
     for (phantom, bits) in cells {
         let cell: Vec<&CalibrationRow> = rows
             .iter()
@@ -195,7 +206,11 @@ that moves it.\n"
         "| phantom | σ (px) | protocol | view | RMS A / B (px) | shift A / B (px) | ratio | Δfx A / B (px) |"
     );
     let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
-    for r in a.iter().filter(|r| r.protocol == Protocol::Full).chain(a.iter().filter(|r| r.protocol == Protocol::Intrinsic)) {
+    for r in a
+        .iter()
+        .filter(|r| r.protocol == Protocol::Full)
+        .chain(a.iter().filter(|r| r.protocol == Protocol::Intrinsic))
+    {
         let _ = writeln!(
             md,
             "| {} | {} | {} | {} | {:.3} / {:.3} | {:.3} / {:.3} | {:.1} | {:.1} / {:.1} |",

@@ -7,7 +7,6 @@
 use serde::{Deserialize, Serialize};
 
 use super::num;
-use super::tables::TableRow;
 use crate::analysis::percentile;
 use crate::study::config::Protocol;
 
@@ -118,16 +117,6 @@ pub struct CalibrationAmbiguityRow {
     pub dfx_b_px: f64,
 }
 
-impl TableRow for CalibrationRow {
-    const TABLE: &'static str = "calibration";
-}
-impl TableRow for CalibrationToleranceRow {
-    const TABLE: &'static str = "calibration_tolerance";
-}
-impl TableRow for CalibrationAmbiguityRow {
-    const TABLE: &'static str = "calibration_ambiguity";
-}
-
 /// The thresholds of the tolerance table (px).
 pub const TOLERANCE_THRESHOLDS_PX: [f64; 3] = [0.5, 1.0, 2.0];
 
@@ -157,7 +146,8 @@ fn groups(rows: &[CalibrationRow]) -> Vec<(String, Protocol, String)> {
 pub fn tolerance(rows: &[CalibrationRow]) -> Vec<CalibrationToleranceRow> {
     let mut out = Vec::new();
     for (phantom, protocol, view) in groups(rows) {
-        let of = |r: &&CalibrationRow| r.phantom == phantom && r.protocol == protocol && r.view == view;
+        let of =
+            |r: &&CalibrationRow| r.phantom == phantom && r.protocol == protocol && r.view == view;
         let mut sigmas: Vec<f64> = distinct(rows.iter().filter(of).map(|r| r.noise_px));
         sigmas.sort_by(f64::total_cmp);
         // (σ, p95 of the largest shift, mean RMS), starting at the exact noise-free point.

@@ -6,7 +6,8 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use super::{
-    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, LandmarkRow, ProjectionRow, RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
+    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, LandmarkRow, ProjectionRow,
+    RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
 };
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
@@ -30,6 +31,15 @@ impl TableRow for RegistrationRow {
 }
 impl TableRow for RegistrationSummaryRow {
     const TABLE: &'static str = "registration_summary";
+}
+impl TableRow for CalibrationRow {
+    const TABLE: &'static str = "calibration";
+}
+impl TableRow for CalibrationToleranceRow {
+    const TABLE: &'static str = "calibration_tolerance";
+}
+impl TableRow for CalibrationAmbiguityRow {
+    const TABLE: &'static str = "calibration_ambiguity";
 }
 
 fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
