@@ -283,6 +283,7 @@ fn plate_focal_length_trades_against_depth_and_tilt_shrinks_but_keeps_the_direct
         );
         sds.push(sd(&fx));
     }
+    eprintln!("sd(fx) at tilts 2°, 10°, 45°: {sds:?} px");
     assert!(
         sds[0] > sds[1] && sds[1] > sds[2],
         "sd(fx) by tilt 2°, 10°, 45°: {sds:?}"
