@@ -6,7 +6,7 @@ CARGO ?= cargo
 BIN := target/release/spinedrr
 OUT ?= out
 
-.PHONY: deps build python study demo test bench clean
+.PHONY: deps build python study calibration demo test bench clean
 
 deps:
 	@bash scripts/install-deps.sh
@@ -31,6 +31,12 @@ python: deps
 study: build
 	$(BIN) study --out $(OUT)/study
 	@echo "report: $(OUT)/study/report.html (and report.md, tables/, figures/)"
+
+# The calibration-in-the-loop experiment (plate and helix, 4 noise levels × 200 trials), into
+# out/calibration/; not part of `make study`.
+calibration: build
+	$(BIN) study --config examples/calibration.toml --out $(OUT)/calibration
+	@echo "report: $(OUT)/calibration/report.html"
 
 # Builds the L3 phantom, renders AP and LAT thickness DRRs (reference and Δf = 500 px) and compares them.
 demo: build

@@ -4,7 +4,7 @@
 //! (and on [`io`], the file layer, which needs only `geometry`):
 //!
 //! ```text
-//! math, geometry -> anatomy -> render -> analysis, registration -> study
+//! math, geometry -> anatomy -> render -> analysis, registration -> calibration -> study
 //! ```
 //!
 //! * [`math`]: the small dense linear algebra (symmetric eigen-decomposition, Cholesky solve); depends
@@ -16,10 +16,12 @@
 //! * [`io`]: atomic writes, float32 TIFF images, PNG previews and the JSON sidecar every image carries.
 //! * [`analysis`]: projection-domain metrics (landmark shifts, contours, overlap, image similarity).
 //! * [`registration`]: landmark 2D–3D registration (LM over SE(3), two-view Kabsch, OpenCV PnP).
+//! * [`calibration`]: simulated C-arm calibration with BB phantoms (Zhang via OpenCV; DLT + RQ + LM).
 //! * [`study`]: the calibration-sensitivity study: experiments, tables, figures and the report.
 
 pub mod analysis;
 pub mod anatomy;
+pub mod calibration;
 pub mod error;
 pub mod geometry;
 pub mod io;

@@ -10,6 +10,7 @@ mod contours;
 mod difference;
 mod distances;
 mod landmarks;
+mod markers;
 mod overlap;
 mod similarity;
 
@@ -23,6 +24,7 @@ pub use distances::{ContourDistances, directed_distances, edge_distance, percent
 pub use landmarks::{
     Landmark, LandmarkShift, blob_centroid, landmark_shifts, parse_landmarks, read_landmarks,
 };
+pub use markers::marker_centroid;
 pub use overlap::dice_iou;
 pub use similarity::{gradient_correlation, mutual_information, ncc, ssim};
 

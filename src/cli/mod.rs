@@ -4,6 +4,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod calibrate;
 mod compare;
 mod geometry;
 mod mesh;
@@ -45,6 +46,10 @@ enum Command {
     /// Run the sensitivity study (paper defaults, --quick, or --config FILE): CSV tables, PNG figures,
     /// report.md; parallel, deterministic and resumable.
     Study(study::Args),
+    /// Simulate a C-arm calibration with a BB phantom (plate, helix or a JSON file) under detection
+    /// noise, N Monte-Carlo trials: calibrations.csv (K, poses, reprojection RMS, held-out 3-D error)
+    /// and phantom.json.
+    Calibrate(calibrate::Args),
 }
 
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
@@ -58,6 +63,7 @@ pub fn main() -> ExitCode {
         Command::Register(a) => register::run(a),
         Command::Mesh(a) => mesh::run(a),
         Command::Study(a) => study::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -36,6 +36,8 @@ pub enum Phase {
     Metrics,
     /// Registration trials (unit threads).
     Registration,
+    /// Simulated calibrations (unit threads).
+    Calibration,
     /// Unit time not in a phase above (result files, bookkeeping), summed over threads.
     UnitThreads,
     Tables,
@@ -43,7 +45,7 @@ pub enum Phase {
     Report,
 }
 
-const PHASES: [Phase; 13] = [
+const PHASES: [Phase; 14] = [
     Phase::Build,
     Phase::Anatomy,
     Phase::Scene,
@@ -53,6 +55,7 @@ const PHASES: [Phase; 13] = [
     Phase::RenderVolume,
     Phase::Metrics,
     Phase::Registration,
+    Phase::Calibration,
     Phase::UnitThreads,
     Phase::Tables,
     Phase::Figures,
@@ -72,6 +75,7 @@ impl Phase {
             Phase::RenderVolume => ("  rendering: CT volume DRRs", "threads", "renders"),
             Phase::Metrics => ("  metrics and heatmaps", "threads", "image pairs"),
             Phase::Registration => ("  registration", "threads", "trials"),
+            Phase::Calibration => ("  calibrations", "threads", "trials"),
             Phase::UnitThreads => (
                 "  other unit work (result files, bookkeeping)",
                 "threads",
@@ -102,8 +106,8 @@ thread_local! {
 /// Accumulated time and counts per phase; shared by the worker threads.
 #[derive(Debug, Default)]
 pub struct Timings {
-    nanos: [AtomicU64; 13],
-    counts: [AtomicU64; 13],
+    nanos: [AtomicU64; 14],
+    counts: [AtomicU64; 14],
 }
 
 /// Facts about one invocation that the report states beside its timings.
@@ -193,6 +197,7 @@ impl Timings {
             Phase::RenderVolume,
             Phase::Metrics,
             Phase::Registration,
+            Phase::Calibration,
             Phase::UnitThreads,
         ];
         let all = TimingRow {

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::config::{Experiment, RegistrationMethod, SEGMENT_TARGET, StudyConfig};
+use super::config::{CalibrationCell, Experiment, RegistrationMethod, SEGMENT_TARGET, StudyConfig};
 use super::schema::{Family, UnitRows};
 use crate::Result;
 use crate::geometry::Perturbation;
@@ -32,6 +32,8 @@ pub enum Unit {
         first: usize,
         count: usize,
     },
+    /// Trials of one (phantom, σ) of the calibration experiment.
+    Calibration(CalibrationCell),
 }
 
 impl Unit {
@@ -53,6 +55,7 @@ impl Unit {
                 first,
                 ..
             } => format!("reg_{target}_{method}_df{df_px}_p{piercing_px}_t{first}"),
+            Unit::Calibration(c) => c.id(),
         };
         raw.replace('+', "_")
     }
@@ -76,6 +79,7 @@ impl Unit {
                  {piercing_px} px, trials {first}..{}",
                 first + count
             ),
+            Unit::Calibration(c) => c.describe(),
         }
     }
 
@@ -90,6 +94,7 @@ impl Unit {
                 piercing_px,
                 ..
             } => format!("reg/{target}/{method}/{df_px}/{piercing_px}"),
+            Unit::Calibration(c) => c.seed_key(),
             other => other.id(),
         }
     }
@@ -180,6 +185,9 @@ pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
                 }
             }
         }
+    }
+    if cfg.runs(Experiment::Calibration) {
+        units.extend(cfg.calibration.cells().into_iter().map(Unit::Calibration));
     }
     Ok(units)
 }

@@ -20,11 +20,21 @@ pub enum Experiment {
     Landmarks,
     /// Monte-Carlo 2D–3D registration under perturbed intrinsics.
     Registration,
+    /// Simulated C-arm calibrations whose errors feed the projection-domain analysis.
+    Calibration,
 }
 
 impl Experiment {
-    /// Every experiment, in the order of the default config.
-    pub const ALL: [Experiment; 3] = [
+    /// Every experiment.
+    pub const ALL: [Experiment; 4] = [
+        Experiment::Projection,
+        Experiment::Landmarks,
+        Experiment::Registration,
+        Experiment::Calibration,
+    ];
+
+    /// The experiments of the default config (calibration runs when asked for).
+    pub const DEFAULT: [Experiment; 3] = [
         Experiment::Projection,
         Experiment::Landmarks,
         Experiment::Registration,
@@ -36,6 +46,7 @@ impl Experiment {
             Experiment::Projection => "projection",
             Experiment::Landmarks => "landmarks",
             Experiment::Registration => "registration",
+            Experiment::Calibration => "calibration",
         }
     }
 }

@@ -14,10 +14,12 @@ use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig, Perturbation}
 use crate::render::Backend;
 use crate::{Error, Result};
 
+mod calibration;
 mod kinds;
 mod limits;
 mod validate;
 
+pub use calibration::{CalibrationCell, CalibrationSection, MAX_CALIBRATION_TRIALS, Protocol};
 pub use kinds::{Experiment, Family, RegistrationMethod};
 pub use limits::{MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate};
 
@@ -36,6 +38,8 @@ pub struct StudyConfig {
     pub geometry: GeometrySection,
     pub perturbations: PerturbationGrid,
     pub registration: RegistrationConfig,
+    /// `[calibration]`: the calibration-in-the-loop experiment.
+    pub calibration: CalibrationSection,
     /// Δf values (px, focal family) at which difference heatmaps are written.
     pub heatmaps_df_px: Vec<f64>,
 }
@@ -235,11 +239,12 @@ impl Default for StudyConfig {
     fn default() -> Self {
         StudyConfig {
             seed: 20240601,
-            experiments: Experiment::ALL.to_vec(),
+            experiments: Experiment::DEFAULT.to_vec(),
             anatomy: AnatomyConfig::default(),
             geometry: GeometrySection::default(),
             perturbations: PerturbationGrid::default(),
             registration: RegistrationConfig::default(),
+            calibration: CalibrationSection::default(),
             heatmaps_df_px: vec![100.0, 500.0],
         }
     }

@@ -80,6 +80,9 @@ impl StudyConfig {
         }
         finite_list("heatmaps_df_px", &self.heatmaps_df_px)?;
         self.validate_registration()?;
+        if self.runs(super::Experiment::Calibration) {
+            self.calibration.validate()?;
+        }
         self.validate_grid_intrinsics(&carm)?;
         self.check_work()
     }

@@ -4,6 +4,7 @@
 //! The runner sees this module's public face only: [`load_inputs`] (read and check input files before
 //! the output folder is touched), [`Context::build`], [`Context::prepare_references`], [`Context::run`].
 
+mod calibration;
 mod ct;
 mod on_detector;
 mod projection;
@@ -322,6 +323,7 @@ impl Context {
                 projection::run(self, self.target(target)?, view, p)
             }
             Unit::Registration { .. } => registration::run(self, unit),
+            Unit::Calibration(c) => calibration::run(self, c),
         }
     }
 }

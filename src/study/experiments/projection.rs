@@ -7,7 +7,9 @@
 
 use super::{Context, Reference, Target};
 use crate::Result;
-use crate::analysis::{MaskPair, abs_difference, blob_centroid, image_metrics, silhouette_metrics};
+use crate::analysis::{
+    MaskPair, abs_difference, image_metrics, marker_centroid, silhouette_metrics,
+};
 use crate::anatomy::Structure;
 use crate::geometry::{Perturbation, View, apply_homography};
 use crate::io::{ImageF32, Sidecar, kind, sidecar_path, units, write_tiff_f32};
@@ -222,38 +224,17 @@ fn structures(
     Ok(rows)
 }
 
-/// Blob centroid of a marker rendered alone in `view`, searched around its projected centre; `None`
-/// when the marker's search disc is not wholly on the detector (a cut blob has a biased centroid).
+/// Blob centroid of a marker rendered alone in `view` ([`marker_centroid`]); `None` when the marker's
+/// search disc is not wholly on the detector.
 fn measure(ctx: &Context, m: &super::Marker, view: &View) -> Result<Option<DVec2>> {
-    let k = view.intrinsics;
-    let radius_px =
-        1.5 * ctx.cfg.anatomy.marker_radius_mm * k.fx.max(k.fy) / view.depth(m.position) + 2.0;
-    let c = view.project(m.position);
-    let (w, h) = (f64::from(k.width) - 1.0, f64::from(k.height) - 1.0);
-    let inside = c.x - radius_px >= 0.0
-        && c.y - radius_px >= 0.0
-        && c.x + radius_px <= w
-        && c.y + radius_px <= h;
-    if !(inside && view.depth(m.position) > 0.0) {
-        return Ok(None);
-    }
-    // Only the search disc's bounding box is rendered (the same rays as the full detector's pixels).
-    let (u0, v0) = ((c.x - radius_px).floor(), (c.y - radius_px).floor());
-    let (u1, v1) = (
-        (c.x + radius_px).ceil().min(w),
-        (c.y + radius_px).ceil().min(h),
-    );
-    let window = view.window(
-        u0 as u32,
-        v0 as u32,
-        (u1 - u0) as u32 + 1,
-        (v1 - v0) as u32 + 1,
-    )?;
-    let img = ctx.timings.time(Phase::RenderMarkers, 1, || {
-        m.renderer.render(&window, &ThicknessOptions::image_only())
-    })?;
-    let origin = DVec2::new(u0, v0);
-    Ok(blob_centroid(&img.line_integral, c - origin, radius_px).map(|x| x + origin))
+    ctx.timings.time(Phase::RenderMarkers, 1, || {
+        marker_centroid(
+            &m.renderer,
+            view,
+            m.position,
+            ctx.cfg.anatomy.marker_radius_mm,
+        )
+    })
 }
 
 fn landmarks(

@@ -19,6 +19,7 @@ pub enum Section {
     Projection,
     Landmarks,
     Registration,
+    Calibration,
 }
 
 /// One figure: `file` (a PNG in `figures/`, with its SVG beside it).

@@ -7,6 +7,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+mod calibration;
 mod canvas;
 mod chart;
 mod charts;
@@ -175,6 +176,7 @@ pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<
     if let Some((m, rows)) = super::cohort::cohort_of(out, cfg, tables) {
         entries.extend(cohort::write(&figs, &rows, m.cases.len())?);
     }
+    entries.extend(calibration::figures(&figs, tables, &conditions)?);
     manifest::write(&figs, &entries)?;
     let n = std::fs::read_dir(&figs)
         .map_err(|e| Error::io(&figs, e))?

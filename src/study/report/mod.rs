@@ -3,6 +3,7 @@
 //! beside ours. Writing to a `String` cannot fail, so `writeln!` results are discarded (`let _`).
 
 pub mod cohort;
+mod calibration;
 mod comparison;
 mod findings;
 pub mod latex;
@@ -64,6 +65,7 @@ configuration is `study.toml`.\n",
         (!tables.projection.is_empty(), PROJECTION),
         (!tables.landmarks.is_empty(), LANDMARKS),
         (!tables.registration_summary.is_empty(), REGISTRATION),
+        (!tables.calibration.is_empty(), calibration::HEADING),
     ];
     let mut headings = vec!["Findings".to_string()];
     if !cfg.anatomy.dataset.is_empty() {
@@ -90,6 +92,7 @@ configuration is `study.toml`.\n",
         layout::figures(&mut md, &figs, Section::Registration, &mut n);
         registration_section(&mut md, &tables.registration_summary, &paper, &first);
     }
+    calibration::section(&mut md, cfg, tables, &figs, &mut n);
     renderers_section(&mut md, cfg);
     layout::products(&mut md, out)?;
     timings_section(&mut md, rows, run);

@@ -6,6 +6,7 @@
 //! f64 cells are written with `{}` Display and read back exactly (see [`num`]).
 
 pub mod cohort;
+mod calibration;
 pub mod num;
 mod tables;
 
@@ -14,6 +15,9 @@ use serde::{Deserialize, Serialize};
 pub use super::config::Family;
 use super::config::RegistrationMethod;
 
+pub use calibration::{
+    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, TOLERANCE_THRESHOLDS_PX,
+};
 pub use tables::{StudyTables, TableRow, mean_sd, read_rows, write_rows};
 
 /// Whole-object silhouette, contour and image-similarity metrics (table `projection.csv`).
@@ -168,4 +172,6 @@ pub struct UnitRows {
     pub landmarks: Vec<LandmarkRow>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub registration: Vec<RegistrationRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub calibration: Vec<CalibrationRow>,
 }

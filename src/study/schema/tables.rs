@@ -6,7 +6,8 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use super::{
-    LandmarkRow, ProjectionRow, RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
+    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, LandmarkRow, ProjectionRow,
+    RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
 };
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
@@ -30,6 +31,15 @@ impl TableRow for RegistrationRow {
 }
 impl TableRow for RegistrationSummaryRow {
     const TABLE: &'static str = "registration_summary";
+}
+impl TableRow for CalibrationRow {
+    const TABLE: &'static str = "calibration";
+}
+impl TableRow for CalibrationToleranceRow {
+    const TABLE: &'static str = "calibration_tolerance";
+}
+impl TableRow for CalibrationAmbiguityRow {
+    const TABLE: &'static str = "calibration_ambiguity";
 }
 
 fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
@@ -67,6 +77,9 @@ pub struct StudyTables {
     pub landmarks: Vec<LandmarkRow>,
     pub registration: Vec<RegistrationRow>,
     pub registration_summary: Vec<RegistrationSummaryRow>,
+    pub calibration: Vec<CalibrationRow>,
+    pub calibration_tolerance: Vec<CalibrationToleranceRow>,
+    pub calibration_ambiguity: Vec<CalibrationAmbiguityRow>,
 }
 
 impl StudyTables {
@@ -79,8 +92,11 @@ impl StudyTables {
             t.structures.extend(u.structures);
             t.landmarks.extend(u.landmarks);
             t.registration.extend(u.registration);
+            t.calibration.extend(u.calibration);
         }
         t.registration_summary = summarize_registration(&t.registration);
+        t.calibration_tolerance = super::calibration::tolerance(&t.calibration);
+        t.calibration_ambiguity = super::calibration::ambiguity(&t.calibration);
         t
     }
 
@@ -99,6 +115,9 @@ impl StudyTables {
         put(dir, &self.landmarks, &mut n)?;
         put(dir, &self.registration, &mut n)?;
         put(dir, &self.registration_summary, &mut n)?;
+        put(dir, &self.calibration, &mut n)?;
+        put(dir, &self.calibration_tolerance, &mut n)?;
+        put(dir, &self.calibration_ambiguity, &mut n)?;
         Ok(n)
     }
 
@@ -111,6 +130,9 @@ impl StudyTables {
             landmarks: read_rows(&dir)?,
             registration: read_rows(&dir)?,
             registration_summary: read_rows(&dir)?,
+            calibration: read_rows(&dir)?,
+            calibration_tolerance: read_rows(&dir)?,
+            calibration_ambiguity: read_rows(&dir)?,
         })
     }
 }

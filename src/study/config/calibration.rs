@@ -1,0 +1,218 @@
+//! `[calibration]`: the calibration-in-the-loop experiment — which phantoms, detection noise levels,
+//! trials and protocols; and its work cells (one per phantom, σ and chunk of trials).
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::calibration::{CalibrationPhantom, SetupOptions};
+use crate::{Error, Result};
+
+/// Largest number of calibration trials per (phantom, σ).
+pub const MAX_CALIBRATION_TRIALS: usize = 100_000;
+
+/// A protocol: which geometry the anatomy is projected with after a calibration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Protocol {
+    /// (a) `K_est` with the true extrinsics (the paper's intrinsic-only protocol).
+    Intrinsic,
+    /// (b) the full estimated geometry `K_est [R_est | t_est]`.
+    Full,
+}
+
+impl Protocol {
+    pub fn name(self) -> &'static str {
+        match self {
+            Protocol::Intrinsic => "intrinsic",
+            Protocol::Full => "full",
+        }
+    }
+}
+
+impl std::fmt::Display for Protocol {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// `[calibration]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CalibrationSection {
+    /// `plate`, `helix`, or paths of phantom JSON files (`{"bbs_mm": [[x, y, z], ...]}`).
+    pub phantoms: Vec<String>,
+    /// Detection noise σ values (px, at the study's detector binning).
+    pub noise_px: Vec<f64>,
+    /// Monte-Carlo calibrations per (phantom, σ).
+    pub trials: usize,
+    /// Trials per work unit (the resume granularity).
+    pub trials_per_unit: usize,
+    pub protocols: Vec<Protocol>,
+    /// The target whose landmarks and silhouette are measured (default: the study's first target).
+    pub target: Option<String>,
+    /// Dice and contour distances (a render per view and protocol) for the first this many trials of
+    /// each (phantom, σ); the landmark metrics and registration run for every trial.
+    pub silhouette_trials: usize,
+    /// Plate tilt (deg) and poses per view.
+    pub tilt_deg: f64,
+    pub poses_per_view: usize,
+}
+
+impl Default for CalibrationSection {
+    fn default() -> Self {
+        CalibrationSection {
+            phantoms: vec!["plate".into(), "helix".into()],
+            noise_px: vec![0.1, 0.25, 0.5, 1.0],
+            trials: 200,
+            trials_per_unit: 50,
+            protocols: vec![Protocol::Intrinsic, Protocol::Full],
+            target: None,
+            silhouette_trials: 5,
+            tilt_deg: 30.0,
+            poses_per_view: 5,
+        }
+    }
+}
+
+/// One work cell: trials `first..first + count` of one (phantom, σ).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CalibrationCell {
+    pub phantom: String,
+    pub noise_px: f64,
+    pub first: usize,
+    pub count: usize,
+}
+
+impl CalibrationCell {
+    /// File-name-safe id.
+    pub fn id(&self) -> String {
+        let p: String = self
+            .phantom
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
+        format!("cal_{p}_s{}_t{}", self.noise_px, self.first)
+    }
+
+    pub fn describe(&self) -> String {
+        format!(
+            "calibration with phantom '{}' at σ = {} px, trials {}..{}",
+            self.phantom,
+            self.noise_px,
+            self.first,
+            self.first + self.count
+        )
+    }
+
+    /// The seed key (chunking excluded).
+    pub fn seed_key(&self) -> String {
+        format!("cal/{}/{}", self.phantom, self.noise_px)
+    }
+}
+
+impl CalibrationSection {
+    /// The phantom a `phantoms` entry names (`plate`, `helix` or a JSON file).
+    pub fn phantom(name: &str) -> Result<CalibrationPhantom> {
+        match name {
+            "plate" => Ok(CalibrationPhantom::default_plate()),
+            "helix" => Ok(CalibrationPhantom::default_helix()),
+            file => CalibrationPhantom::from_file(&PathBuf::from(file))
+                .map_err(|e| Error::invalid("calibration.phantoms", e.to_string())),
+        }
+    }
+
+    /// The setup options.
+    pub fn setup_options(&self) -> SetupOptions {
+        SetupOptions {
+            tilt_deg: self.tilt_deg,
+            poses_per_view: self.poses_per_view,
+            ..SetupOptions::default()
+        }
+    }
+
+    /// Every cell in table order: phantom, then σ, then chunk.
+    pub fn cells(&self) -> Vec<CalibrationCell> {
+        let mut out = Vec::new();
+        for p in &self.phantoms {
+            for &s in &self.noise_px {
+                for first in (0..self.trials).step_by(self.trials_per_unit.max(1)) {
+                    out.push(CalibrationCell {
+                        phantom: p.clone(),
+                        noise_px: s,
+                        first,
+                        count: self.trials_per_unit.min(self.trials - first),
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    /// Checks every key (phantom files are read and checked here too).
+    pub fn validate(&self) -> Result<()> {
+        if self.phantoms.is_empty() {
+            return Err(Error::invalid(
+                "calibration.phantoms",
+                "must list at least one phantom",
+            ));
+        }
+        for (i, p) in self.phantoms.iter().enumerate() {
+            if self.phantoms[..i].contains(p) {
+                return Err(Error::invalid(
+                    "calibration.phantoms",
+                    format!("'{p}' is listed twice"),
+                ));
+            }
+            Self::phantom(p)?;
+        }
+        if self.noise_px.is_empty() {
+            return Err(Error::invalid(
+                "calibration.noise_px",
+                "must list at least one σ",
+            ));
+        }
+        for &s in &self.noise_px {
+            if !(s.is_finite() && s >= 0.0) {
+                return Err(Error::invalid(
+                    "calibration.noise_px",
+                    format!("σ must be a finite number ≥ 0 px, got {s}"),
+                ));
+            }
+        }
+        if self.trials == 0 || self.trials > MAX_CALIBRATION_TRIALS {
+            return Err(Error::invalid(
+                "calibration.trials",
+                format!(
+                    "must be between 1 and {MAX_CALIBRATION_TRIALS}, got {}",
+                    self.trials
+                ),
+            ));
+        }
+        if self.trials_per_unit == 0 {
+            return Err(Error::invalid(
+                "calibration.trials_per_unit",
+                "must be at least 1",
+            ));
+        }
+        if self.protocols.is_empty() {
+            return Err(Error::invalid(
+                "calibration.protocols",
+                "must list at least one of \"intrinsic\", \"full\"",
+            ));
+        }
+        if !(self.tilt_deg.is_finite() && self.tilt_deg > 0.0 && self.tilt_deg < 80.0) {
+            return Err(Error::invalid(
+                "calibration.tilt_deg",
+                format!("must be in (0, 80) degrees, got {}", self.tilt_deg),
+            ));
+        }
+        if self.poses_per_view < 2 {
+            return Err(Error::invalid(
+                "calibration.poses_per_view",
+                "must be at least 2",
+            ));
+        }
+        Ok(())
+    }
+}
