@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::anatomy::ct::Alignment;
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::{Level, parse_levels};
 use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig, Perturbation};
@@ -90,6 +91,11 @@ pub struct CtTarget {
     /// Also study the levels together as target `<name>-segment`.
     #[serde(default)]
     pub segment: bool,
+    /// How each level is oriented where the views aim: `none` (moved to its body centre only, the
+    /// scanner's axes kept) or `anatomical` (also rotated into its automatic-landmark frame, so AP and
+    /// LAT are a tilted vertebra's true AP and LAT).
+    #[serde(default, with = "kinds::alignment")]
+    pub align: Alignment,
 }
 
 impl CtTarget {
@@ -483,6 +489,7 @@ mod tests {
             levels: vec!["L1".into(), "vertebrae_l3".into(), "27".into()],
             landmarks: None,
             segment: true,
+            align: Alignment::None,
         };
         let t = c.level_targets().unwrap();
         assert_eq!(

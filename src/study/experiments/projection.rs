@@ -146,6 +146,10 @@ fn write_reference_image(
     side.details
         .insert("backend".into(), ctx.cfg.geometry.backend_name().into());
     side.details.insert("target".into(), t.name.clone().into());
+    if let Some(p) = &t.placement {
+        let value = serde_json::to_value(p).map_err(|e| crate::Error::encode("placement", e))?;
+        side.details.insert("placement".into(), value);
+    }
     side.write(&sidecar_path(&path))
 }
 

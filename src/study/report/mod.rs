@@ -157,6 +157,7 @@ translated so its body centre sits where the views aim. The label surface carrie
 structures.csv has no rows for CT targets.",
             names.join(", ")
         );
+        let _ = writeln!(md, "{}", ct_alignment_note(cfg));
     }
     let _ = writeln!(
         md,
@@ -164,6 +165,35 @@ structures.csv has no rows for CT targets.",
 with its JSON sidecar)."
     );
     let _ = writeln!(md);
+}
+
+/// Which CT entries were rotated into their levels' anatomical frames (`align`), and what that means.
+fn ct_alignment_note(cfg: &StudyConfig) -> String {
+    use crate::anatomy::ct::Alignment;
+    let with = |a: Alignment| -> Vec<String> {
+        let entries = cfg.anatomy.ct.iter().filter(|c| c.align == a);
+        entries.map(|c| format!("`{}`", c.name)).collect()
+    };
+    let (aligned, kept) = (with(Alignment::Anatomical), with(Alignment::None));
+    let mut note = String::from("- CT alignment (`align`):");
+    if !aligned.is_empty() {
+        note += &format!(
+            " {}: `anatomical` — each level (the segment: its middle level) is also rotated so the right, \
+anterior and superior axes of its automatic landmark frame become the world's, so AP and LAT are the \
+vertebra's own AP and LAT whatever its tilt in the scanner;",
+            aligned.join(", ")
+        );
+    }
+    if !kept.is_empty() {
+        note += &format!(
+            " {}: `none` — translated only, so AP and LAT are along the scanner's axes (a tilted vertebra is \
+seen tilted);",
+            kept.join(", ")
+        );
+    }
+    note.pop();
+    note.push('.');
+    note
 }
 
 /// Where this invocation's time went.
