@@ -96,6 +96,11 @@ pub struct CtTarget {
     /// LAT are a tilted vertebra's true AP and LAT).
     #[serde(default, with = "kinds::alignment")]
     pub align: Alignment,
+    /// Taubin λ|μ smoothing iterations of each label's surface (0: the exact 0.5-isosurface of the
+    /// voxels). Thick slices (2–3 mm) leave stair steps that automatic landmarks cannot read; about 10
+    /// smooths them without shrinking the surface.
+    #[serde(default)]
+    pub smooth_iterations: usize,
 }
 
 impl CtTarget {
@@ -490,6 +495,7 @@ mod tests {
             landmarks: None,
             segment: true,
             align: Alignment::None,
+            smooth_iterations: 0,
         };
         let t = c.level_targets().unwrap();
         assert_eq!(

@@ -33,7 +33,7 @@ use rayon::prelude::*;
 use super::{Target, target_with_landmarks};
 use crate::anatomy::auto_landmarks::{VertebraFrame, analyse};
 use crate::anatomy::ct::{
-    Alignment, CtVolume, LabelMap, Placed, SurfaceOptions, VoxelMask, label_surface, move_volume,
+    Alignment, CtVolume, LabelMap, MAX_SMOOTH_ITERATIONS, Placed, SurfaceOptions, VoxelMask, label_surface, move_volume,
     read_ct, read_labels,
 };
 use crate::anatomy::labels::LabelConvention;
@@ -76,6 +76,15 @@ const CROP_MARGIN_VOXELS: usize = 2;
 /// levels present in the label map, landmark sets per level, the label map on the CT's grid; then both
 /// volumes cropped to the levels' bounding box plus [`CROP_MARGIN_VOXELS`].
 pub fn load_input(c: &CtTarget) -> Result<CtInput> {
+    if c.smooth_iterations > MAX_SMOOTH_ITERATIONS {
+        return Err(Error::invalid(
+            "anatomy.ct.smooth_iterations",
+            format!(
+                "target '{}': {} is more than the limit of {MAX_SMOOTH_ITERATIONS}",
+                c.name, c.smooth_iterations
+            ),
+        ));
+    }
     let conv = c.labels;
     let levels: Vec<LevelSpec> = c
         .level_targets()?
@@ -194,7 +203,7 @@ pub fn build_targets(
                 .enumerate()
                 .map(|(i, l)| {
                     let given = landmarks.as_ref().map(|s| &s[i]);
-                    level_surface(&seg, l, given, entry.align)
+                    level_surface(&seg, l, given, &entry)
                 })
                 .collect::<Result<Vec<_>>>()
         })
@@ -235,19 +244,43 @@ fn level_surface(
     seg: &LabelMap,
     l: &LevelSpec,
     given: Option<&Landmarks>,
-    align: Alignment,
+    entry: &CtTarget,
 ) -> Result<LevelSurface> {
+    let align = entry.align;
     let context = |e: Error| {
         Error::invalid(
             "anatomy.ct.levels",
             format!("target '{}' (label {}): {e}", l.target, l.id),
         )
     };
-    let mut mesh = label_surface(seg, l.id, &SurfaceOptions::default()).map_err(context)?;
+    let opts = SurfaceOptions {
+        smooth_iterations: entry.smooth_iterations,
+        ..SurfaceOptions::default()
+    };
+    let mut mesh = label_surface(seg, l.id, &opts).map_err(|e| {
+        Error::invalid(
+            "anatomy.ct.smooth_iterations",
+            format!("target '{}' (label {}): {e}", l.target, l.id),
+        )
+    })?;
+    // Automatic landmarks read flat endplates: name the remedy for a stair-stepped surface.
+    let spacing = seg.spacing_mm();
+    let hint = |e: Error| {
+        let thick = spacing.max_element() > 1.5 * spacing.min_element();
+        if thick && entry.smooth_iterations == 0 {
+            context(Error::Numerical(format!(
+                "{e} (the label map's {:.2} × {:.2} × {:.2} mm voxels leave stair steps on the \
+                 surface: set smooth_iterations = 10 for this entry, or give landmarks)",
+                spacing.x, spacing.y, spacing.z
+            )))
+        } else {
+            context(e)
+        }
+    };
     mesh.name = l.tag.clone();
     let auto = match (given, align) {
         (Some(_), Alignment::None) => None,
-        _ => Some(analyse(&mesh, &l.tag).map_err(context)?),
+        _ => Some(analyse(&mesh, &l.tag).map_err(hint)?),
     };
     let frame = auto.as_ref().map(|(_, f)| *f);
     let landmarks = match (given, auto) {
