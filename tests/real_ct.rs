@@ -74,7 +74,7 @@ fn study() -> Option<&'static Path> {
             "experiments = [\"projection\", \"landmarks\"]\nheatmaps_df_px = [500.0]\n\
 [anatomy]\nlevels = []\nsegment = false\nmarker_radius_mm = 4.0\n\
 [[anatomy.ct]]\nname = \"real\"\nct = {ct:?}\nseg = {seg:?}\nlabels = \"totalseg\"\n\
-levels = [\"L1\", \"L2\"]\nalign = \"anatomical\"\nsmooth_iterations = {SMOOTH_ITERATIONS}\n\
+levels = [\"L1\", \"L2\"]\nalign = \"none\"\nsmooth_iterations = {SMOOTH_ITERATIONS}\n\
 [geometry]\nbinning = 2\n\
 [perturbations]\ndf_px = [100.0, 500.0]\npiercing_px = [0.0, 50.0]\n",
             ct = data.join("cxr.nii.gz").to_str().unwrap(),
@@ -211,7 +211,7 @@ fn real_ct_drr_silhouette_agrees_with_the_label_surface() {
             let drr = read_tiff_f32(&path).unwrap();
             let side = Sidecar::read(&sidecar_path(&path)).unwrap();
             assert_eq!(side.details["renderer"], "ct-volume (Siddon)");
-            assert_eq!(side.details["placement"]["align"], "anatomical");
+            assert_eq!(side.details["placement"]["align"], "none");
             let surface = surface_silhouette(&seg, id, &side, &path);
             let ct: Vec<bool> = drr.data.iter().map(|&v| v > 0.0).collect();
             assert_eq!(ct.len(), surface.len());
