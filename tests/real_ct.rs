@@ -74,7 +74,7 @@ fn study() -> Option<&'static Path> {
             "experiments = [\"projection\", \"landmarks\"]\nheatmaps_df_px = [500.0]\n\
 [anatomy]\nlevels = []\nsegment = false\nmarker_radius_mm = 4.0\n\
 [[anatomy.ct]]\nname = \"real\"\nct = {ct:?}\nseg = {seg:?}\nlabels = \"totalseg\"\n\
-levels = [\"L1\", \"L2\"]\nalign = \"none\"\nsmooth_iterations = {SMOOTH_ITERATIONS}\n\
+levels = [\"L1\", \"L2\"]\nalign = \"none\"\nsmooth_iterations = {SMOOTH_ITERATIONS}\nmethod = \"siddon\"\n\
 [geometry]\nbinning = 2\n\
 [perturbations]\ndf_px = [100.0, 500.0]\npiercing_px = [0.0, 50.0]\n",
             ct = data.join("cxr.nii.gz").to_str().unwrap(),

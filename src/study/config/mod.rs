@@ -12,6 +12,7 @@ use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::{Level, parse_levels};
 use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig, Perturbation};
 use crate::render::Backend;
+use crate::render::volume::VolumeMethod;
 use crate::{Error, Result};
 
 mod kinds;
@@ -101,6 +102,11 @@ pub struct CtTarget {
     /// smooths them without shrinking the surface.
     #[serde(default)]
     pub smooth_iterations: usize,
+    /// Ray integrator of the CT volume DRR: `siddon` (exact for the piecewise-constant voxels; thick
+    /// slices show as steps) or `trilinear` (the interpolated μ field, sampled at ≤ half the smallest
+    /// spacing: smooth across thick slices).
+    #[serde(default, with = "kinds::volume_method")]
+    pub method: VolumeMethod,
 }
 
 impl CtTarget {
@@ -496,6 +502,7 @@ mod tests {
             segment: true,
             align: Alignment::None,
             smooth_iterations: 0,
+            method: VolumeMethod::Siddon,
         };
         let t = c.level_targets().unwrap();
         assert_eq!(

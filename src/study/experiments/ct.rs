@@ -39,7 +39,7 @@ use crate::anatomy::ct::{
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::tissue_mu;
 use crate::anatomy::{Landmarks, Tissue, TriMesh, read_landmarks};
-use crate::render::volume::{VolumeRenderOptions, VolumeRenderer};
+use crate::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
 use crate::render::{RenderScene, SceneMesh};
 use crate::study::config::{CtTarget, StudyConfig};
 use crate::study::timings::{Phase, Timings};
@@ -218,6 +218,7 @@ pub fn build_targets(
             &[l.id],
             std::slice::from_ref(s),
             level_placement(s, entry.align)?,
+            entry.method,
             timings,
         )?);
     }
@@ -232,6 +233,7 @@ pub fn build_targets(
             &ids,
             &surfaces,
             level_placement(middle, entry.align)?,
+            entry.method,
             timings,
         )?);
     }
@@ -325,6 +327,7 @@ fn assemble(
     ids: &[u16],
     surfaces: &[LevelSurface],
     placed: Placed,
+    method: VolumeMethod,
     timings: &Timings,
 ) -> Result<Target> {
     let motion = placed.motion();
@@ -338,7 +341,11 @@ fn assemble(
         let seg_crop = seg.crop(lo, hi)?;
         move_volume(&mut ct_crop, &motion);
         let mask = VoxelMask::from_labels(&seg_crop, ids)?;
-        VolumeRenderer::new(&ct_crop, &VolumeRenderOptions::default(), Some(&mask))
+        let opts = VolumeRenderOptions {
+            method,
+            ..VolumeRenderOptions::default()
+        };
+        VolumeRenderer::new(&ct_crop, &opts, Some(&mask))
     })?;
     let meshes = surfaces
         .iter()

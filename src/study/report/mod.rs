@@ -149,8 +149,8 @@ their units (unitless line integrals)."
         let names: Vec<&str> = cfg.anatomy.ct.iter().map(|c| c.name.as_str()).collect();
         let _ = writeln!(
             md,
-            "- CT targets ({}): image metrics and heatmaps come from the CT volume DRR (Siddon's exact \
-line integral of μ(HU) through the CT, masked to the level's label), as the paper renders DRRs; \
+            "- CT targets ({}): image metrics and heatmaps come from the CT volume DRR (the line \
+integral of μ(HU) through the CT, masked to the level's label), as the paper renders DRRs; \
 silhouettes and contours from a thickness render of the label's closed surface (its ray-hit mask); \
 landmarks are automatic landmarks of that surface unless a landmarks file is given. Each CT target is \
 translated so its body centre sits where the views aim. The label surface carries no structure labels, so \
@@ -193,6 +193,25 @@ seen tilted);",
     }
     note.pop();
     note.push('.');
+    for c in &cfg.anatomy.ct {
+        let method = match c.method {
+            crate::render::volume::VolumeMethod::Siddon => {
+                "Siddon's exact traversal of the piecewise-constant voxels"
+            }
+            crate::render::volume::VolumeMethod::Trilinear => {
+                "trilinear interpolation of μ, sampled at ≤ half the smallest voxel spacing (smooth \
+across thick slices)"
+            }
+        };
+        note += &format!(
+            "\n- CT `{}`: volume DRR by {method}; label surfaces {}.",
+            c.name,
+            match c.smooth_iterations {
+                0 => "unsmoothed (the exact 0.5-isosurface of the voxels)".to_string(),
+                n => format!("smoothed by {n} Taubin λ|μ iterations (thick slices leave steps)"),
+            }
+        );
+    }
     note
 }
 
