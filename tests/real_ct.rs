@@ -132,7 +132,10 @@ fn real_ct_landmark_shifts_obey_the_homography_law_and_lat_exceeds_ap() {
                 s.iter().sum::<f64>() / s.len() as f64
             };
             let (ap, lat) = (mean("ap"), mean("lat"));
-            assert!(lat > ap && ap > 0.0, "{target} Δf {df}: AP {ap} px, LAT {lat} px");
+            assert!(
+                lat > ap && ap > 0.0,
+                "{target} Δf {df}: AP {ap} px, LAT {lat} px"
+            );
         }
     }
 }
@@ -152,15 +155,24 @@ fn real_ct_levels_are_centred_upright_and_posterior_right_in_lat() {
         // The AP central ray passes through the world origin, where the body centre is placed: the
         // principal point ((511.5 + 0.5) / 2 − 0.5 = 255.5 after 2× binning).
         let (u, v) = at(&t, "ap", "center");
-        assert!((u - 255.5).abs() < 0.05 && (v - 255.5).abs() < 0.05, "{t}: ({u}, {v})");
+        assert!(
+            (u - 255.5).abs() < 0.05 && (v - 255.5).abs() < 0.05,
+            "{t}: ({u}, {v})"
+        );
         for view in ["ap", "lat"] {
             let (_, top) = at(&t, view, "superior_endplate");
             let (_, bottom) = at(&t, view, "inferior_endplate");
-            assert!(top < bottom, "{t} {view}: head is not up ({top} vs {bottom})");
+            assert!(
+                top < bottom,
+                "{t} {view}: head is not up ({top} vs {bottom})"
+            );
         }
         let (uc, _) = at(&t, "lat", "center");
         let (us, _) = at(&t, "lat", "spinous_tip");
-        assert!(us > uc + 20.0, "{t} LAT: spinous tip at u {us}, body at {uc}");
+        assert!(
+            us > uc + 20.0,
+            "{t} LAT: spinous tip at u {us}, body at {uc}"
+        );
     }
 }
 
@@ -222,7 +234,10 @@ fn real_ct_drr_silhouette_agrees_with_the_label_surface() {
             );
             let dice = 2.0 * both as f64 / (na + nb) as f64;
             eprintln!("{level} {view}: CT DRR vs label surface silhouette Dice {dice:.4}");
-            assert!(dice >= 0.95, "{level} {view}: Dice {dice} ({na} vs {nb} px)");
+            assert!(
+                dice >= 0.95,
+                "{level} {view}: Dice {dice} ({na} vs {nb} px)"
+            );
             // The vertebra lies where the views aim: its silhouette's centroid is near the image centre
             // (within a fifth of the width; LAT aims 25 mm behind the body centre).
             let w = drr.width as usize;

@@ -348,18 +348,30 @@ fn anatomical_alignment_undoes_a_scanner_tilt() {
     // The tilted CT holds the same voxels as the upright one, turned by TILT_DEG about x. Aligned to its
     // own landmark frame, each is turned upright: the two rotations differ by the tilt, and every
     // landmark projects where the upright copy's does.
-    let (upright, tilt) = (recorded_rotation("upright-L1"), recorded_rotation("tilt-L1"));
+    let (upright, tilt) = (
+        recorded_rotation("upright-L1"),
+        recorded_rotation("tilt-L1"),
+    );
     // Frame(tilted) = Rx · frame(upright), so R(tilted) = R(upright) · Rxᵀ.
     let off = (upright.transpose() * tilt) * glam::DMat3::from_rotation_x(TILT_DEG.to_radians());
     let err = (off.x_axis.x + off.y_axis.y + off.z_axis.z - 1.0) / 2.0;
     let err_deg = err.clamp(-1.0, 1.0).acos().to_degrees();
-    assert!(err_deg < 0.5, "alignment rotations differ from the tilt by {err_deg}°");
+    assert!(
+        err_deg < 0.5,
+        "alignment rotations differ from the tilt by {err_deg}°"
+    );
     let translation_only = recorded_rotation("syn-L1");
     let d = (translation_only - glam::DMat3::IDENTITY).to_cols_array();
-    assert!(d.iter().all(|v| v.abs() < 1e-12), "syn-L1 (align none) was rotated");
+    assert!(
+        d.iter().all(|v| v.abs() < 1e-12),
+        "syn-L1 (align none) was rotated"
+    );
     let lm = &tables().landmarks;
     let mut n = 0;
-    for r in lm.iter().filter(|r| r.target == "tilt-L1" && r.df_px == 100.0) {
+    for r in lm
+        .iter()
+        .filter(|r| r.target == "tilt-L1" && r.df_px == 100.0)
+    {
         let u = lm
             .iter()
             .find(|s| {
@@ -377,7 +389,8 @@ fn anatomical_alignment_undoes_a_scanner_tilt() {
     assert!(n >= 10, "{n} landmark rows compared");
     let report = std::fs::read_to_string(study_out().join("report.md")).unwrap();
     assert!(
-        report.contains("`upright`, `tilt`: `anatomical`") && report.contains("`syn`, `given`: `none`"),
+        report.contains("`upright`, `tilt`: `anatomical`")
+            && report.contains("`syn`, `given`: `none`"),
         "the report does not say which alignment was used"
     );
 }

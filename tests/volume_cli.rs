@@ -141,7 +141,12 @@ fn write_moved(dir: &Path, offset: DVec3, ct_name: &str, seg_name: &str) {
 fn same_pixels(a: &Path, b: &Path) {
     let (a, b) = (read_tiff_f32(a).unwrap(), read_tiff_f32(b).unwrap());
     assert!(a.max() > 0.0);
-    assert!(a.data.iter().zip(&b.data).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert!(
+        a.data
+            .iter()
+            .zip(&b.data)
+            .all(|(x, y)| x.to_bits() == y.to_bits())
+    );
 }
 
 #[test]
@@ -155,10 +160,17 @@ fn a_ct_at_scanner_coordinates_is_placed_where_the_views_aim() {
     // voxel centroid is (−0.5, −0.5, −8) mm before the move.
     let l1_centre = DVec3::new(-0.5, -0.5, -8.0) + offset;
     let shifted = tempfile::tempdir().unwrap();
-    write_moved(shifted.path(), -DVec3::new(-0.5, -0.5, -8.0), "ct.nii.gz", "seg.nii.gz");
+    write_moved(
+        shifted.path(),
+        -DVec3::new(-0.5, -0.5, -8.0),
+        "ct.nii.gz",
+        "seg.nii.gz",
+    );
     let s = |n: &str| shifted.path().join(n).display().to_string();
     let l1 = |ct: &str, seg: &str, extra: &[&str], out: &str| {
-        let mut args = vec!["render", "--ct", ct, "--seg", seg, "--label", "L1", "--view", "lat"];
+        let mut args = vec![
+            "render", "--ct", ct, "--seg", seg, "--label", "L1", "--view", "lat",
+        ];
         args.extend_from_slice(extra);
         args.extend(["--out", out]);
         run(&args)
@@ -167,7 +179,12 @@ fn a_ct_at_scanner_coordinates_is_placed_where_the_views_aim() {
     // origin and rendered where it is.
     let (ok, err) = l1(&d("far.nii.gz"), &d("far_seg.nii.gz"), &[], &d("auto.tiff"));
     assert!(ok, "{err}");
-    let (ok, err) = l1(&s("ct.nii.gz"), &s("seg.nii.gz"), &["--placement", "keep"], &d("hand.tiff"));
+    let (ok, err) = l1(
+        &s("ct.nii.gz"),
+        &s("seg.nii.gz"),
+        &["--placement", "keep"],
+        &d("hand.tiff"),
+    );
     assert!(ok, "{err}");
     same_pixels(&dir.path().join("auto.tiff"), &dir.path().join("hand.tiff"));
     let side = Sidecar::read(&dir.path().join("auto.json")).unwrap();
@@ -176,7 +193,10 @@ fn a_ct_at_scanner_coordinates_is_placed_where_the_views_aim() {
     for a in 0..3 {
         let c = p["centre_mm"][a].as_f64().unwrap();
         let t = p["translation_mm"][a].as_f64().unwrap();
-        assert!((c - l1_centre[a]).abs() < 1e-9 && (t + l1_centre[a]).abs() < 1e-9, "{p}");
+        assert!(
+            (c - l1_centre[a]).abs() < 1e-9 && (t + l1_centre[a]).abs() < 1e-9,
+            "{p}"
+        );
     }
     // Without a label the volume's box centre goes to the origin: the unmoved grid, centred on 0.
     let (ok, err) = run(&["render", "--ct", &d("far.nii.gz"), "--out", &d("vol.tiff")]);
@@ -192,12 +212,23 @@ fn a_ct_at_scanner_coordinates_is_placed_where_the_views_aim() {
         &d("origin.tiff"),
     ]);
     assert!(ok, "{err}");
-    same_pixels(&dir.path().join("vol.tiff"), &dir.path().join("origin.tiff"));
+    same_pixels(
+        &dir.path().join("vol.tiff"),
+        &dir.path().join("origin.tiff"),
+    );
     let side = Sidecar::read(&dir.path().join("vol.json")).unwrap();
     assert_eq!(side.details["placement"]["mode"], "volume-centre");
     // Kept at scanner coordinates, nothing reaches the detector: a clear error naming the option.
-    let (ok, err) = l1(&d("far.nii.gz"), &d("far_seg.nii.gz"), &["--placement", "keep"], &d("k.tiff"));
-    assert!(!ok && err.contains("--placement keep") && err.contains("nothing of the anatomy"), "{err}");
+    let (ok, err) = l1(
+        &d("far.nii.gz"),
+        &d("far_seg.nii.gz"),
+        &["--placement", "keep"],
+        &d("k.tiff"),
+    );
+    assert!(
+        !ok && err.contains("--placement keep") && err.contains("nothing of the anatomy"),
+        "{err}"
+    );
     assert!(!dir.path().join("k.tiff").exists());
 }
 
@@ -208,12 +239,16 @@ fn a_label_map_off_the_cts_grid_is_named_with_the_field_that_differs() {
     let d = |n: &str| dir.path().join(n).display().to_string();
     let seg = spinedrr::anatomy::ct::read_labels(&dir.path().join("seg.nii.gz")).unwrap();
     let mut shifted = seg.clone();
-    shifted.index_to_world = DMat4::from_translation(DVec3::new(0.0, 0.0, 5.0)) * seg.index_to_world;
+    shifted.index_to_world =
+        DMat4::from_translation(DVec3::new(0.0, 0.0, 5.0)) * seg.index_to_world;
     write_labels(&dir.path().join("shifted.nii.gz"), &shifted).unwrap();
     let mut flipped = seg.clone();
     flipped.index_to_world = seg.index_to_world * DMat4::from_scale(DVec3::new(-1.0, 1.0, 1.0));
     write_labels(&dir.path().join("flipped.nii.gz"), &flipped).unwrap();
-    for (file, field) in [("shifted.nii.gz", "origin"), ("flipped.nii.gz", "voxel axis i")] {
+    for (file, field) in [
+        ("shifted.nii.gz", "origin"),
+        ("flipped.nii.gz", "voxel axis i"),
+    ] {
         let (ok, err) = run(&[
             "render",
             "--ct",

@@ -23,8 +23,8 @@ pub use nifti::{
 };
 pub use nifti_header::MAX_VOXELS;
 pub use placement::{
-    Alignment, Placed, Placement, anatomical_motion, mask_centre, move_volume, place,
-    rotation_deg, volume_centre,
+    Alignment, Placed, Placement, anatomical_motion, mask_centre, move_volume, place, rotation_deg,
+    volume_centre,
 };
 pub use surface::{
     MAX_SMOOTH_ITERATIONS, SurfaceOptions, label_surface, largest_component, taubin_smooth,
@@ -137,7 +137,12 @@ impl<T: Copy> Volume<T> {
     /// label map must lie on its CT's: the same dims and, to 1e-3 mm, the same index→world affine. The
     /// error names the label file and the field that differs (`dim`, or the affine's voxel axes —
     /// `srow`/`pixdim` — or origin) with both values.
-    pub fn check_grid_of<U>(&self, path: &Path, other: &Volume<U>, other_path: &Path) -> Result<()> {
+    pub fn check_grid_of<U>(
+        &self,
+        path: &Path,
+        other: &Volume<U>,
+        other_path: &Path,
+    ) -> Result<()> {
         let whose = format!("the CT's ({})", path.display());
         if self.dims != other.dims {
             return Err(Error::format(

@@ -24,7 +24,7 @@ use std::str::FromStr;
 use glam::{DMat3, DVec3};
 use serde::Serialize;
 
-use super::{VoxelMask, Volume};
+use super::{Volume, VoxelMask};
 use crate::anatomy::auto_landmarks::VertebraFrame;
 use crate::geometry::RigidTransform;
 use crate::{Error, Result};
@@ -117,7 +117,11 @@ impl Placed {
             mode: mode.to_string(),
             align: align.to_string(),
             centre_mm: centre.map(|c| c.to_array()),
-            rotation: [r.x_axis.to_array(), r.y_axis.to_array(), r.z_axis.to_array()],
+            rotation: [
+                r.x_axis.to_array(),
+                r.y_axis.to_array(),
+                r.z_axis.to_array(),
+            ],
             rotation_deg: rotation_deg(&m),
             translation_mm: m.translation.to_array(),
         })
@@ -148,7 +152,11 @@ pub fn mask_centre<T: Copy>(vol: &Volume<T>, mask: &VoxelMask) -> Result<DVec3> 
     let [nx, ny, _] = vol.dims;
     let (mut sum, mut n) = (DVec3::ZERO, 0usize);
     for (idx, _) in mask.keep.iter().enumerate().filter(|(_, k)| **k) {
-        sum += DVec3::new((idx % nx) as f64, ((idx / nx) % ny) as f64, (idx / (nx * ny)) as f64);
+        sum += DVec3::new(
+            (idx % nx) as f64,
+            ((idx / nx) % ny) as f64,
+            (idx / (nx * ny)) as f64,
+        );
         n += 1;
     }
     if n == 0 {
@@ -284,7 +292,8 @@ mod tests {
             v.values[n] = 31;
         }
         let mask = VoxelMask::from_labels(&v, &[31]).unwrap();
-        let mean = (v.voxel_centre(2, 3, 1) + v.voxel_centre(4, 3, 1) + v.voxel_centre(3, 6, 5)) / 3.0;
+        let mean =
+            (v.voxel_centre(2, 3, 1) + v.voxel_centre(4, 3, 1) + v.voxel_centre(3, 6, 5)) / 3.0;
         let p = place(&v, Placement::LabelCentre, Some(&mask)).unwrap();
         assert!((DVec3::from_array(p.centre_mm.unwrap()) - mean).length() < 1e-9);
         let mut moved = v.clone();
@@ -293,18 +302,33 @@ mod tests {
         let keep = place(&v, Placement::Keep, None).unwrap();
         assert_eq!((keep.centre_mm, keep.translation_mm), (None, [0.0; 3]));
         assert_eq!(keep.motion(), RigidTransform::IDENTITY);
-        let e = place(&v, Placement::LabelCentre, None).unwrap_err().to_string();
+        let e = place(&v, Placement::LabelCentre, None)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("placement") && e.contains("label"), "{e}");
     }
 
     #[test]
     fn placement_and_alignment_spellings() {
-        assert_eq!(Placement::parse("auto", true).unwrap(), Placement::LabelCentre);
-        assert_eq!(Placement::parse("AUTO", false).unwrap(), Placement::VolumeCentre);
-        for p in [Placement::Keep, Placement::LabelCentre, Placement::VolumeCentre] {
+        assert_eq!(
+            Placement::parse("auto", true).unwrap(),
+            Placement::LabelCentre
+        );
+        assert_eq!(
+            Placement::parse("AUTO", false).unwrap(),
+            Placement::VolumeCentre
+        );
+        for p in [
+            Placement::Keep,
+            Placement::LabelCentre,
+            Placement::VolumeCentre,
+        ] {
             assert_eq!(p.to_string().parse::<Placement>().unwrap(), p);
         }
-        assert_eq!("volume-center".parse::<Placement>().unwrap(), Placement::VolumeCentre);
+        assert_eq!(
+            "volume-center".parse::<Placement>().unwrap(),
+            Placement::VolumeCentre
+        );
         let e = "middle".parse::<Placement>().unwrap_err().to_string();
         assert!(e.contains("placement") && e.contains("middle"), "{e}");
         for a in [Alignment::None, Alignment::Anatomical] {
@@ -335,7 +359,12 @@ mod tests {
         }
         let angle = (tilt.x_axis.x + tilt.y_axis.y + tilt.z_axis.z - 1.0) / 2.0;
         assert!((rotation_deg(&m) - angle.acos().to_degrees()).abs() < 1e-9);
-        let placed = Placed::new("body-centre", Some(centre), Alignment::Anatomical, Some(&frame));
+        let placed = Placed::new(
+            "body-centre",
+            Some(centre),
+            Alignment::Anatomical,
+            Some(&frame),
+        );
         let placed = placed.unwrap();
         let d = placed.motion().to_mat4() - m.to_mat4();
         assert!(d.to_cols_array().iter().all(|v| v.abs() < 1e-12));

@@ -8,9 +8,9 @@ use std::str::FromStr;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::anatomy::ct::Alignment;
-use crate::render::volume::VolumeMethod;
 use crate::anatomy::labels::LabelConvention;
 use crate::registration::{Method, PnpSolver};
+use crate::render::volume::VolumeMethod;
 use crate::{Error, Result};
 
 /// An experiment a study can run.
@@ -186,7 +186,9 @@ pub mod alignment {
         s.serialize_str(&a.to_string())
     }
 
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Alignment, D::Error> {
+    pub fn deserialize<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> std::result::Result<Alignment, D::Error> {
         let s = String::deserialize(d)?;
         s.parse::<Alignment>()
             .map_err(|e| match e {
@@ -201,7 +203,10 @@ pub mod alignment {
 pub mod volume_method {
     use super::*;
 
-    pub fn serialize<S: Serializer>(m: &VolumeMethod, s: S) -> std::result::Result<S::Ok, S::Error> {
+    pub fn serialize<S: Serializer>(
+        m: &VolumeMethod,
+        s: S,
+    ) -> std::result::Result<S::Ok, S::Error> {
         s.serialize_str(&m.to_string())
     }
 

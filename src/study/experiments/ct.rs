@@ -33,8 +33,8 @@ use rayon::prelude::*;
 use super::{Target, target_with_landmarks};
 use crate::anatomy::auto_landmarks::{VertebraFrame, analyse};
 use crate::anatomy::ct::{
-    Alignment, CtVolume, LabelMap, MAX_SMOOTH_ITERATIONS, Placed, SurfaceOptions, VoxelMask, label_surface, move_volume,
-    read_ct, read_labels,
+    Alignment, CtVolume, LabelMap, MAX_SMOOTH_ITERATIONS, Placed, SurfaceOptions, VoxelMask,
+    label_surface, move_volume, read_ct, read_labels,
 };
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::tissue_mu;
