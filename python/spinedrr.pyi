@@ -117,8 +117,10 @@ def render_mesh(
 def render_ct(
     hu: npt.NDArray[Any], affine: F64, view: View, mask: Bool | None = None,
     method: Literal["siddon", "trilinear"] = "siddon", mu_water: float = ..., step_mm: float | None = None,
+    placement: Literal["auto", "keep", "label-centre", "volume-centre"] = "auto",
 ) -> F32:
-    """CT DRR of a nibabel-style (i, j, k) HU array with its 4 × 4 index → world affine."""
+    """CT DRR of a nibabel-style (i, j, k) HU array with its 4 × 4 index → world affine, placed where the
+    views aim (``placement``, as ``spinedrr render --placement``)."""
 
 def intensity(line_integral: F32, i0: float) -> F32:
     """``I0 · exp(−L)`` of a line-integral image, as ``spinedrr render --intensity I0`` writes it."""

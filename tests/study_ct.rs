@@ -24,6 +24,9 @@ use common::Spinedrr;
 /// Where the scanner puts the phantom's origin (mm): far from where the views aim.
 const SCANNER_OFFSET: [f64; 3] = [30.0, -20.0, 400.0];
 
+/// The sagittal tilt (degrees, about the scanner's x axis) of the tilted copy of the CT.
+const TILT_DEG: f64 = 12.0;
+
 struct Inputs {
     _dir: tempfile::TempDir,
     dir: PathBuf,
@@ -54,6 +57,11 @@ fn inputs() -> &'static Path {
         seg.index_to_world = ct.index_to_world;
         write_ct(&dir.path().join("ct.nii"), &ct).expect("write CT");
         write_labels(&dir.path().join("seg.nii"), &seg).expect("write labels");
+        // The same voxels tilted by TILT_DEG about the left–right axis (a flexed patient).
+        ct.index_to_world = DMat4::from_rotation_x(TILT_DEG.to_radians()) * ct.index_to_world;
+        seg.index_to_world = ct.index_to_world;
+        write_ct(&dir.path().join("tilt.nii"), &ct).expect("write CT");
+        write_labels(&dir.path().join("tilt_seg.nii"), &seg).expect("write labels");
         let l1 = &phantom.vertebrae[0].landmarks;
         let given = Landmarks {
             level: "vertebrae_L1".into(),
@@ -101,9 +109,13 @@ fn study_out() -> &'static Path {
 [[anatomy.ct]]\nname = \"syn\"\nct = {ct:?}\nseg = {seg:?}\nlabels = \"totalseg\"\n\
 levels = [\"L1\", \"L2\"]\nsegment = true\n\
 [[anatomy.ct]]\nname = \"given\"\nct = {ct:?}\nseg = {seg:?}\nlevels = [\"31\"]\nlandmarks = {lm:?}\n\
+[[anatomy.ct]]\nname = \"upright\"\nct = {ct:?}\nseg = {seg:?}\nlevels = [\"L1\"]\nalign = \"anatomical\"\n\
+[[anatomy.ct]]\nname = \"tilt\"\nct = {tct:?}\nseg = {tseg:?}\nlevels = [\"L1\"]\nalign = \"anatomical\"\n\
 {GRID}",
             ct = i.join("ct.nii").to_str().unwrap(),
             seg = i.join("seg.nii").to_str().unwrap(),
+            tct = i.join("tilt.nii").to_str().unwrap(),
+            tseg = i.join("tilt_seg.nii").to_str().unwrap(),
             lm = i.join("given.json").to_str().unwrap(),
         );
         let (o, out) = spinedrr(&cfg, dir.path());
@@ -317,6 +329,79 @@ fn ct_level_agrees_with_the_phantom_level_it_was_voxelized_from() {
             }
         }
     }
+}
+
+/// The rotation a target's reference sidecar records (`details.placement.rotation`, rows).
+fn recorded_rotation(target: &str) -> glam::DMat3 {
+    let path = study_out().join(format!("references/{target}_ap.json"));
+    let side = spinedrr::io::Sidecar::read(&path).expect("reference sidecar");
+    let p = &side.details["placement"];
+    assert_eq!(p["mode"], "body-centre", "{target}: {p}");
+    let row = |r: usize| -> DVec3 {
+        DVec3::from_array(serde_json::from_value(p["rotation"][r].clone()).expect("rotation row"))
+    };
+    glam::DMat3::from_cols(row(0), row(1), row(2)).transpose()
+}
+
+#[test]
+fn anatomical_alignment_undoes_a_scanner_tilt() {
+    // The tilted CT holds the same voxels as the upright one, turned by TILT_DEG about x. Aligned to its
+    // own landmark frame, each is turned upright: the two rotations differ by the tilt, and every
+    // landmark projects where the upright copy's does.
+    let (upright, tilt) = (
+        recorded_rotation("upright-L1"),
+        recorded_rotation("tilt-L1"),
+    );
+    // Frame(tilted) = Rx · frame(upright), so R(tilted) = R(upright) · Rxᵀ.
+    let off = (upright.transpose() * tilt) * glam::DMat3::from_rotation_x(TILT_DEG.to_radians());
+    let err = (off.x_axis.x + off.y_axis.y + off.z_axis.z - 1.0) / 2.0;
+    let err_deg = err.clamp(-1.0, 1.0).acos().to_degrees();
+    assert!(
+        err_deg < 0.5,
+        "alignment rotations differ from the tilt by {err_deg}°"
+    );
+    let translation_only = recorded_rotation("syn-L1");
+    let d = (translation_only - glam::DMat3::IDENTITY).to_cols_array();
+    assert!(
+        d.iter().all(|v| v.abs() < 1e-12),
+        "syn-L1 (align none) was rotated"
+    );
+    let lm = &tables().landmarks;
+    let mut n = 0;
+    for r in lm
+        .iter()
+        .filter(|r| r.target == "tilt-L1" && r.df_px == 100.0)
+    {
+        let u = lm
+            .iter()
+            .find(|s| {
+                s.target == "upright-L1"
+                    && s.view == r.view
+                    && s.landmark == r.landmark
+                    && s.family == r.family
+                    && s.df_px == r.df_px
+            })
+            .expect("upright row");
+        let d = (r.ref_u_px - u.ref_u_px).hypot(r.ref_v_px - u.ref_v_px);
+        assert!(d < 0.5, "{} {}: {d} px apart", r.view, r.landmark);
+        n += 1;
+    }
+    assert!(n >= 10, "{n} landmark rows compared");
+    let report = std::fs::read_to_string(study_out().join("report.md")).unwrap();
+    assert!(
+        report.contains("`upright`, `tilt`: `anatomical`")
+            && report.contains("`syn`, `given`: `none`"),
+        "the report does not say which alignment was used"
+    );
+}
+
+#[test]
+fn a_label_map_off_the_cts_grid_is_named() {
+    let seg = inputs().join("tilt_seg.nii");
+    bad(
+        &format!("seg = {:?}\nlevels = [\"L1\"]", seg.to_str().unwrap()),
+        &["anatomy.ct.seg", "tilt_seg.nii", "affine", "voxel axis j"],
+    );
 }
 
 fn bad(cfg_tail: &str, must_name: &[&str]) {

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use glam::DVec3;
-use spinedrr::anatomy::ct::VoxelMask;
+use spinedrr::anatomy::ct::{Placement, VoxelMask, move_volume, place};
 use spinedrr::anatomy::landmarks::landmarks_to_json;
 use spinedrr::anatomy::{PhantomOptions, Structure, build_phantom, parse_levels};
 use spinedrr::registration::LoadedProblem;
@@ -192,22 +192,28 @@ impl Renderer {
 }
 
 /// A CT DRR as `spinedrr render --ct` renders it: volume, optional voxel mask, method, μ_water, step.
+#[allow(clippy::too_many_arguments)]
 pub fn render_ct(
-    ct: &CtVolume,
+    mut ct: CtVolume,
     keep: Option<Vec<bool>>,
     method: &str,
     mu_water: f64,
     step_mm: Option<f64>,
+    placement: &str,
     view: &View,
 ) -> Result<ImageF32> {
     let method: VolumeMethod = method.parse()?;
+    let placement = Placement::parse(placement, keep.is_some())?;
     let mask = match keep {
         Some(keep) => Some(
-            VoxelMask::from_keep(ct, keep)
+            VoxelMask::from_keep(&ct, keep)
                 .ok_or_else(|| Error::invalid("mask", "keeps no voxel"))?,
         ),
         None => None,
     };
+    let placed = place(&ct, placement, mask.as_ref())?;
+    move_volume(&mut ct, &placed.motion());
+    let ct = &ct;
     let opts = VolumeRenderOptions {
         method,
         mu_water,

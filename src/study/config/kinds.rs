@@ -7,8 +7,10 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
+use crate::anatomy::ct::Alignment;
 use crate::anatomy::labels::LabelConvention;
 use crate::registration::{Method, PnpSolver};
+use crate::render::volume::VolumeMethod;
 use crate::{Error, Result};
 
 /// An experiment a study can run.
@@ -186,6 +188,51 @@ macro_rules! spelled_impls {
 
 spelled_impls!(Experiment);
 spelled_impls!(RegistrationMethod);
+
+/// Serde of an [`Alignment`] by its spelling (`none`, `anatomical`); errors name `anatomy.ct.align`.
+pub mod alignment {
+    use super::*;
+
+    pub fn serialize<S: Serializer>(a: &Alignment, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(&a.to_string())
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> std::result::Result<Alignment, D::Error> {
+        let s = String::deserialize(d)?;
+        s.parse::<Alignment>()
+            .map_err(|e| match e {
+                Error::Invalid { message, .. } => Error::invalid("anatomy.ct.align", message),
+                other => other,
+            })
+            .map_err(serde::de::Error::custom)
+    }
+}
+
+/// Serde of a [`VolumeMethod`] by its spelling (`siddon`, `trilinear`); errors name `anatomy.ct.method`.
+pub mod volume_method {
+    use super::*;
+
+    pub fn serialize<S: Serializer>(
+        m: &VolumeMethod,
+        s: S,
+    ) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(&m.to_string())
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> std::result::Result<VolumeMethod, D::Error> {
+        let s = String::deserialize(d)?;
+        s.parse::<VolumeMethod>()
+            .map_err(|e| match e {
+                Error::Invalid { message, .. } => Error::invalid("anatomy.ct.method", message),
+                other => other,
+            })
+            .map_err(serde::de::Error::custom)
+    }
+}
 
 /// Serde of a [`LabelConvention`] by its spelling (`totalseg`, `verse`); errors name `anatomy.ct.labels`.
 pub mod label_convention {

@@ -8,10 +8,12 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::cohort::dataset::DatasetConfig;
+use crate::anatomy::ct::Alignment;
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::{Level, parse_levels};
 use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig, Perturbation};
 use crate::render::Backend;
+use crate::render::volume::VolumeMethod;
 use crate::{Error, Result};
 
 mod calibration;
@@ -99,6 +101,21 @@ pub struct CtTarget {
     /// Also study the levels together as target `<name>-segment`.
     #[serde(default)]
     pub segment: bool,
+    /// How each level is oriented where the views aim: `none` (moved to its body centre only, the
+    /// scanner's axes kept) or `anatomical` (also rotated into its automatic-landmark frame, so AP and
+    /// LAT are a tilted vertebra's true AP and LAT).
+    #[serde(default, with = "kinds::alignment")]
+    pub align: Alignment,
+    /// Taubin λ|μ smoothing iterations of each label's surface (0: the exact 0.5-isosurface of the
+    /// voxels). Thick slices (2–3 mm) leave stair steps that automatic landmarks cannot read; about 10
+    /// smooths them without shrinking the surface.
+    #[serde(default)]
+    pub smooth_iterations: usize,
+    /// Ray integrator of the CT volume DRR: `siddon` (exact for the piecewise-constant voxels; thick
+    /// slices show as steps) or `trilinear` (the interpolated μ field, sampled at ≤ half the smallest
+    /// spacing: smooth across thick slices).
+    #[serde(default, with = "kinds::volume_method")]
+    pub method: VolumeMethod,
 }
 
 impl CtTarget {
@@ -498,6 +515,9 @@ mod tests {
             levels: vec!["L1".into(), "vertebrae_l3".into(), "27".into()],
             landmarks: None,
             segment: true,
+            align: Alignment::None,
+            smooth_iterations: 0,
+            method: VolumeMethod::Siddon,
         };
         let t = c.level_targets().unwrap();
         assert_eq!(

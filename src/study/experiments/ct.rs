@@ -11,27 +11,35 @@
 //! * **landmarks** are marker spheres at the level's landmarks (automatic landmarks of the label surface,
 //!   or the given JSON), rendered alone and measured by blob centroid, as for every target.
 //!
-//! The views aim at the world origin, so each target is moved rigidly (a translation, no rotation: the
-//! NIfTI world is RAS+ like the phantom's) to put its body centre there: the `center` landmark of the
-//! level, or for the segment that of its middle listed level (the phantom's placement rule). Inputs are
-//! read and checked by [`load_inputs`] before the output folder is touched; [`build_targets`] meshes
-//! them.
+//! The views aim at the world origin, so each target is moved rigidly to put its body centre there: the
+//! `center` landmark of the level, or for the segment that of its middle listed level (the phantom's
+//! placement rule). With `align = "none"` (the default) the motion is that translation alone — the NIfTI
+//! world is RAS+ like the phantom's, so AP and LAT are the scanner's; with `align = "anatomical"` the
+//! level is also rotated so its automatic-landmark frame (right, anterior, superior) becomes the world's
+//! axes, and AP and LAT are a tilted vertebra's true AP and LAT (see [`crate::anatomy::ct::placement`]).
+//! One motion moves the label surfaces, the landmarks and the CT's affine alike.
+//!
+//! Inputs are read and checked by [`load_input`] before the output folder is touched — the label map
+//! first, on the CT's grid, then both cropped to the listed levels' bounding box (plus a margin) so
+//! nothing heavy runs on the whole scan; [`build_targets`] meshes them. A dataset of many CTs calls the
+//! two for each of its cases.
 
 use std::path::Path;
 use std::sync::Arc;
 
-use glam::{DMat3, DMat4, DVec3};
+use glam::DVec3;
 use rayon::prelude::*;
 
 use super::{Target, target_with_landmarks};
+use crate::anatomy::auto_landmarks::{VertebraFrame, analyse};
 use crate::anatomy::ct::{
-    CtVolume, LabelMap, SurfaceOptions, VoxelMask, label_surface, read_ct, read_labels,
+    Alignment, CtVolume, LabelMap, MAX_SMOOTH_ITERATIONS, Placed, SurfaceOptions, VoxelMask,
+    label_surface, move_volume, read_ct, read_labels,
 };
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::tissue_mu;
-use crate::anatomy::{Landmarks, Tissue, TriMesh, auto_landmarks, read_landmarks};
-use crate::geometry::RigidTransform;
-use crate::render::volume::{VolumeRenderOptions, VolumeRenderer};
+use crate::anatomy::{Landmarks, Tissue, TriMesh, read_landmarks};
+use crate::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
 use crate::render::{RenderScene, SceneMesh};
 use crate::study::config::{CtTarget, StudyConfig};
 use crate::study::timings::{Phase, Timings};
@@ -61,7 +69,22 @@ pub fn load_inputs(cfg: &StudyConfig) -> Result<Vec<CtInput>> {
     cfg.anatomy.ct.iter().map(load_input).collect()
 }
 
-fn load_input(c: &CtTarget) -> Result<CtInput> {
+/// Voxels of margin kept around the listed levels when the volumes are cropped on reading.
+const CROP_MARGIN_VOXELS: usize = 2;
+
+/// Reads and checks one `[[anatomy.ct]]` entry (or one case of a dataset, given as such an entry):
+/// levels present in the label map, landmark sets per level, the label map on the CT's grid; then both
+/// volumes cropped to the levels' bounding box plus [`CROP_MARGIN_VOXELS`].
+pub fn load_input(c: &CtTarget) -> Result<CtInput> {
+    if c.smooth_iterations > MAX_SMOOTH_ITERATIONS {
+        return Err(Error::invalid(
+            "anatomy.ct.smooth_iterations",
+            format!(
+                "target '{}': {} is more than the limit of {MAX_SMOOTH_ITERATIONS}",
+                c.name, c.smooth_iterations
+            ),
+        ));
+    }
     let conv = c.labels;
     let levels: Vec<LevelSpec> = c
         .level_targets()?
@@ -93,23 +116,16 @@ fn load_input(c: &CtTarget) -> Result<CtInput> {
         None => None,
     };
     let ct = read_ct(&c.ct)?;
-    if !ct.same_grid(&seg) {
-        return Err(Error::invalid(
-            "anatomy.ct.seg",
-            format!(
-                "{} is not on the grid of {} (dims {:?} vs {:?}, or a different affine): resample \
-                 the segmentation onto the CT",
-                c.seg.display(),
-                c.ct.display(),
-                seg.dims,
-                ct.dims
-            ),
-        ));
-    }
+    ct.check_grid_of(&c.ct, &seg, &c.seg)
+        .map_err(|e| Error::invalid("anatomy.ct.seg", format!("target '{}': {e}", c.name)))?;
+    let ids: Vec<u16> = levels.iter().map(|l| l.id).collect();
+    let (lo, hi) = VoxelMask::from_labels(&seg, &ids)?.bbox;
+    let lo = lo.map(|v| v.saturating_sub(CROP_MARGIN_VOXELS));
+    let hi = [0, 1, 2].map(|a| (hi[a] + CROP_MARGIN_VOXELS).min(ct.dims[a] - 1));
     Ok(CtInput {
         entry: c.clone(),
-        ct,
-        seg,
+        ct: ct.crop(lo, hi)?,
+        seg: seg.crop(lo, hi)?,
         levels,
         landmarks,
     })
@@ -158,10 +174,11 @@ fn match_landmarks(
         .collect()
 }
 
-/// One level meshed, in CT world coordinates.
+/// One level meshed, in CT world coordinates, with its anatomical frame when the entry aligns to it.
 struct LevelSurface {
     mesh: TriMesh,
     landmarks: Landmarks,
+    frame: Option<VertebraFrame>,
 }
 
 /// Builds the targets of one CT entry: per level, then the segment when asked.
@@ -184,13 +201,15 @@ pub fn build_targets(
             levels
                 .par_iter()
                 .enumerate()
-                .map(|(i, l)| level_surface(&seg, l, landmarks.as_ref().map(|s| &s[i])))
+                .map(|(i, l)| {
+                    let given = landmarks.as_ref().map(|s| &s[i]);
+                    level_surface(&seg, l, given, &entry)
+                })
                 .collect::<Result<Vec<_>>>()
         })
     })?;
     let mut out = Vec::new();
     for (l, s) in levels.iter().zip(&surfaces) {
-        let centre = body_centre(s);
         out.push(assemble(
             cfg,
             &l.target,
@@ -198,13 +217,14 @@ pub fn build_targets(
             &seg,
             &[l.id],
             std::slice::from_ref(s),
-            centre,
+            level_placement(s, entry.align)?,
+            entry.method,
             timings,
         )?);
     }
     if entry.segment {
         let ids: Vec<u16> = levels.iter().map(|l| l.id).collect();
-        let centre = body_centre(&surfaces[(surfaces.len() - 1) / 2]);
+        let middle = &surfaces[(surfaces.len() - 1) / 2];
         out.push(assemble(
             cfg,
             &entry.segment_target(),
@@ -212,29 +232,81 @@ pub fn build_targets(
             &seg,
             &ids,
             &surfaces,
-            centre,
+            level_placement(middle, entry.align)?,
+            entry.method,
             timings,
         )?);
     }
     Ok(out)
 }
 
-/// The label's closed surface (largest component, unsmoothed: `spinedrr mesh`'s defaults) and its
-/// landmarks (the given set, or automatic ones of the surface).
-fn level_surface(seg: &LabelMap, l: &LevelSpec, given: Option<&Landmarks>) -> Result<LevelSurface> {
+/// The label's closed surface (largest component, unsmoothed: `spinedrr mesh`'s defaults), its
+/// landmarks (the given set, or automatic ones of the surface) and, to align to, its automatic frame.
+fn level_surface(
+    seg: &LabelMap,
+    l: &LevelSpec,
+    given: Option<&Landmarks>,
+    entry: &CtTarget,
+) -> Result<LevelSurface> {
+    let align = entry.align;
     let context = |e: Error| {
         Error::invalid(
             "anatomy.ct.levels",
             format!("target '{}' (label {}): {e}", l.target, l.id),
         )
     };
-    let mut mesh = label_surface(seg, l.id, &SurfaceOptions::default()).map_err(context)?;
-    mesh.name = l.tag.clone();
-    let landmarks = match given {
-        Some(s) => s.clone(),
-        None => auto_landmarks(&mesh, &l.tag).map_err(context)?,
+    let opts = SurfaceOptions {
+        smooth_iterations: entry.smooth_iterations,
+        ..SurfaceOptions::default()
     };
-    Ok(LevelSurface { mesh, landmarks })
+    let mut mesh = label_surface(seg, l.id, &opts).map_err(|e| {
+        Error::invalid(
+            "anatomy.ct.smooth_iterations",
+            format!("target '{}' (label {}): {e}", l.target, l.id),
+        )
+    })?;
+    // Automatic landmarks read flat endplates: name the remedy for a stair-stepped surface.
+    let spacing = seg.spacing_mm();
+    let hint = |e: Error| {
+        let thick = spacing.max_element() > 1.5 * spacing.min_element();
+        if thick && entry.smooth_iterations == 0 {
+            context(Error::Numerical(format!(
+                "{e} (the label map's {:.2} × {:.2} × {:.2} mm voxels leave stair steps on the \
+                 surface: set smooth_iterations = 10 for this entry, or give landmarks)",
+                spacing.x, spacing.y, spacing.z
+            )))
+        } else {
+            context(e)
+        }
+    };
+    mesh.name = l.tag.clone();
+    let auto = match (given, align) {
+        (Some(_), Alignment::None) => None,
+        _ => Some(analyse(&mesh, &l.tag).map_err(hint)?),
+    };
+    let frame = auto.as_ref().map(|(_, f)| *f);
+    let landmarks = match (given, auto) {
+        (Some(s), _) => s.clone(),
+        (None, Some((lm, _))) => lm,
+        (None, None) => return Err(Error::Internal("no landmarks for a CT level".into())),
+    };
+    let frame = (align == Alignment::Anatomical).then_some(frame).flatten();
+    Ok(LevelSurface {
+        mesh,
+        landmarks,
+        frame,
+    })
+}
+
+/// The placement that puts a level's body centre where the views aim, aligned as the entry asks.
+fn level_placement(s: &LevelSurface, align: Alignment) -> Result<Placed> {
+    let centre = Some(body_centre(s));
+    Placed::new("body-centre", centre, align, s.frame.as_ref()).map_err(|e| {
+        Error::invalid(
+            "anatomy.ct.align",
+            format!("level {}: {e}", s.landmarks.level),
+        )
+    })
 }
 
 /// Where a level's body is: its `center` landmark, else the centroid of its surface's vertices.
@@ -244,7 +316,7 @@ fn body_centre(s: &LevelSurface) -> DVec3 {
     })
 }
 
-/// One target from the levels `ids` with their `surfaces`, moved by `−centre`: the label surfaces as
+/// One target from the levels `ids` with their `surfaces`, moved by the `placed` motion: the label surfaces as
 /// the thickness scene, the CT cropped to the labels' bounding box and masked to them as the volume.
 #[allow(clippy::too_many_arguments)]
 fn assemble(
@@ -254,10 +326,11 @@ fn assemble(
     seg: &LabelMap,
     ids: &[u16],
     surfaces: &[LevelSurface],
-    centre: DVec3,
+    placed: Placed,
+    method: VolumeMethod,
     timings: &Timings,
 ) -> Result<Target> {
-    let shift = RigidTransform::new(DMat3::IDENTITY, -centre);
+    let motion = placed.motion();
     let volume = timings.time(Phase::Scene, 1, || -> Result<VolumeRenderer> {
         let mask = VoxelMask::from_labels(seg, ids)?;
         // One voxel of margin keeps the crop's box strictly around the label.
@@ -266,15 +339,19 @@ fn assemble(
         let hi = [0, 1, 2].map(|a| (hi[a] + 1).min(ct.dims[a] - 1));
         let mut ct_crop = ct.crop(lo, hi)?;
         let seg_crop = seg.crop(lo, hi)?;
-        ct_crop.index_to_world = DMat4::from_translation(-centre) * ct_crop.index_to_world;
+        move_volume(&mut ct_crop, &motion);
         let mask = VoxelMask::from_labels(&seg_crop, ids)?;
-        VolumeRenderer::new(&ct_crop, &VolumeRenderOptions::default(), Some(&mask))
+        let opts = VolumeRenderOptions {
+            method,
+            ..VolumeRenderOptions::default()
+        };
+        VolumeRenderer::new(&ct_crop, &opts, Some(&mask))
     })?;
     let meshes = surfaces
         .iter()
         .map(|s| {
             let mut m = s.mesh.clone();
-            m.transform(&shift);
+            m.transform(&motion);
             SceneMesh {
                 mesh: Arc::new(m),
                 mu_per_mm: tissue_mu(Tissue::Cortical),
@@ -293,11 +370,12 @@ fn assemble(
                 .landmarks
                 .points
                 .iter()
-                .map(|(k, p)| (k.clone(), *p - centre))
+                .map(|(k, p)| (k.clone(), motion.apply(*p)))
                 .collect(),
         })
         .collect();
     let mut t = target_with_landmarks(cfg, name, renderer, sets, surfaces.len() > 1, timings)?;
     t.volume = Some(volume);
+    t.placement = Some(placed);
     Ok(t)
 }

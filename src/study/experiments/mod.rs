@@ -139,6 +139,8 @@ pub struct Target {
     pub volume: Option<VolumeRenderer>,
     pub landmarks: Vec<(String, DVec3)>,
     pub markers: Vec<Marker>,
+    /// How a CT target was moved where the views aim (recorded in its reference sidecars).
+    pub placement: Option<crate::anatomy::ct::Placed>,
 }
 
 /// What every unit shares.
@@ -391,6 +393,7 @@ fn target_with_landmarks(
         volume: None,
         landmarks,
         markers,
+        placement: None,
     })
 }
 

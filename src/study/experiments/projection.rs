@@ -126,8 +126,15 @@ fn write_reference_image(
     volume_drr: Option<&ImageF32>,
 ) -> Result<()> {
     let rendered;
+    let volume_name = t
+        .volume
+        .as_ref()
+        .map(|v| match v.details().method.as_str() {
+            "trilinear" => "ct-volume (trilinear)",
+            _ => "ct-volume (Siddon)",
+        });
     let (image, renderer) = match (volume_drr, drr) {
-        (Some(v), _) => (v, "ct-volume (Siddon)"),
+        (Some(v), _) => (v, volume_name.unwrap_or("ct-volume (Siddon)")),
         (None, Some(d)) => (&d.line_integral, "thickness"),
         (None, None) => {
             rendered = ctx.timings.time(Phase::RenderTarget, 1, || {
@@ -148,6 +155,10 @@ fn write_reference_image(
     side.details
         .insert("backend".into(), ctx.cfg.geometry.backend_name().into());
     side.details.insert("target".into(), t.name.clone().into());
+    if let Some(p) = &t.placement {
+        let value = serde_json::to_value(p).map_err(|e| crate::Error::encode("placement", e))?;
+        side.details.insert("placement".into(), value);
+    }
     side.write(&sidecar_path(&path))
 }
 

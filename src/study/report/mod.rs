@@ -157,14 +157,15 @@ their units (unitless line integrals)."
         let names: Vec<&str> = cfg.anatomy.ct.iter().map(|c| c.name.as_str()).collect();
         let _ = writeln!(
             md,
-            "- CT targets ({}): image metrics and heatmaps come from the CT volume DRR (Siddon's exact \
-line integral of μ(HU) through the CT, masked to the level's label), as the paper renders DRRs; \
+            "- CT targets ({}): image metrics and heatmaps come from the CT volume DRR (the line \
+integral of μ(HU) through the CT, masked to the level's label), as the paper renders DRRs; \
 silhouettes and contours from a thickness render of the label's closed surface (its ray-hit mask); \
 landmarks are automatic landmarks of that surface unless a landmarks file is given. Each CT target is \
 translated so its body centre sits where the views aim. The label surface carries no structure labels, so \
 structures.csv has no rows for CT targets.",
             names.join(", ")
         );
+        let _ = writeln!(md, "{}", ct_alignment_note(cfg));
     }
     let _ = writeln!(
         md,
@@ -172,6 +173,54 @@ structures.csv has no rows for CT targets.",
 with its JSON sidecar)."
     );
     let _ = writeln!(md);
+}
+
+/// Which CT entries were rotated into their levels' anatomical frames (`align`), and what that means.
+fn ct_alignment_note(cfg: &StudyConfig) -> String {
+    use crate::anatomy::ct::Alignment;
+    let with = |a: Alignment| -> Vec<String> {
+        let entries = cfg.anatomy.ct.iter().filter(|c| c.align == a);
+        entries.map(|c| format!("`{}`", c.name)).collect()
+    };
+    let (aligned, kept) = (with(Alignment::Anatomical), with(Alignment::None));
+    let mut note = String::from("- CT alignment (`align`):");
+    if !aligned.is_empty() {
+        note += &format!(
+            " {}: `anatomical` — each level (the segment: its middle level) is also rotated so the right, \
+anterior and superior axes of its automatic landmark frame become the world's, so AP and LAT are the \
+vertebra's own AP and LAT whatever its tilt in the scanner;",
+            aligned.join(", ")
+        );
+    }
+    if !kept.is_empty() {
+        note += &format!(
+            " {}: `none` — translated only, so AP and LAT are along the scanner's axes (a tilted vertebra is \
+seen tilted);",
+            kept.join(", ")
+        );
+    }
+    note.pop();
+    note.push('.');
+    for c in &cfg.anatomy.ct {
+        let method = match c.method {
+            crate::render::volume::VolumeMethod::Siddon => {
+                "Siddon's exact traversal of the piecewise-constant voxels"
+            }
+            crate::render::volume::VolumeMethod::Trilinear => {
+                "trilinear interpolation of μ, sampled at ≤ half the smallest voxel spacing (smooth \
+across thick slices)"
+            }
+        };
+        note += &format!(
+            "\n- CT `{}`: volume DRR by {method}; label surfaces {}.",
+            c.name,
+            match c.smooth_iterations {
+                0 => "unsmoothed (the exact 0.5-isosurface of the voxels)".to_string(),
+                n => format!("smoothed by {n} Taubin λ|μ iterations (thick slices leave steps)"),
+            }
+        );
+    }
+    note
 }
 
 /// Where this invocation's time went.
