@@ -7,7 +7,9 @@
 //!   paper renders its DRRs;
 //! * **silhouettes and contours** (Dice, IoU, Chamfer, Hausdorff, HD95) come from a thickness render of
 //!   the label's closed surface (the 0.5-isosurface of the label mask, as `spinedrr mesh` extracts it),
-//!   whose ray-hit masks are exact where a thresholded volume DRR would depend on a threshold;
+//!   whose ray-hit masks are exact where a thresholded volume DRR would depend on a threshold; the
+//!   surface is split into the phantom's structures from its automatic landmark frame
+//!   ([`crate::anatomy::structure_split`]), so per-structure Dice has rows as for the phantom;
 //! * **landmarks** are marker spheres at the level's landmarks (automatic landmarks of the label surface,
 //!   or the given JSON), rendered alone and measured by blob centroid, as for every target.
 //!
@@ -29,7 +31,9 @@ use crate::anatomy::ct::{
 };
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::tissue_mu;
-use crate::anatomy::{Landmarks, Tissue, TriMesh, auto_landmarks, read_landmarks};
+use crate::anatomy::markups::{LandmarkContext, read_landmarks_with};
+use crate::anatomy::structure_split::auto_landmarks_and_structures;
+use crate::anatomy::{Landmarks, Tissue, TriMesh};
 use crate::geometry::RigidTransform;
 use crate::render::volume::{VolumeRenderOptions, VolumeRenderer};
 use crate::render::{RenderScene, SceneMesh};
@@ -89,7 +93,7 @@ fn load_input(c: &CtTarget) -> Result<CtInput> {
         }
     }
     let landmarks = match &c.landmarks {
-        Some(path) => Some(match_landmarks(path, conv, &levels)?),
+        Some(path) => Some(match_landmarks(path, &seg, conv, &levels)?),
         None => None,
     };
     let ct = read_ct(&c.ct)?;
@@ -118,11 +122,17 @@ fn load_input(c: &CtTarget) -> Result<CtInput> {
 /// The landmark set of each level from `path`, matched by level name or id in the entry's convention.
 fn match_landmarks(
     path: &Path,
+    seg: &LabelMap,
     conv: LabelConvention,
     levels: &[LevelSpec],
 ) -> Result<Vec<Landmarks>> {
-    let sets =
-        read_landmarks(path).map_err(|e| Error::invalid("anatomy.ct.landmarks", e.to_string()))?;
+    // Any landmark format; VerSe centroids are voxel coordinates of this label map's grid.
+    let ctx = LandmarkContext {
+        seg: Some((seg, conv)),
+        ..LandmarkContext::default()
+    };
+    let sets = read_landmarks_with(path, &ctx)
+        .map_err(|e| Error::invalid("anatomy.ct.landmarks", e.to_string()))?;
     let empty = |s: &Landmarks| s.points.is_empty();
     if sets.is_empty() || sets.iter().any(empty) {
         return Err(Error::invalid(
@@ -219,8 +229,8 @@ pub fn build_targets(
     Ok(out)
 }
 
-/// The label's closed surface (largest component, unsmoothed: `spinedrr mesh`'s defaults) and its
-/// landmarks (the given set, or automatic ones of the surface).
+/// The label's closed surface (largest component, unsmoothed: `spinedrr mesh`'s defaults), labelled by
+/// structure, and its landmarks (the given set, or automatic ones of the surface).
 fn level_surface(seg: &LabelMap, l: &LevelSpec, given: Option<&Landmarks>) -> Result<LevelSurface> {
     let context = |e: Error| {
         Error::invalid(
@@ -230,9 +240,11 @@ fn level_surface(seg: &LabelMap, l: &LevelSpec, given: Option<&Landmarks>) -> Re
     };
     let mut mesh = label_surface(seg, l.id, &SurfaceOptions::default()).map_err(context)?;
     mesh.name = l.tag.clone();
+    // Structure labels (per-structure Dice) from the surface's automatic landmark frame.
+    let auto = auto_landmarks_and_structures(&mut mesh, &l.tag);
     let landmarks = match given {
         Some(s) => s.clone(),
-        None => auto_landmarks(&mesh, &l.tag).map_err(context)?,
+        None => auto.map_err(context)?,
     };
     Ok(LevelSurface { mesh, landmarks })
 }
