@@ -27,7 +27,7 @@
 
 use glam::DVec3;
 
-use super::auto_landmarks::line_intervals;
+use super::auto_landmarks::{line_intervals, smoothed_normals};
 use super::landmarks::Landmarks;
 use super::{Structure, TriMesh};
 use crate::{Error, Result};
@@ -173,25 +173,44 @@ fn no_body(what: &str) -> Error {
     Error::Numerical(format!("structure split: {what}"))
 }
 
-/// One structure's axis in the local frame.
+/// One structure's axis in the local frame: a segment, or a vertical ribbon (the segment swept
+/// `half_height` up and down the superior axis) for a plate such as the lamina.
 #[derive(Debug, Clone, Copy)]
 struct Axis {
     structure: Structure,
     a: DVec3,
     b: DVec3,
+    half_height: f64,
 }
 
 impl Axis {
+    fn segment(structure: Structure, a: DVec3, b: DVec3) -> Axis {
+        Axis {
+            structure,
+            a,
+            b,
+            half_height: 0.0,
+        }
+    }
+
     fn distance(&self, p: DVec3) -> f64 {
         let ab = self.b - self.a;
         let t = ((p - self.a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
-        (p - (self.a + t * ab)).length()
+        let d = p - (self.a + t * ab);
+        let dz = (d.z.abs() - self.half_height).max(0.0);
+        DVec3::new(d.x, d.y, dz).length()
     }
 }
 
 /// The laminar junction: the first solid behind the canal on the mid-sagittal line, searched from the
-/// pedicles' height downward to the inferior endplate.
-fn laminar_junction(mesh: &TriMesh, f: &LandmarkFrame, wall_y: f64, z_top: f64, z_bottom: f64) -> Result<DVec3> {
+/// pedicles' height downward to the inferior endplate; with the arch's height there (mm).
+fn laminar_junction(
+    mesh: &TriMesh,
+    f: &LandmarkFrame,
+    wall_y: f64,
+    z_top: f64,
+    z_bottom: f64,
+) -> Result<(DVec3, f64)> {
     let mut z = z_top;
     while z >= z_bottom {
         let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
@@ -203,15 +222,45 @@ fn laminar_junction(mesh: &TriMesh, f: &LandmarkFrame, wall_y: f64, z_top: f64, 
             let y = t1 - 3.0f64.min(0.5 * (t1 - t0));
             // Centre the junction on the arch's height there.
             let v = line_intervals(mesh, f.world(DVec3::new(0.0071, y, 0.0)), f.superior);
-            let zc = v
+            let (lo, hi) = v
                 .iter()
+                .copied()
                 .find(|(a, b)| *a <= z && *b >= z)
-                .map_or(z, |(a, b)| 0.5 * (a + b));
-            return Ok(DVec3::new(0.0, y, zc));
+                .unwrap_or((z, z));
+            return Ok((DVec3::new(0.0, y, 0.5 * (lo + hi)), hi - lo));
         }
         z -= 1.0;
     }
     Err(no_body("no posterior arch behind the canal on the mid-sagittal line"))
+}
+
+/// Chords of the solid through points of the local frame.
+struct Probe<'a> {
+    mesh: &'a TriMesh,
+    f: &'a LandmarkFrame,
+}
+
+impl Probe<'_> {
+    /// The solid interval along local direction `d` through local point `p`, in mm from `p`.
+    fn interval(&self, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
+        let dw = d.x * self.f.right + d.y * self.f.anterior + d.z * self.f.superior;
+        let dw = dw.try_normalize()?;
+        // A small offset keeps the line off the voxel grid's vertices and edges.
+        let q = self.f.world(p) + 0.0091 * dw.any_orthonormal_vector();
+        line_intervals(self.mesh, q, dw)
+            .into_iter()
+            .find(|(a, b)| *a <= 0.0 && *b >= 0.0)
+    }
+
+    /// Length of the chord along `d` through `p` (0 outside the solid).
+    fn chord(&self, p: DVec3, d: DVec3) -> f64 {
+        self.interval(p, d).map_or(0.0, |(a, b)| b - a)
+    }
+
+    /// Distance from `p` to the surface along `d` (0 outside the solid).
+    fn reach(&self, p: DVec3, d: DVec3) -> f64 {
+        self.interval(p, d).map_or(0.0, |(_, b)| b)
+    }
 }
 
 /// Per-triangle [`Structure`] codes of a closed vertebra surface from its landmarks (see the module
@@ -225,11 +274,18 @@ pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
     let wall = Wall::measure(mesh, &f, 0.5 * inf.z)?;
     let verts: Vec<DVec3> = mesh.vertices.iter().map(|&v| f.local(v)).collect();
     let z_ped = 0.5 * (ped_l.z + ped_r.z);
-    let junction = laminar_junction(mesh, &f, wall.midline, z_ped, inf.z)?;
+    let (junction, arch_height) = laminar_junction(mesh, &f, wall.midline, z_ped, inf.z)?;
+    let probe = Probe { mesh, f: &f };
+    // Plates are ribbons as tall as they are beyond their thickness, measured at their middle: the
+    // spinous process across its midpoint, each lamina by the arch's height at the junction (lower on
+    // the lamina the inferior articular processes continue it downward).
+    let spinous_mid = 0.5 * (junction + tip);
+    let spinous_half = (0.5 * probe.chord(spinous_mid, DVec3::Z)
+        - 0.5 * probe.chord(spinous_mid, DVec3::X))
+    .max(0.0);
     let mut axes = vec![Axis {
-        structure: Structure::Spinous,
-        a: junction,
-        b: tip,
+        half_height: spinous_half,
+        ..Axis::segment(Structure::Spinous, junction, tip)
     }];
     for (side, ped, s) in [
         (-1.0, ped_l, Structure::PedicleLeft),
@@ -237,15 +293,18 @@ pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
     ] {
         let start = DVec3::new(ped.x, wall.at(ped.x).unwrap_or(wall.midline), ped.z);
         let end = DVec3::new(ped.x, 2.0 * ped.y - wall.midline, ped.z);
+        // A pedicle is taller than wide: its height at the landmark beyond its half-width to the canal.
+        let ped_half = (0.5 * probe.chord(ped, DVec3::Z) - probe.reach(ped, -side * DVec3::X)).max(0.0);
         axes.push(Axis {
-            structure: s,
-            a: start,
-            b: end,
+            half_height: ped_half,
+            ..Axis::segment(s, start, end)
         });
+        let lamina_mid = 0.5 * (end + junction);
+        let across = (junction - end).cross(DVec3::Z).normalize_or_zero();
+        let lamina_half = (0.5 * arch_height - 0.5 * probe.chord(lamina_mid, across)).max(0.0);
         axes.push(Axis {
-            structure: Structure::Lamina,
-            a: end,
-            b: junction,
+            half_height: lamina_half,
+            ..Axis::segment(Structure::Lamina, end, junction)
         });
         let posterior = |v: &&DVec3| v.y < wall.midline - 2.0;
         let off_midline = |v: &&DVec3| side * v.x > 0.35 * ped.x.abs();
@@ -261,32 +320,24 @@ pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
         let highest = pick(&|v| v.z).unwrap_or(end);
         let lowest = pick(&|v| -v.z).unwrap_or(end);
         let root = DVec3::new(ped.x, ped.y.min(0.5 * (ped.y + end.y)), ped.z);
-        axes.push(Axis {
-            structure: Structure::Transverse,
-            a: root,
-            b: lateral,
-        });
-        axes.push(Axis {
-            structure: Structure::Articular,
-            a: end,
-            b: highest,
-        });
-        axes.push(Axis {
-            structure: Structure::Articular,
-            a: 0.5 * (end + junction),
-            b: lowest,
-        });
+        axes.push(Axis::segment(Structure::Transverse, root, lateral));
+        axes.push(Axis::segment(Structure::Articular, end, highest));
+        axes.push(Axis::segment(
+            Structure::Articular,
+            0.5 * (end + junction),
+            lowest,
+        ));
     }
-    let normals = smoothed_normals(mesh, &verts);
+    let normals = smoothed_normals(mesh);
     let labels = (0..mesh.triangles.len())
         .map(|i| {
             let [a, b, c] = mesh.triangles[i].map(|k| verts[k as usize]);
             let g = (a + b + c) / 3.0;
             if wall.contains(g) {
-                let n = normals[i];
-                let s = if n.z > ENDPLATE_COS && g.z > sup.z - ENDPLATE_BAND_MM {
+                let n = normals[i].dot(f.superior);
+                let s = if n > ENDPLATE_COS && g.z > sup.z - ENDPLATE_BAND_MM {
                     Structure::SuperiorEndplate
-                } else if n.z < -ENDPLATE_COS && g.z < inf.z + ENDPLATE_BAND_MM {
+                } else if n < -ENDPLATE_COS && g.z < inf.z + ENDPLATE_BAND_MM {
                     Structure::InferiorEndplate
                 } else {
                     Structure::Body
@@ -299,36 +350,6 @@ pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
         })
         .collect();
     Ok(labels)
-}
-
-/// Rounds of neighbour averaging of the vertex normals (about one edge length each).
-const NORMAL_SMOOTHING_ROUNDS: usize = 4;
-
-/// Triangle normals of the surface smoothed over a few edge lengths, so a voxel staircase (the
-/// isosurface of a tilted endplate) reads as the plane it approximates.
-fn smoothed_normals(mesh: &TriMesh, verts: &[DVec3]) -> Vec<DVec3> {
-    let mut vn = vec![DVec3::ZERO; verts.len()];
-    for t in &mesh.triangles {
-        let [a, b, c] = t.map(|k| verts[k as usize]);
-        let n = (b - a).cross(c - a); // area-weighted
-        for &k in t {
-            vn[k as usize] += n;
-        }
-    }
-    for _ in 0..NORMAL_SMOOTHING_ROUNDS {
-        let mut acc = vn.clone();
-        for t in &mesh.triangles {
-            let s: DVec3 = t.iter().map(|&k| vn[k as usize]).sum();
-            for &k in t {
-                acc[k as usize] += s;
-            }
-        }
-        vn = acc.into_iter().map(|v| v.normalize_or_zero()).collect();
-    }
-    mesh.triangles
-        .iter()
-        .map(|t| t.iter().map(|&k| vn[k as usize]).sum::<DVec3>().normalize_or_zero())
-        .collect()
 }
 
 /// Labels `mesh`'s triangles with [`split_structures`].
