@@ -9,7 +9,6 @@ use std::sync::OnceLock;
 use glam::DVec3;
 use spinedrr::anatomy::ct::{LabelMap, SurfaceOptions, label_surface, write_ct, write_labels};
 use spinedrr::anatomy::decimate::SurfaceDistance;
-use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::structure_split::split_structures;
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
 use spinedrr::anatomy::vertebra::Level;
@@ -316,17 +315,4 @@ fn a_ct_target_with_verse_landmarks_gets_per_structure_rows() {
     assert!(!o.status.success(), "{e}");
     assert!(e.contains("ctd.json") && e.contains("L3") && e.contains("anatomy.ct.landmarks"), "{e}");
     assert!(!d2.path().join("out").exists());
-}
-
-#[test]
-fn debug_l4_landmarks() {
-    let f = fixture();
-    let v = &f.phantom.vertebrae[1];
-    let mesh = label_surface(&f.seg, 27, &SurfaceOptions::default()).unwrap();
-    let lm = auto_landmarks(&mesh, "L5").unwrap();
-    for (k, p) in &v.landmarks.points {
-        eprintln!("{k}: truth {p:.1} auto {:.1}", lm.get(k).unwrap());
-    }
-    eprintln!("chk {:?} tris {}", mesh.check(), mesh.triangles.len());
-    panic!();
 }

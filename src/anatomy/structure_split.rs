@@ -173,32 +173,29 @@ fn no_body(what: &str) -> Error {
     Error::Numerical(format!("structure split: {what}"))
 }
 
-/// One structure's axis in the local frame: a segment, or a vertical ribbon (the segment swept
-/// `half_height` up and down the superior axis) for a plate such as the lamina.
+/// One structure's model in the local frame: a bar of radius `radius` around a segment, or around a
+/// vertical ribbon (the segment swept `half_height` up and down the superior axis, between its ends) for
+/// a plate such as the lamina. Points take the structure whose model surface is nearest.
 #[derive(Debug, Clone, Copy)]
 struct Axis {
     structure: Structure,
     a: DVec3,
     b: DVec3,
     half_height: f64,
+    radius: f64,
 }
 
 impl Axis {
-    fn segment(structure: Structure, a: DVec3, b: DVec3) -> Axis {
-        Axis {
-            structure,
-            a,
-            b,
-            half_height: 0.0,
-        }
-    }
-
+    /// Signed distance (approximate) from `p` to the model's surface, a bar with flat ends: a part
+    /// does not reach past the ends of its axis, where the next part begins.
     fn distance(&self, p: DVec3) -> f64 {
         let ab = self.b - self.a;
-        let t = ((p - self.a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
+        let len = ab.length().max(1e-9);
+        let t = (p - self.a).dot(ab) / (len * len);
         let d = p - (self.a + t * ab);
-        let dz = (d.z.abs() - self.half_height).max(0.0);
-        DVec3::new(d.x, d.y, dz).length()
+        let radial = DVec3::new(d.x, d.y, (d.z.abs() - self.half_height).max(0.0)).length();
+        let (r, e) = (radial - self.radius, (t - 0.5).abs() * len - 0.5 * len);
+        glam::DVec2::new(r.max(0.0), e.max(0.0)).length() + r.max(e).min(0.0)
     }
 }
 
@@ -243,10 +240,10 @@ struct Probe<'a> {
 impl Probe<'_> {
     /// The solid interval along local direction `d` through local point `p`, in mm from `p`.
     fn interval(&self, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
+        let d = d.try_normalize()?;
         let dw = d.x * self.f.right + d.y * self.f.anterior + d.z * self.f.superior;
-        let dw = dw.try_normalize()?;
-        // A small offset keeps the line off the voxel grid's vertices and edges.
-        let q = self.f.world(p) + 0.0091 * dw.any_orthonormal_vector();
+        // A small offset (fixed in the frame) keeps the line off the voxel grid's vertices and edges.
+        let q = self.f.world(p + 0.0091 * d.any_orthonormal_vector());
         line_intervals(self.mesh, q, dw)
             .into_iter()
             .find(|(a, b)| *a <= 0.0 && *b >= 0.0)
@@ -260,6 +257,35 @@ impl Probe<'_> {
     /// Distance from `p` to the surface along `d` (0 outside the solid).
     fn reach(&self, p: DVec3, d: DVec3) -> f64 {
         self.interval(p, d).map_or(0.0, |(_, b)| b)
+    }
+
+    /// The bar model of the part from `a` to `b`, measured at its middle: radius half its horizontal
+    /// thickness across the axis, and — for a plate taller than thick — a ribbon of its height
+    /// (`height`, or the vertical chord there) less that radius. A steep axis (an articular
+    /// process) is a plain bar.
+    fn bar(&self, structure: Structure, a: DVec3, b: DVec3, height: Option<f64>) -> Axis {
+        let m = 0.5 * (a + b);
+        let dir = b - a;
+        let flat = DVec3::new(dir.x, dir.y, 0.0);
+        let steep = flat.length() < dir.z.abs();
+        let across = if steep {
+            DVec3::X
+        } else {
+            flat.cross(DVec3::Z).normalize_or_zero()
+        };
+        let radius = 0.5 * self.chord(m, across);
+        let half_height = if steep {
+            0.0
+        } else {
+            (0.5 * height.unwrap_or_else(|| self.chord(m, DVec3::Z)) - radius).max(0.0)
+        };
+        Axis {
+            structure,
+            a,
+            b,
+            half_height,
+            radius,
+        }
     }
 }
 
@@ -276,57 +302,46 @@ pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
     let z_ped = 0.5 * (ped_l.z + ped_r.z);
     let (junction, arch_height) = laminar_junction(mesh, &f, wall.midline, z_ped, inf.z)?;
     let probe = Probe { mesh, f: &f };
-    // Plates are ribbons as tall as they are beyond their thickness, measured at their middle: the
-    // spinous process across its midpoint, each lamina by the arch's height at the junction (lower on
-    // the lamina the inferior articular processes continue it downward).
-    let spinous_mid = 0.5 * (junction + tip);
-    let spinous_half = (0.5 * probe.chord(spinous_mid, DVec3::Z)
-        - 0.5 * probe.chord(spinous_mid, DVec3::X))
-    .max(0.0);
-    let mut axes = vec![Axis {
-        half_height: spinous_half,
-        ..Axis::segment(Structure::Spinous, junction, tip)
-    }];
+    let mut axes = vec![probe.bar(Structure::Spinous, junction, tip, None)];
     for (side, ped, s) in [
         (-1.0, ped_l, Structure::PedicleLeft),
         (1.0, ped_r, Structure::PedicleRight),
     ] {
         let start = DVec3::new(ped.x, wall.at(ped.x).unwrap_or(wall.midline), ped.z);
         let end = DVec3::new(ped.x, 2.0 * ped.y - wall.midline, ped.z);
-        // A pedicle is taller than wide: its height at the landmark beyond its half-width to the canal.
-        let ped_half = (0.5 * probe.chord(ped, DVec3::Z) - probe.reach(ped, -side * DVec3::X)).max(0.0);
+        // A pedicle's half-width is its reach to the canal (laterally it runs into the transverse
+        // process); taller than wide, it is a ribbon.
+        let w = probe.reach(ped, -side * DVec3::X);
         axes.push(Axis {
-            half_height: ped_half,
-            ..Axis::segment(s, start, end)
+            structure: s,
+            a: start,
+            b: end,
+            half_height: (0.5 * probe.chord(ped, DVec3::Z) - w).max(0.0),
+            radius: w,
         });
-        let lamina_mid = 0.5 * (end + junction);
-        let across = (junction - end).cross(DVec3::Z).normalize_or_zero();
-        let lamina_half = (0.5 * arch_height - 0.5 * probe.chord(lamina_mid, across)).max(0.0);
-        axes.push(Axis {
-            half_height: lamina_half,
-            ..Axis::segment(Structure::Lamina, end, junction)
-        });
+        // The lamina's height is the arch's at the junction: lower on the lamina the inferior articular
+        // processes continue it downward.
+        axes.push(probe.bar(Structure::Lamina, end, junction, Some(arch_height)));
         let posterior = |v: &&DVec3| v.y < wall.midline - 2.0;
         let off_midline = |v: &&DVec3| side * v.x > 0.35 * ped.x.abs();
+        // The extreme of the arch on this side along `key`: the centroid of the surface within 1 mm of
+        // it (a voxel surface has many vertices tied for the extreme).
         let pick = |key: &dyn Fn(&DVec3) -> f64| {
-            verts
-                .iter()
-                .filter(posterior)
-                .filter(off_midline)
-                .max_by(|a, b| key(a).total_cmp(&key(b)))
-                .copied()
+            let arch = || verts.iter().filter(posterior).filter(off_midline);
+            let top = arch().map(key).fold(f64::NEG_INFINITY, f64::max);
+            let (sum, n) = arch()
+                .filter(|v| key(v) >= top - 1.0)
+                .fold((DVec3::ZERO, 0usize), |(s, n), v| (s + *v, n + 1));
+            (n > 0).then(|| sum / n as f64)
         };
-        let lateral = pick(&|v| side * v.x).ok_or_else(|| no_body("no posterior element on a side"))?;
+        let lateral =
+            pick(&|v| side * v.x).ok_or_else(|| no_body("no posterior element on a side"))?;
         let highest = pick(&|v| v.z).unwrap_or(end);
         let lowest = pick(&|v| -v.z).unwrap_or(end);
-        let root = DVec3::new(ped.x, ped.y.min(0.5 * (ped.y + end.y)), ped.z);
-        axes.push(Axis::segment(Structure::Transverse, root, lateral));
-        axes.push(Axis::segment(Structure::Articular, end, highest));
-        axes.push(Axis::segment(
-            Structure::Articular,
-            0.5 * (end + junction),
-            lowest,
-        ));
+        let root = DVec3::new(ped.x, 0.5 * (ped.y + end.y), ped.z);
+        axes.push(probe.bar(Structure::Transverse, root, lateral, None));
+        axes.push(probe.bar(Structure::Articular, end, highest, None));
+        axes.push(probe.bar(Structure::Articular, 0.5 * (end + junction), lowest, None));
     }
     let normals = smoothed_normals(mesh);
     let labels = (0..mesh.triangles.len())
