@@ -138,8 +138,28 @@ pub fn parse_landmarks(text: &str, origin: &str) -> Result<Vec<Landmark>> {
     Ok(out)
 }
 
-/// Reads a landmark JSON file (see [`parse_landmarks`]).
+/// Reads a landmark file: our JSON (see [`parse_landmarks`]) or 3D Slicer markups, whose sets are named
+/// as [`parse_landmarks`] names them (`LEVEL/name` when the file holds several levels). A VerSe centroid
+/// file is refused: its voxel coordinates need the image it was made on.
 pub fn read_landmarks(path: &Path) -> Result<Vec<Landmark>> {
+    use crate::anatomy::markups::{LandmarkContext, LandmarkFormat, parse_landmarks_with};
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    parse_landmarks(&text, &path.display().to_string())
+    if LandmarkFormat::detect(&text, path)? == LandmarkFormat::Spinedrr {
+        return parse_landmarks(&text, &path.display().to_string());
+    }
+    let sets = parse_landmarks_with(&text, path, &LandmarkContext::default())?;
+    let prefix = sets.len() > 1;
+    Ok(sets
+        .into_iter()
+        .flat_map(|s| {
+            s.points.into_iter().map(move |(name, position)| Landmark {
+                name: if prefix {
+                    format!("{}/{name}", s.level)
+                } else {
+                    name
+                },
+                position,
+            })
+        })
+        .collect())
 }

@@ -11,6 +11,9 @@
 //! ```
 //!
 //! `units` must be `"mm"`; `frame` is free text (the phantom writes `"world RAS+"`) and is kept on reading.
+//!
+//! Files are read and written through [`crate::anatomy::markups`], which also speaks 3D Slicer markups
+//! and VerSe centroids; this module is our own format.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -150,19 +153,6 @@ pub fn landmarks_from_json(text: &str, path: &Path) -> Result<Vec<Landmarks>> {
             })
         })
         .collect()
-}
-
-/// Writes `sets` to `path` (atomically).
-pub fn write_landmarks(path: &Path, sets: &[Landmarks]) -> Result<()> {
-    let text = landmarks_to_json(sets)?;
-    crate::io::write_atomic_bytes(path, text.as_bytes())?;
-    Ok(())
-}
-
-/// Reads a landmarks file.
-pub fn read_landmarks(path: &Path) -> Result<Vec<Landmarks>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    landmarks_from_json(&text, path)
 }
 
 #[cfg(test)]

@@ -6,10 +6,12 @@ pub mod decimate;
 pub mod isosurface;
 pub mod labels;
 pub mod landmarks;
+pub mod markups;
 mod mesh;
 pub mod meshio;
 pub mod phantom;
 pub mod sdf;
+pub mod structure_split;
 pub mod synthetic_ct;
 mod tissue;
 pub mod vertebra;
@@ -20,7 +22,8 @@ pub use isosurface::{
     Inside, MAX_GRID_SAMPLES, ScalarGrid, check_grid_size, extract_isosurface,
     extract_isosurface_with,
 };
-pub use landmarks::{Landmarks, read_landmarks, write_landmarks};
+pub use landmarks::Landmarks;
+pub use markups::{read_landmarks, read_landmarks_with, write_landmarks};
 pub use mesh::{MeshCheck, Structure, TriMesh};
 pub use meshio::{MeshFormat, parse_mesh, read_mesh, write_mesh, write_mesh_as};
 pub use phantom::{Phantom, PhantomOptions, Tissue, VertebraModel, build_phantom};

@@ -1,12 +1,15 @@
 //! `spinedrr mesh`: the closed surface of one vertebra label of a NIfTI segmentation, optionally
-//! smoothed, decimated and with automatic landmarks, written in any mesh format by extension.
+//! smoothed, decimated, split into structures and with automatic landmarks (our JSON or 3D Slicer
+//! markups), written in any mesh format by extension.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use spinedrr::anatomy::ct::{MAX_SMOOTH_ITERATIONS, SurfaceOptions, label_surface, read_labels};
 use spinedrr::anatomy::labels::LabelConvention;
-use spinedrr::anatomy::{MeshFormat, auto_landmarks, decimate, write_landmarks, write_mesh};
+use spinedrr::anatomy::markups::{LandmarkFormat, write_landmarks_as};
+use spinedrr::anatomy::structure_split::label_structures;
+use spinedrr::anatomy::{Landmarks, MeshFormat, TriMesh, auto_landmarks, decimate, write_mesh};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -26,29 +29,71 @@ pub struct Args {
     /// Decimate to this many triangles (quadric edge collapse; the surface stays closed).
     #[arg(long)]
     target_triangles: Option<usize>,
-    /// `auto`: also write `<stem>_landmarks.json` beside the mesh, derived from the surface.
+    /// `auto`: also write the landmarks derived from the surface, beside the mesh as
+    /// `<stem>_landmarks.json` (or `<stem>_landmarks.mrk.json` for Slicer), or to --landmarks-out.
     #[arg(long, value_name = "auto")]
     landmarks: Option<String>,
+    /// Where --landmarks auto writes; a name ending `.mrk.json` is written as 3D Slicer markups.
+    #[arg(long, value_name = "FILE")]
+    landmarks_out: Option<PathBuf>,
+    /// Landmark file format: `spinedrr` (our JSON, world RAS+ mm) or `slicer` (3D Slicer markups,
+    /// `.mrk.json`, LPS mm: drag it into Slicer beside the segmentation to check the points). Default:
+    /// from the --landmarks-out name, else spinedrr.
+    #[arg(long, value_name = "spinedrr|slicer")]
+    landmarks_format: Option<String>,
+    /// Label every triangle with its structure (body, endplates, pedicles, laminae, spinous, transverse,
+    /// articular), split from the surface's automatic landmark frame. PLY and OBJ keep the labels.
+    #[arg(long)]
+    structures: bool,
     /// Output mesh (`.stl`, `.obj` or `.ply`).
     #[arg(long)]
     out: PathBuf,
 }
 
-/// `dir/stem_landmarks.json` for `dir/stem.ext`.
-fn landmarks_path(out: &Path) -> PathBuf {
+/// `dir/stem_landmarks.json` (or `.mrk.json`) for `dir/stem.ext`.
+fn landmarks_path(out: &Path, format: LandmarkFormat) -> PathBuf {
     let stem = out
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "mesh".into());
-    out.with_file_name(format!("{stem}_landmarks.json"))
+    let ext = match format {
+        LandmarkFormat::Slicer => "mrk.json",
+        _ => "json",
+    };
+    out.with_file_name(format!("{stem}_landmarks.{ext}"))
+}
+
+/// The landmark file and its format from the flags (checked before any work).
+fn landmark_output(a: &Args) -> anyhow::Result<Option<(PathBuf, LandmarkFormat)>> {
+    match &a.landmarks {
+        None => {
+            if a.landmarks_out.is_some() || a.landmarks_format.is_some() {
+                bail!("--landmarks-out and --landmarks-format need --landmarks auto");
+            }
+            return Ok(None);
+        }
+        Some(l) if l != "auto" => bail!("--landmarks {l:?}: the only landmark source is `auto`"),
+        Some(_) => {}
+    }
+    let format = match (&a.landmarks_format, &a.landmarks_out) {
+        (Some(f), _) => f
+            .parse::<LandmarkFormat>()
+            .with_context(|| format!("--landmarks-format {f:?}"))?,
+        (None, Some(p)) => LandmarkFormat::for_output(p),
+        (None, None) => LandmarkFormat::Spinedrr,
+    };
+    if format == LandmarkFormat::Verse {
+        bail!("--landmarks-format verse: VerSe centroid files are read, not written");
+    }
+    let path = a
+        .landmarks_out
+        .clone()
+        .unwrap_or_else(|| landmarks_path(&a.out, format));
+    Ok(Some((path, format)))
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if let Some(l) = &a.landmarks
-        && l != "auto"
-    {
-        bail!("--landmarks {l:?}: the only landmark source is `auto`");
-    }
+    let lm_out = landmark_output(&a)?;
     MeshFormat::from_path(&a.out).with_context(|| format!("--out {}", a.out.display()))?;
     if a.smooth > MAX_SMOOTH_ITERATIONS {
         bail!(
@@ -74,6 +119,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             mesh = decimate(&mesh, n).with_context(|| format!("--target-triangles {n}"))?;
         }
     }
+    let lm = if lm_out.is_some() || a.structures {
+        Some(
+            auto_landmarks(&mesh, &a.label)
+                .with_context(|| format!("automatic landmarks of label {}", a.label))?,
+        )
+    } else {
+        None
+    };
+    if a.structures
+        && let Some(lm) = &lm
+    {
+        label_structures(&mut mesh, lm)
+            .with_context(|| format!("splitting label {} into structures", a.label))?;
+        eprintln!("structures: {}", structure_summary(&mesh));
+    }
     write_mesh(&a.out, &mesh).with_context(|| format!("writing mesh {}", a.out.display()))?;
     let chk = mesh.check();
     eprintln!(
@@ -87,13 +147,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             format!("NOT watertight: {chk:?}")
         }
     );
-    if a.landmarks.is_some() {
-        let lm = auto_landmarks(&mesh, &a.label)
-            .with_context(|| format!("automatic landmarks of label {}", a.label))?;
-        let path = landmarks_path(&a.out);
-        write_landmarks(&path, std::slice::from_ref(&lm))
+    if let (Some((path, format)), Some(lm)) = (lm_out, lm) {
+        write_landmarks_as(&path, std::slice::from_ref::<Landmarks>(&lm), format)
             .with_context(|| format!("writing {}", path.display()))?;
         eprintln!("{}: {} landmarks", path.display(), lm.points.len());
     }
     Ok(())
+}
+
+/// "body 41%, pedicle_left 4%, …": each structure's share of the surface area.
+fn structure_summary(mesh: &TriMesh) -> String {
+    let mut area = [0.0f64; 256];
+    for i in 0..mesh.triangles.len() {
+        let [p, q, r] = mesh.corners(i);
+        area[mesh.labels[i] as usize] += 0.5 * (q - p).cross(r - p).length();
+    }
+    let total: f64 = area.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+    spinedrr::anatomy::Structure::ALL
+        .iter()
+        .filter(|s| area[**s as usize] > 0.0)
+        .map(|s| format!("{} {:.0}%", s.name(), 100.0 * area[*s as usize] / total))
+        .collect::<Vec<_>>()
+        .join(", ")
 }

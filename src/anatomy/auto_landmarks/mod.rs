@@ -33,7 +33,7 @@ use super::{TriMesh, decimate::SurfaceDistance};
 use crate::math::symmetric_eigen;
 use crate::{Error, Result};
 
-pub use probes::{Section, line_intervals, section, solid_moments};
+pub use probes::{Section, line_intervals, section, smoothed_normals, solid_moments};
 
 /// An estimated anatomical frame: origin on the mid-sagittal plane, unit axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -174,15 +174,17 @@ impl Body {
         // Superior axis from the body's end faces (either sign of the rough axis).
         let si0 = lr.cross(ap0);
         let (mut n_sum, mut up, mut down) = (DVec3::ZERO, (0.0, 0.0), (0.0, 0.0));
+        // Normals smoothed over a few edges: a tilted endplate's voxel staircase (an unsmoothed CT
+        // label surface) would otherwise pull the axis onto the voxel grid's.
+        let normals = smoothed_normals(mesh);
         for i in 0..mesh.triangles.len() {
             let [a, b, c] = mesh.corners(i);
             let g = (a + b + c) / 3.0 - c0;
             if g.dot(ap0) < body0.0 + 2.0 || g.dot(lr).abs() > 10.0 {
                 continue;
             }
-            let cr = (b - a).cross(c - a);
-            let area = 0.5 * cr.length();
-            let Some(n) = cr.try_normalize() else {
+            let area = 0.5 * (b - a).cross(c - a).length();
+            let Some(n) = normals[i].try_normalize() else {
                 continue;
             };
             let cos = n.dot(si0);

@@ -146,6 +146,37 @@ pub fn section_points(mesh: &TriMesh, origin: DVec3, n: DVec3) -> Vec<DVec3> {
     out
 }
 
+/// Rounds of neighbour averaging in [`smoothed_normals`] (about one edge length each).
+const NORMAL_SMOOTHING_ROUNDS: usize = 4;
+
+/// Unit triangle normals of the surface averaged over a few edge lengths (area-weighted vertex normals,
+/// each round replaced by the sum over the triangles around the vertex), so a voxel staircase — the
+/// isosurface of a tilted plane — reads as the plane it approximates.
+pub fn smoothed_normals(mesh: &TriMesh) -> Vec<DVec3> {
+    let mut vn = vec![DVec3::ZERO; mesh.vertices.len()];
+    for (i, t) in mesh.triangles.iter().enumerate() {
+        let [a, b, c] = mesh.corners(i);
+        let n = (b - a).cross(c - a); // area-weighted
+        for &k in t {
+            vn[k as usize] += n;
+        }
+    }
+    for _ in 0..NORMAL_SMOOTHING_ROUNDS {
+        let mut acc = vn.clone();
+        for t in &mesh.triangles {
+            let s: DVec3 = t.iter().map(|&k| vn[k as usize]).sum();
+            for &k in t {
+                acc[k as usize] += s;
+            }
+        }
+        vn = acc.into_iter().map(|v| v.normalize_or_zero()).collect();
+    }
+    mesh.triangles
+        .iter()
+        .map(|t| t.iter().map(|&k| vn[k as usize]).sum::<DVec3>().normalize_or_zero())
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

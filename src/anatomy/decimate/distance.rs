@@ -116,16 +116,24 @@ impl<'a> SurfaceDistance<'a> {
 
     /// Unsigned distance from `p` to the surface (mm).
     pub fn distance(&self, p: DVec3) -> f64 {
+        self.nearest(p).map_or(f64::INFINITY, |(_, d)| d)
+    }
+
+    /// The triangle nearest to `p` and its distance (mm); `None` for a mesh without triangles.
+    pub fn nearest(&self, p: DVec3) -> Option<(usize, f64)> {
         let c = cell_of(self.lo, self.cell, self.dims, p);
-        let mut best = f64::INFINITY;
+        let mut best: Option<(usize, f64)> = None;
         let max_r = *self.dims.iter().max().unwrap_or(&1);
         for r in 0..=max_r {
             self.visit_shell(c, r, &mut |t| {
                 let [a, b, cc] = self.mesh.corners(t as usize);
-                best = best.min((closest_point_on_triangle(p, a, b, cc) - p).length());
+                let d = (closest_point_on_triangle(p, a, b, cc) - p).length();
+                if best.is_none_or(|(_, e)| d < e) {
+                    best = Some((t as usize, d));
+                }
             });
             // Cells beyond shell r are at least r·cell away from p.
-            if best <= r as f64 * self.cell {
+            if best.is_some_and(|(_, d)| d <= r as f64 * self.cell) {
                 break;
             }
         }

@@ -95,7 +95,8 @@ pub struct CtTarget {
     pub labels: LabelConvention,
     /// Levels (`L1`, `T12`, `vertebrae_L3`) or raw label ids (`"31"`).
     pub levels: Vec<String>,
-    /// Landmarks JSON (one set per level, CT world mm); default: automatic landmarks of each label surface.
+    /// Landmarks file (one set per level, CT world mm): our JSON, Slicer `.mrk.json`, or VerSe centroids
+    /// (voxels of the `seg` grid); default: automatic landmarks of each label surface.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub landmarks: Option<PathBuf>,
     /// Also study the levels together as target `<name>-segment`.

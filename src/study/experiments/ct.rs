@@ -7,7 +7,9 @@
 //!   paper renders its DRRs;
 //! * **silhouettes and contours** (Dice, IoU, Chamfer, Hausdorff, HD95) come from a thickness render of
 //!   the label's closed surface (the 0.5-isosurface of the label mask, as `spinedrr mesh` extracts it),
-//!   whose ray-hit masks are exact where a thresholded volume DRR would depend on a threshold;
+//!   whose ray-hit masks are exact where a thresholded volume DRR would depend on a threshold; the
+//!   surface is split into the phantom's structures from its automatic landmark frame
+//!   ([`crate::anatomy::structure_split`]), so per-structure Dice has rows as for the phantom;
 //! * **landmarks** are marker spheres at the level's landmarks (automatic landmarks of the label surface,
 //!   or the given JSON), rendered alone and measured by blob centroid, as for every target.
 //!
@@ -38,7 +40,9 @@ use crate::anatomy::ct::{
 };
 use crate::anatomy::labels::LabelConvention;
 use crate::anatomy::tissue_mu;
-use crate::anatomy::{Landmarks, Tissue, TriMesh, read_landmarks};
+use crate::anatomy::markups::{LandmarkContext, read_landmarks_with};
+use crate::anatomy::structure_split::split_structures;
+use crate::anatomy::{Landmarks, Tissue, TriMesh};
 use crate::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
 use crate::render::{RenderScene, SceneMesh};
 use crate::study::config::{CtTarget, StudyConfig};
@@ -112,7 +116,7 @@ pub fn load_input(c: &CtTarget) -> Result<CtInput> {
         }
     }
     let landmarks = match &c.landmarks {
-        Some(path) => Some(match_landmarks(path, conv, &levels)?),
+        Some(path) => Some(match_landmarks(path, &seg, conv, &levels)?),
         None => None,
     };
     let ct = read_ct(&c.ct)?;
@@ -134,11 +138,17 @@ pub fn load_input(c: &CtTarget) -> Result<CtInput> {
 /// The landmark set of each level from `path`, matched by level name or id in the entry's convention.
 fn match_landmarks(
     path: &Path,
+    seg: &LabelMap,
     conv: LabelConvention,
     levels: &[LevelSpec],
 ) -> Result<Vec<Landmarks>> {
-    let sets =
-        read_landmarks(path).map_err(|e| Error::invalid("anatomy.ct.landmarks", e.to_string()))?;
+    // Any landmark format; VerSe centroids are voxel coordinates of this label map's grid.
+    let ctx = LandmarkContext {
+        seg: Some((seg, conv)),
+        ..LandmarkContext::default()
+    };
+    let sets = read_landmarks_with(path, &ctx)
+        .map_err(|e| Error::invalid("anatomy.ct.landmarks", e.to_string()))?;
     let empty = |s: &Landmarks| s.points.is_empty();
     if sets.is_empty() || sets.iter().any(empty) {
         return Err(Error::invalid(
@@ -240,8 +250,9 @@ pub fn build_targets(
     Ok(out)
 }
 
-/// The label's closed surface (largest component, unsmoothed: `spinedrr mesh`'s defaults), its
-/// landmarks (the given set, or automatic ones of the surface) and, to align to, its automatic frame.
+/// The label's closed surface (largest component, unsmoothed: `spinedrr mesh`'s defaults), labelled by
+/// structure, its landmarks (the given set, or automatic ones of the surface) and, to align to, its
+/// automatic frame.
 fn level_surface(
     seg: &LabelMap,
     l: &LevelSpec,
@@ -280,10 +291,16 @@ fn level_surface(
         }
     };
     mesh.name = l.tag.clone();
-    let auto = match (given, align) {
-        (Some(_), Alignment::None) => None,
-        _ => Some(analyse(&mesh, &l.tag).map_err(hint)?),
+    // The automatic landmarks label the surface by structure (per-structure Dice) and give the frame to
+    // align to; with given landmarks and no alignment, a surface they cannot be found on stays unlabelled.
+    let auto = match (given, align, analyse(&mesh, &l.tag)) {
+        (Some(_), Alignment::None, Err(_)) => None,
+        (_, _, found) => Some(found.map_err(hint)?),
     };
+    match auto.as_ref().map(|(lm, _)| split_structures(&mesh, lm)) {
+        Some(Ok(labels)) => mesh.labels = labels,
+        _ => mesh.labels.clear(),
+    }
     let frame = auto.as_ref().map(|(_, f)| *f);
     let landmarks = match (given, auto) {
         (Some(s), _) => s.clone(),

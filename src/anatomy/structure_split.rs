@@ -1,0 +1,386 @@
+//! Structure labels for an unlabelled vertebra surface (a CT label's isosurface) from its landmarks:
+//! body (with its superior and inferior endplates), left and right pedicles, laminae, spinous process,
+//! transverse processes and articular processes — the phantom's [`Structure`] set — one per triangle.
+//!
+//! **Frame.** From the landmark set (automatic or given, names of [`crate::anatomy::vertebra`]): origin at
+//! `center`; superior along `inferior_endplate → superior_endplate`; right along `left_pedicle →
+//! right_pedicle` made orthogonal to it; anterior = superior × right (RAS+ is right-handed). Local
+//! coordinates `(x, y, z)` are right, anterior, superior.
+//!
+//! **Body.** The vertebral body is everything anterior of its posterior wall. The wall is measured on the
+//! surface: lines along the anterior axis through the lower half of the body (where no pedicle joins it)
+//! give the wall's position `y_w(x)` across the body's width, following the posterior concavity of a
+//! kidney-shaped endplate; a point is body where `y ≥ y_w(x) − 1 mm` (the midline's wall where the lower
+//! body does not reach `x`). Body triangles facing up (down) within 4 mm of the superior (inferior) endplate height are
+//! the superior (inferior) endplate.
+//!
+//! **Posterior elements.** Each part of the neural arch is a segment (its axis) in the frame, placed
+//! from landmarks and the surface: a pedicle runs from the posterior wall through its landmark to as far
+//! behind it again (the landmark is the pedicle's middle); each lamina runs from its pedicle's end to the
+//! laminar junction (the first solid behind the canal on the mid-sagittal line, found by probing); the
+//! spinous process from the junction to `spinous_tip`; a transverse process from the pedicle–lamina
+//! junction to the most lateral surface point on its side; a superior articular process from the pedicle's
+//! end to the highest point of the arch on its side, an inferior one from the middle of the lamina to the
+//! lowest point of the arch on its side (off the midline, where the spinous process is). A posterior
+//! triangle takes the structure of the nearest axis. Nothing here assumes a primitive shape, so the
+//! split follows the anatomy as the landmarks and the surface place it.
+
+use glam::DVec3;
+
+use super::auto_landmarks::{line_intervals, smoothed_normals};
+use super::landmarks::Landmarks;
+use super::{Structure, TriMesh};
+use crate::{Error, Result};
+
+/// Margin by which a point behind the measured posterior wall still counts as body (mm).
+const WALL_MARGIN_MM: f64 = 1.0;
+/// Height band above/below which body faces are endplates (mm from the endplate landmark).
+const ENDPLATE_BAND_MM: f64 = 4.0;
+/// Cosine of the largest tilt of an endplate face from the superior axis.
+const ENDPLATE_COS: f64 = 0.7;
+/// Lateral reach of the posterior-wall probes (mm from the midline).
+const WALL_PROBE_HALF_WIDTH_MM: f64 = 45.0;
+
+/// The vertebra's anatomical frame from its landmarks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LandmarkFrame {
+    pub origin: DVec3,
+    pub right: DVec3,
+    pub anterior: DVec3,
+    pub superior: DVec3,
+}
+
+impl LandmarkFrame {
+    /// The frame of a landmark set (see the module documentation); errors name the missing landmark.
+    pub fn from_landmarks(lm: &Landmarks) -> Result<LandmarkFrame> {
+        let get = |n: &str| {
+            lm.get(n).ok_or_else(|| {
+                Error::invalid(
+                    "landmarks",
+                    format!(
+                        "level {}: the structure split needs landmark {n:?} (has {:?})",
+                        lm.level,
+                        lm.points.keys().collect::<Vec<_>>()
+                    ),
+                )
+            })
+        };
+        let origin = get("center")?;
+        let degenerate = |what: &str| {
+            Error::invalid(
+                "landmarks",
+                format!("level {}: {what} coincide, no frame", lm.level),
+            )
+        };
+        let superior = (get("superior_endplate")? - get("inferior_endplate")?)
+            .try_normalize()
+            .ok_or_else(|| degenerate("the endplate landmarks"))?;
+        let r0 = get("right_pedicle")? - get("left_pedicle")?;
+        let right = (r0 - r0.dot(superior) * superior)
+            .try_normalize()
+            .ok_or_else(|| degenerate("the pedicle landmarks (along the superior axis)"))?;
+        let anterior = superior.cross(right);
+        let f = LandmarkFrame {
+            origin,
+            right,
+            anterior,
+            superior,
+        };
+        if f.local(get("spinous_tip")?).y >= 0.0 {
+            return Err(Error::invalid(
+                "landmarks",
+                format!(
+                    "level {}: spinous_tip is not posterior of center in the frame the endplates and \
+                     pedicles give (are left and right pedicles swapped?)",
+                    lm.level
+                ),
+            ));
+        }
+        Ok(f)
+    }
+
+    /// Local coordinates (right, anterior, superior) of a world point.
+    pub fn local(&self, p: DVec3) -> DVec3 {
+        let d = p - self.origin;
+        DVec3::new(d.dot(self.right), d.dot(self.anterior), d.dot(self.superior))
+    }
+
+    /// The world point of local coordinates.
+    pub fn world(&self, l: DVec3) -> DVec3 {
+        self.origin + l.x * self.right + l.y * self.anterior + l.z * self.superior
+    }
+}
+
+/// The posterior wall `y_w(x)` of the body, sampled every 1 mm across its width.
+struct Wall {
+    x0: f64,
+    y: Vec<Option<f64>>,
+    midline: f64,
+}
+
+impl Wall {
+    fn measure(mesh: &TriMesh, f: &LandmarkFrame, z_probe: f64) -> Result<Wall> {
+        // Small offsets keep probe lines off the voxel grid's vertices and edges.
+        let line = |x: f64| {
+            let q = f.world(DVec3::new(x + 0.0137, 0.0, z_probe + 0.0071));
+            line_intervals(mesh, q, f.anterior)
+        };
+        let mid = line(0.0);
+        let &(mid_post, mid_ant) = mid
+            .iter()
+            .find(|(a, b)| *a <= 0.0 && *b >= 0.0)
+            .or(mid.last())
+            .ok_or_else(|| no_body("the mid-sagittal line through the lower body misses it"))?;
+        if mid_ant - mid_post < 5.0 {
+            return Err(no_body("the mid-sagittal chord of the lower body is under 5 mm"));
+        }
+        let n = (2.0 * WALL_PROBE_HALF_WIDTH_MM) as usize + 1;
+        let x0 = -WALL_PROBE_HALF_WIDTH_MM;
+        let y = (0..n)
+            .map(|i| {
+                let x = x0 + i as f64;
+                // The body's chord: the most anterior solid interval reaching anterior of the midline wall.
+                line(x)
+                    .last()
+                    .filter(|(a, b)| *b > mid_post && b - a > 3.0)
+                    .map(|&(a, _)| a)
+            })
+            .collect();
+        Ok(Wall {
+            x0,
+            y,
+            midline: mid_post,
+        })
+    }
+
+    /// The wall at `x`, where the lower body's chord reaches it.
+    fn at(&self, x: f64) -> Option<f64> {
+        let i = (x - self.x0).round();
+        if i < 0.0 {
+            return None;
+        }
+        self.y.get(i as usize).copied().flatten()
+    }
+
+    /// True when local point `l` is in the body: anterior of the wall at its `x`, or of the wall at the
+    /// midline where the lower body does not reach (an endplate rim wider than the waist).
+    fn contains(&self, l: DVec3) -> bool {
+        l.y >= self.at(l.x).unwrap_or(self.midline) - WALL_MARGIN_MM
+    }
+}
+
+fn no_body(what: &str) -> Error {
+    Error::Numerical(format!("structure split: {what}"))
+}
+
+/// One structure's model in the local frame: a bar of radius `radius` around a segment, or around a
+/// vertical ribbon (the segment swept `half_height` up and down the superior axis, between its ends) for
+/// a plate such as the lamina. Points take the structure whose model surface is nearest.
+#[derive(Debug, Clone, Copy)]
+struct Axis {
+    structure: Structure,
+    a: DVec3,
+    b: DVec3,
+    half_height: f64,
+    radius: f64,
+}
+
+impl Axis {
+    /// Signed distance (approximate) from `p` to the model's surface, a bar with flat ends: a part
+    /// does not reach past the ends of its axis, where the next part begins.
+    fn distance(&self, p: DVec3) -> f64 {
+        let ab = self.b - self.a;
+        let len = ab.length().max(1e-9);
+        let t = (p - self.a).dot(ab) / (len * len);
+        let d = p - (self.a + t * ab);
+        let radial = DVec3::new(d.x, d.y, (d.z.abs() - self.half_height).max(0.0)).length();
+        let (r, e) = (radial - self.radius, (t - 0.5).abs() * len - 0.5 * len);
+        glam::DVec2::new(r.max(0.0), e.max(0.0)).length() + r.max(e).min(0.0)
+    }
+}
+
+/// The laminar junction: the first solid behind the canal on the mid-sagittal line, searched from the
+/// pedicles' height downward to the inferior endplate; with the arch's height there (mm).
+fn laminar_junction(
+    mesh: &TriMesh,
+    f: &LandmarkFrame,
+    wall_y: f64,
+    z_top: f64,
+    z_bottom: f64,
+) -> Result<(DVec3, f64)> {
+    let mut z = z_top;
+    while z >= z_bottom {
+        let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
+        let behind = line_intervals(mesh, q, f.anterior)
+            .into_iter()
+            .filter(|&(_, t1)| t1 < wall_y - 3.0)
+            .last();
+        if let Some((t0, t1)) = behind {
+            let y = t1 - 3.0f64.min(0.5 * (t1 - t0));
+            // Centre the junction on the arch's height there.
+            let v = line_intervals(mesh, f.world(DVec3::new(0.0071, y, 0.0)), f.superior);
+            let (lo, hi) = v
+                .iter()
+                .copied()
+                .find(|(a, b)| *a <= z && *b >= z)
+                .unwrap_or((z, z));
+            return Ok((DVec3::new(0.0, y, 0.5 * (lo + hi)), hi - lo));
+        }
+        z -= 1.0;
+    }
+    Err(no_body("no posterior arch behind the canal on the mid-sagittal line"))
+}
+
+/// Chords of the solid through points of the local frame.
+struct Probe<'a> {
+    mesh: &'a TriMesh,
+    f: &'a LandmarkFrame,
+}
+
+impl Probe<'_> {
+    /// The solid interval along local direction `d` through local point `p`, in mm from `p`.
+    fn interval(&self, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
+        let d = d.try_normalize()?;
+        let dw = d.x * self.f.right + d.y * self.f.anterior + d.z * self.f.superior;
+        // A small offset (fixed in the frame) keeps the line off the voxel grid's vertices and edges.
+        let q = self.f.world(p + 0.0091 * d.any_orthonormal_vector());
+        line_intervals(self.mesh, q, dw)
+            .into_iter()
+            .find(|(a, b)| *a <= 0.0 && *b >= 0.0)
+    }
+
+    /// Length of the chord along `d` through `p` (0 outside the solid).
+    fn chord(&self, p: DVec3, d: DVec3) -> f64 {
+        self.interval(p, d).map_or(0.0, |(a, b)| b - a)
+    }
+
+    /// Distance from `p` to the surface along `d` (0 outside the solid).
+    fn reach(&self, p: DVec3, d: DVec3) -> f64 {
+        self.interval(p, d).map_or(0.0, |(_, b)| b)
+    }
+
+    /// The bar model of the part from `a` to `b`, measured at its middle: radius half its horizontal
+    /// thickness across the axis, and — for a plate taller than thick — a ribbon of its height
+    /// (`height`, or the vertical chord there) less that radius. A steep axis (an articular
+    /// process) is a plain bar.
+    fn bar(&self, structure: Structure, a: DVec3, b: DVec3, height: Option<f64>) -> Axis {
+        let m = 0.5 * (a + b);
+        let dir = b - a;
+        let flat = DVec3::new(dir.x, dir.y, 0.0);
+        let steep = flat.length() < dir.z.abs();
+        let across = if steep {
+            DVec3::X
+        } else {
+            flat.cross(DVec3::Z).normalize_or_zero()
+        };
+        let radius = 0.5 * self.chord(m, across);
+        let half_height = if steep {
+            0.0
+        } else {
+            (0.5 * height.unwrap_or_else(|| self.chord(m, DVec3::Z)) - radius).max(0.0)
+        };
+        Axis {
+            structure,
+            a,
+            b,
+            half_height,
+            radius,
+        }
+    }
+}
+
+/// Per-triangle [`Structure`] codes of a closed vertebra surface from its landmarks (see the module
+/// documentation), in triangle order.
+pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
+    mesh.validate("mesh")?;
+    let f = LandmarkFrame::from_landmarks(lm)?;
+    let l = |n: &str| lm.get(n).map(|p| f.local(p)).unwrap_or(DVec3::ZERO);
+    let (sup, inf) = (l("superior_endplate"), l("inferior_endplate"));
+    let (ped_l, ped_r, tip) = (l("left_pedicle"), l("right_pedicle"), l("spinous_tip"));
+    let wall = Wall::measure(mesh, &f, 0.5 * inf.z)?;
+    let verts: Vec<DVec3> = mesh.vertices.iter().map(|&v| f.local(v)).collect();
+    let z_ped = 0.5 * (ped_l.z + ped_r.z);
+    let (junction, arch_height) = laminar_junction(mesh, &f, wall.midline, z_ped, inf.z)?;
+    let probe = Probe { mesh, f: &f };
+    let mut axes = vec![probe.bar(Structure::Spinous, junction, tip, None)];
+    for (side, ped, s) in [
+        (-1.0, ped_l, Structure::PedicleLeft),
+        (1.0, ped_r, Structure::PedicleRight),
+    ] {
+        let start = DVec3::new(ped.x, wall.at(ped.x).unwrap_or(wall.midline), ped.z);
+        let end = DVec3::new(ped.x, 2.0 * ped.y - wall.midline, ped.z);
+        // A pedicle's half-width is its reach to the canal (laterally it runs into the transverse
+        // process); taller than wide, it is a ribbon.
+        let w = probe.reach(ped, -side * DVec3::X);
+        axes.push(Axis {
+            structure: s,
+            a: start,
+            b: end,
+            half_height: (0.5 * probe.chord(ped, DVec3::Z) - w).max(0.0),
+            radius: w,
+        });
+        // The lamina's height is the arch's at the junction: lower on the lamina the inferior articular
+        // processes continue it downward.
+        axes.push(probe.bar(Structure::Lamina, end, junction, Some(arch_height)));
+        let posterior = |v: &&DVec3| v.y < wall.midline - 2.0;
+        let off_midline = |v: &&DVec3| side * v.x > 0.35 * ped.x.abs();
+        // The extreme of the arch on this side along `key`: the centroid of the surface within 1 mm of
+        // it (a voxel surface has many vertices tied for the extreme).
+        let pick = |key: &dyn Fn(&DVec3) -> f64| {
+            let arch = || verts.iter().filter(posterior).filter(off_midline);
+            let top = arch().map(key).fold(f64::NEG_INFINITY, f64::max);
+            let (sum, n) = arch()
+                .filter(|v| key(v) >= top - 1.0)
+                .fold((DVec3::ZERO, 0usize), |(s, n), v| (s + *v, n + 1));
+            (n > 0).then(|| sum / n as f64)
+        };
+        let lateral =
+            pick(&|v| side * v.x).ok_or_else(|| no_body("no posterior element on a side"))?;
+        let highest = pick(&|v| v.z).unwrap_or(end);
+        let lowest = pick(&|v| -v.z).unwrap_or(end);
+        let root = DVec3::new(ped.x, 0.5 * (ped.y + end.y), ped.z);
+        axes.push(probe.bar(Structure::Transverse, root, lateral, None));
+        axes.push(probe.bar(Structure::Articular, end, highest, None));
+        axes.push(probe.bar(Structure::Articular, 0.5 * (end + junction), lowest, None));
+    }
+    let normals = smoothed_normals(mesh);
+    let labels = (0..mesh.triangles.len())
+        .map(|i| {
+            let [a, b, c] = mesh.triangles[i].map(|k| verts[k as usize]);
+            let g = (a + b + c) / 3.0;
+            if wall.contains(g) {
+                let n = normals[i].dot(f.superior);
+                let s = if n > ENDPLATE_COS && g.z > sup.z - ENDPLATE_BAND_MM {
+                    Structure::SuperiorEndplate
+                } else if n < -ENDPLATE_COS && g.z < inf.z + ENDPLATE_BAND_MM {
+                    Structure::InferiorEndplate
+                } else {
+                    Structure::Body
+                };
+                return s as u8;
+            }
+            axes.iter()
+                .min_by(|p, q| p.distance(g).total_cmp(&q.distance(g)))
+                .map_or(Structure::Unlabelled, |x| x.structure) as u8
+        })
+        .collect();
+    Ok(labels)
+}
+
+/// Labels `mesh`'s triangles with [`split_structures`].
+pub fn label_structures(mesh: &mut TriMesh, lm: &Landmarks) -> Result<()> {
+    mesh.labels = split_structures(mesh, lm)?;
+    Ok(())
+}
+
+/// Automatic landmarks of a closed vertebra surface ([`super::auto_landmarks`]), with the surface
+/// labelled by structure from them. A split that fails (no body chord or arch where the landmarks put
+/// them) leaves the surface unlabelled; the landmarks are returned either way.
+pub fn auto_landmarks_and_structures(mesh: &mut TriMesh, level: &str) -> Result<Landmarks> {
+    let lm = super::auto_landmarks(mesh, level)?;
+    match split_structures(mesh, &lm) {
+        Ok(labels) => mesh.labels = labels,
+        Err(_) => mesh.labels.clear(),
+    }
+    Ok(lm)
+}
