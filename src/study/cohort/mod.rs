@@ -214,8 +214,17 @@ fn check_case(
         ..cfg.clone()
     };
     // Missing files are named by the loader's read; the whole CT and label map are read (a truncated
-    // gzip stream fails here), labels checked present and the grids compared.
-    experiments::load_inputs(&one).map_err(left_out)?;
+    // gzip stream fails here), labels checked present and the grids compared. Then the case's targets
+    // are built as a run builds them (label surfaces, automatic landmarks, renderers) and checked to
+    // land on the detector, so a case that passes cannot fail later in a shard.
+    let inputs = experiments::load_inputs(&one).map_err(left_out)?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .map_err(|e| left_out(Error::Resource(format!("building a thread pool: {e}"))))?;
+    let timings = std::sync::Arc::new(super::timings::Timings::default());
+    let ctx = experiments::Context::build(&one, inputs, out, timings, &pool).map_err(left_out)?;
+    ctx.check_on_detector().map_err(left_out)?;
     Ok(Case {
         dataset: d.name.clone(),
         case: c.id.clone(),
