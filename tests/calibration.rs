@@ -320,3 +320,13 @@ fn bbs_measured_from_rendered_spheres_calibrate_close_to_the_truth() {
     assert!(r.calibration.rms_px < 0.1, "{}", r.calibration.rms_px);
     assert!(k_err(&r.k(), &truth_k()) < 0.01, "{:?}", r.k());
 }
+
+#[test]
+fn zhang_closed_form_recovers_k_from_noise_free_plate_images() {
+    let carm = CArm::default_paper();
+    let plate = CalibrationPhantom::default_plate();
+    let setup = CalibrationSetup::new(&carm, &plate, SetupOptions::default()).unwrap();
+    let k = spinedrr::calibration::zhang::closed_form(&setup.ideal, &plate.points(), 1024, 1024)
+        .unwrap();
+    assert!(k_err(&k, &truth_k()) < 1e-6, "{k:?}");
+}
