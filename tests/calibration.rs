@@ -289,3 +289,44 @@ fn plate_focal_length_trades_against_depth_and_tilt_shrinks_but_keeps_the_direct
         "sd(fx) by tilt 2°, 10°, 45°: {sds:?}"
     );
 }
+
+#[test]
+fn bbs_measured_from_rendered_spheres_calibrate_close_to_the_truth() {
+    // Blob centroids of rendered 1 mm BB spheres instead of exact projections, no added noise: the
+    // centroid's sub-pixel bias is all that separates the estimate from the truth.
+    let carm = CArm::default_paper();
+    let opts = SetupOptions {
+        detection: spinedrr::calibration::Detection::Rendered { radius_mm: 1.0 },
+        ..SetupOptions::default()
+    };
+    let setup = CalibrationSetup::new(&carm, &CalibrationPhantom::default_helix(), opts).unwrap();
+    let exact = CalibrationSetup::new(
+        &carm,
+        &CalibrationPhantom::default_helix(),
+        SetupOptions::default(),
+    )
+    .unwrap();
+    let mut worst: f64 = 0.0;
+    for (a, b) in setup.ideal.iter().zip(&exact.ideal) {
+        for ((_, x), (_, y)) in a.observed.iter().zip(&b.observed) {
+            worst = worst.max((*x - *y).length());
+        }
+    }
+    assert!(
+        worst > 0.0 && worst < 0.1,
+        "centroid vs projection: {worst} px"
+    );
+    let r = run_trial(&setup, 0.0, 1).unwrap();
+    assert!(r.calibration.rms_px < 0.1, "{}", r.calibration.rms_px);
+    assert!(k_err(&r.k(), &truth_k()) < 0.01, "{:?}", r.k());
+}
+
+#[test]
+fn zhang_closed_form_recovers_k_from_noise_free_plate_images() {
+    let carm = CArm::default_paper();
+    let plate = CalibrationPhantom::default_plate();
+    let setup = CalibrationSetup::new(&carm, &plate, SetupOptions::default()).unwrap();
+    let k = spinedrr::calibration::zhang::closed_form(&setup.ideal, &plate.points(), 1024, 1024)
+        .unwrap();
+    assert!(k_err(&k, &truth_k()) < 1e-6, "{k:?}");
+}

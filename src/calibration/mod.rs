@@ -5,7 +5,8 @@
 //!   helix seen in one image per view, or a user's BB centres from JSON — and their placements.
 //! * [`acquisition`]: BB image positions through the true geometry (`View::project`, or the blob
 //!   centroid of rendered BB spheres) plus seeded Gaussian detection noise.
-//! * Estimation: a plate by Zhang's method (OpenCV `calibrateCamera`, [`opencv`]); a 3-D phantom by our
+//! * Estimation: a plate by Zhang's method — our closed form ([`zhang`]) refined by OpenCV
+//!   `calibrateCamera` ([`opencv`], skew fixed at 0); a 3-D phantom by our
 //!   normalised DLT ([`dlt`]) decomposed by RQ, then Levenberg–Marquardt of one K (with skew) and the
 //!   poses on the reprojection error ([`bundle`]). OpenCV is the independent reference of the latter.
 //! * [`trial`]: one Monte-Carlo calibration — the estimated K, each view's estimated extrinsics, the
@@ -20,6 +21,7 @@ pub mod opencv;
 pub mod output;
 pub mod phantom;
 pub mod trial;
+pub mod zhang;
 
 use glam::DVec3;
 
@@ -58,7 +60,12 @@ pub fn calibrate(
 ) -> Result<Calibration> {
     match kind {
         PhantomKind::Planar => {
-            let (geometry, _) = opencv::calibrate_camera(images, bbs, width, height, None)?;
+            // Zhang's closed form starts OpenCV's refinement (OpenCV's own start assumes the
+            // piercing point at the detector centre and needs many more iterations); without a
+            // usable closed form OpenCV starts itself.
+            let guess = zhang::closed_form(images, bbs, width, height);
+            let (geometry, _) =
+                opencv::calibrate_camera(images, bbs, width, height, guess.as_ref())?;
             let rms_px = bundle::rms(&geometry, images, bbs);
             Ok(Calibration {
                 geometry,
