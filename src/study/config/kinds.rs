@@ -189,77 +189,54 @@ macro_rules! spelled_impls {
 spelled_impls!(Experiment);
 spelled_impls!(RegistrationMethod);
 
-/// Serde of an [`Alignment`] by its spelling (`none`, `anatomical`); errors name `anatomy.ct.align`.
-pub mod alignment {
-    use super::*;
+/// A serde `with` module that reads and writes a `[[anatomy.ct]]` field by its spelling (`FromStr` /
+/// `Display`), its errors naming the config key.
+macro_rules! spelled_field {
+    ($(#[$doc:meta])* $module:ident, $t:ty, $key:literal) => {
+        $(#[$doc])*
+        pub mod $module {
+            use super::*;
 
-    pub fn serialize<S: Serializer>(a: &Alignment, s: S) -> std::result::Result<S::Ok, S::Error> {
-        s.serialize_str(&a.to_string())
-    }
+            pub fn serialize<S: Serializer>(v: &$t, s: S) -> std::result::Result<S::Ok, S::Error> {
+                s.serialize_str(&v.to_string())
+            }
 
-    pub fn deserialize<'de, D: Deserializer<'de>>(
-        d: D,
-    ) -> std::result::Result<Alignment, D::Error> {
-        let s = String::deserialize(d)?;
-        s.parse::<Alignment>()
-            .map_err(|e| match e {
-                Error::Invalid { message, .. } => Error::invalid("anatomy.ct.align", message),
-                other => other,
-            })
-            .map_err(serde::de::Error::custom)
-    }
+            pub fn deserialize<'de, D: Deserializer<'de>>(
+                d: D,
+            ) -> std::result::Result<$t, D::Error> {
+                let s = String::deserialize(d)?;
+                s.parse::<$t>()
+                    .map_err(|e| {
+                        let message = match e {
+                            Error::Invalid { message, .. } => message,
+                            other => other.to_string(),
+                        };
+                        Error::invalid($key, message)
+                    })
+                    .map_err(serde::de::Error::custom)
+            }
+        }
+    };
 }
 
-/// Serde of a [`VolumeMethod`] by its spelling (`siddon`, `trilinear`); errors name `anatomy.ct.method`.
-pub mod volume_method {
-    use super::*;
-
-    pub fn serialize<S: Serializer>(
-        m: &VolumeMethod,
-        s: S,
-    ) -> std::result::Result<S::Ok, S::Error> {
-        s.serialize_str(&m.to_string())
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(
-        d: D,
-    ) -> std::result::Result<VolumeMethod, D::Error> {
-        let s = String::deserialize(d)?;
-        s.parse::<VolumeMethod>()
-            .map_err(|e| match e {
-                Error::Invalid { message, .. } => Error::invalid("anatomy.ct.method", message),
-                other => other,
-            })
-            .map_err(serde::de::Error::custom)
-    }
-}
-
-/// Serde of a [`LabelConvention`] by its spelling (`totalseg`, `verse`); errors name `anatomy.ct.labels`.
-pub mod label_convention {
-    use super::*;
-
-    pub fn serialize<S: Serializer>(
-        c: &LabelConvention,
-        s: S,
-    ) -> std::result::Result<S::Ok, S::Error> {
-        s.serialize_str(&c.to_string())
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(
-        d: D,
-    ) -> std::result::Result<LabelConvention, D::Error> {
-        let s = String::deserialize(d)?;
-        s.parse::<LabelConvention>()
-            .map_err(|e| {
-                let message = match e {
-                    Error::Invalid { message, .. } => message,
-                    other => other.to_string(),
-                };
-                Error::invalid("anatomy.ct.labels", message)
-            })
-            .map_err(serde::de::Error::custom)
-    }
-}
+spelled_field!(
+    /// Serde of an [`Alignment`] by its spelling (`none`, `anatomical`).
+    alignment,
+    Alignment,
+    "anatomy.ct.align"
+);
+spelled_field!(
+    /// Serde of a [`VolumeMethod`] by its spelling (`siddon`, `trilinear`).
+    volume_method,
+    VolumeMethod,
+    "anatomy.ct.method"
+);
+spelled_field!(
+    /// Serde of a [`LabelConvention`] by its spelling (`totalseg`, `verse`).
+    label_convention,
+    LabelConvention,
+    "anatomy.ct.labels"
+);
 
 #[cfg(test)]
 mod tests {
