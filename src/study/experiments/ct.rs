@@ -30,9 +30,9 @@ use crate::anatomy::ct::{
     CtVolume, LabelMap, SurfaceOptions, VoxelMask, label_surface, read_ct, read_labels,
 };
 use crate::anatomy::labels::LabelConvention;
-use crate::anatomy::tissue_mu;
 use crate::anatomy::markups::{LandmarkContext, read_landmarks_with};
 use crate::anatomy::structure_split::auto_landmarks_and_structures;
+use crate::anatomy::tissue_mu;
 use crate::anatomy::{Landmarks, Tissue, TriMesh};
 use crate::geometry::RigidTransform;
 use crate::render::volume::{VolumeRenderOptions, VolumeRenderer};
