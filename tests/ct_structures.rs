@@ -131,7 +131,11 @@ fn synthetic_ct_surfaces_are_labelled_as_the_phantom_mesh_says() {
             .iter()
             .map(|(a, b, w)| format!("{} for {}: {w:.0} mm²", a.name(), b.name()))
             .collect();
-        eprintln!("{}: {:.1}% agree; {table:?}; {worst:?}", v.level, 100.0 * share);
+        eprintln!(
+            "{}: {:.1}% agree; {table:?}; {worst:?}",
+            v.level,
+            100.0 * share
+        );
         assert!(
             share >= 0.90,
             "{}: {:.1}% of the area agrees: {table:?}; largest confusions {worst:?}",
@@ -187,7 +191,10 @@ fn landmarks_that_give_no_frame_are_refused_by_name() {
     let e = split_structures(&mesh, &lm).unwrap_err().to_string();
     assert!(e.contains("right_pedicle"), "{e}");
     let mut swapped = f.phantom.vertebrae[0].landmarks.clone();
-    let (l, r) = (swapped.get("left_pedicle").unwrap(), swapped.get("right_pedicle").unwrap());
+    let (l, r) = (
+        swapped.get("left_pedicle").unwrap(),
+        swapped.get("right_pedicle").unwrap(),
+    );
     swapped.points.insert("left_pedicle".into(), r);
     swapped.points.insert("right_pedicle".into(), l);
     let e = split_structures(&mesh, &swapped).unwrap_err().to_string();
@@ -237,7 +244,14 @@ fn mesh_writes_structures_and_slicer_landmarks_that_read_back() {
     let (ok, err) = Spinedrr::new()
         .args(["mesh", "--seg"])
         .arg(&seg)
-        .args(["--label", "L1", "--landmarks", "auto", "--landmarks-format", "verse"])
+        .args([
+            "--label",
+            "L1",
+            "--landmarks",
+            "auto",
+            "--landmarks-format",
+            "verse",
+        ])
         .arg("--out")
         .arg(d.path().join("x.ply"))
         .outcome();
@@ -286,8 +300,19 @@ fn a_ct_target_with_verse_landmarks_gets_per_structure_rows() {
     let o = study(d.path(), f, &ctd);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let t = spinedrr::study::StudyTables::load(&d.path().join("out")).expect("tables");
-    let rows: Vec<_> = t.structures.iter().filter(|r| r.target == "syn-L1").collect();
-    for s in ["body", "pedicle_left", "pedicle_right", "lamina", "spinous", "transverse"] {
+    let rows: Vec<_> = t
+        .structures
+        .iter()
+        .filter(|r| r.target == "syn-L1")
+        .collect();
+    for s in [
+        "body",
+        "pedicle_left",
+        "pedicle_right",
+        "lamina",
+        "spinous",
+        "transverse",
+    ] {
         for view in ["ap", "lat"] {
             assert!(
                 rows.iter().any(|r| r.structure == s && r.view == view),
@@ -302,9 +327,18 @@ fn a_ct_target_with_verse_landmarks_gets_per_structure_rows() {
             .map(|r| r.dice)
             .unwrap()
     };
-    assert!(dice(100.0) > dice(500.0) && dice(100.0) < 1.0, "{} {}", dice(100.0), dice(500.0));
+    assert!(
+        dice(100.0) > dice(500.0) && dice(100.0) < 1.0,
+        "{} {}",
+        dice(100.0),
+        dice(500.0)
+    );
     // The VerSe centroid is the one landmark of the target, and it sits where the views aim.
-    let lm: Vec<_> = t.landmarks.iter().filter(|r| r.target == "syn-L1").collect();
+    let lm: Vec<_> = t
+        .landmarks
+        .iter()
+        .filter(|r| r.target == "syn-L1")
+        .collect();
     assert!(!lm.is_empty() && lm.iter().all(|r| r.landmark == "center"));
 
     // A VerSe file naming a level the label map lacks (L3 = 22) stops the study before any output.
@@ -313,6 +347,9 @@ fn a_ct_target_with_verse_landmarks_gets_per_structure_rows() {
     let o = study(d2.path(), f, &bad);
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{e}");
-    assert!(e.contains("ctd.json") && e.contains("L3") && e.contains("anatomy.ct.landmarks"), "{e}");
+    assert!(
+        e.contains("ctd.json") && e.contains("L3") && e.contains("anatomy.ct.landmarks"),
+        "{e}"
+    );
     assert!(!d2.path().join("out").exists());
 }

@@ -48,8 +48,14 @@ fn ours_to_slicer_to_ours_round_trips_exactly() {
     let mrk = dir.path().join("lm.mrk.json");
     write_landmarks(&mrk, &sets).unwrap();
     // The file is what Slicer expects: one Fiducial node per level, LPS positions (x, y negated).
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&mrk).unwrap()).unwrap();
-    assert!(v["@schema"].as_str().unwrap().contains("markups-schema-v1.0.3.json"));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&mrk).unwrap()).unwrap();
+    assert!(
+        v["@schema"]
+            .as_str()
+            .unwrap()
+            .contains("markups-schema-v1.0.3.json")
+    );
     let node = &v["markups"][0];
     assert_eq!(node["type"], "Fiducial");
     assert_eq!(node["name"], "L3");
@@ -63,7 +69,11 @@ fn ours_to_slicer_to_ours_round_trips_exactly() {
     assert_eq!(back, sets);
     let ours = dir.path().join("lm.json");
     write_landmarks(&ours, &back).unwrap();
-    assert!(std::fs::read_to_string(&ours).unwrap().contains("\"units\""));
+    assert!(
+        std::fs::read_to_string(&ours)
+            .unwrap()
+            .contains("\"units\"")
+    );
     assert_eq!(read_landmarks(&ours).unwrap(), sets);
 }
 
@@ -93,7 +103,11 @@ fn an_lps_file_lands_where_the_ras_file_does() {
     let micrometres = write(
         dir.path(),
         "um.mrk.json",
-        &doc("", [-12500.0, 40000.0, 7000.0], r#""coordinateUnits": "um","#),
+        &doc(
+            "",
+            [-12500.0, 40000.0, 7000.0],
+            r#""coordinateUnits": "um","#,
+        ),
     );
     let want = DVec3::new(12.5, -40.0, 7.0);
     for p in [&ras, &lps, &default, &micrometres] {
@@ -207,15 +221,13 @@ fn verse_centroids_land_where_the_hand_worked_affine_puts_them() {
     let c = read_verse_centroids(&in_mm, &grid, VerseUnits::Millimetres).unwrap();
     assert!((c[1].world_mm - want[1]).length() < 1e-9);
     // Through the one reader, beside the label map: a `center` landmark per level.
-    for conv in [LabelConvention::Verse] {
-        let ctx = LandmarkContext {
-            seg: Some((&seg, conv)),
-            ..Default::default()
-        };
-        let sets = read_landmarks_with(&flipped, &ctx).unwrap();
-        assert_eq!(sets[0].level, "L1");
-        assert!((sets[1].get("center").unwrap() - want[1]).length() < 1e-9);
-    }
+    let ctx = LandmarkContext {
+        seg: Some((&seg, LabelConvention::Verse)),
+        ..Default::default()
+    };
+    let sets = read_landmarks_with(&flipped, &ctx).unwrap();
+    assert_eq!(sets[0].level, "L1");
+    assert!((sets[1].get("center").unwrap() - want[1]).length() < 1e-9);
     // A TotalSegmentator map of the same image (L1 = 31, L2 = 30) matches the levels by name.
     let ts = seg.map(|v| match v {
         20 => 31,
@@ -232,7 +244,8 @@ fn verse_centroids_land_where_the_hand_worked_affine_puts_them() {
 #[test]
 fn bad_landmark_files_name_the_file_and_the_field() {
     let dir = tempfile::tempdir().unwrap();
-    let err = |p: &Path, ctx: &LandmarkContext| read_landmarks_with(p, ctx).unwrap_err().to_string();
+    let err =
+        |p: &Path, ctx: &LandmarkContext| read_landmarks_with(p, ctx).unwrap_err().to_string();
     let none = LandmarkContext::default();
     let seg = pir_grid();
     let with_seg = LandmarkContext {
@@ -248,7 +261,9 @@ fn bad_landmark_files_name_the_file_and_the_field() {
     );
     let e = err(&p, &none);
     assert!(
-        e.contains("ijk.mrk.json") && e.contains("markups[0].coordinateSystem") && e.contains("IJK"),
+        e.contains("ijk.mrk.json")
+            && e.contains("markups[0].coordinateSystem")
+            && e.contains("IJK"),
         "{e}"
     );
     let p = write(
@@ -277,7 +292,10 @@ fn bad_landmark_files_name_the_file_and_the_field() {
     let p = write(
         dir.path(),
         "l3_ctd.json",
-        &verse_doc(r#"["P", "I", "R"]"#, &[(20, [1.0, 2.0, 3.0]), (22, [5.0, 5.0, 5.0])]),
+        &verse_doc(
+            r#"["P", "I", "R"]"#,
+            &[(20, [1.0, 2.0, 3.0]), (22, [5.0, 5.0, 5.0])],
+        ),
     );
     let e = err(&p, &with_seg);
     assert!(
@@ -286,7 +304,10 @@ fn bad_landmark_files_name_the_file_and_the_field() {
     );
     // … read without any image, it cannot be placed at all.
     let e = err(&p, &none);
-    assert!(e.contains("l3_ctd.json") && e.contains("voxel coordinates"), "{e}");
+    assert!(
+        e.contains("l3_ctd.json") && e.contains("voxel coordinates"),
+        "{e}"
+    );
     // Axis codes that do not name three axes; a label outside VerSe's; a centroid off the image.
     for (name, doc, field) in [
         (

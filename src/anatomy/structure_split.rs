@@ -102,7 +102,11 @@ impl LandmarkFrame {
     /// Local coordinates (right, anterior, superior) of a world point.
     pub fn local(&self, p: DVec3) -> DVec3 {
         let d = p - self.origin;
-        DVec3::new(d.dot(self.right), d.dot(self.anterior), d.dot(self.superior))
+        DVec3::new(
+            d.dot(self.right),
+            d.dot(self.anterior),
+            d.dot(self.superior),
+        )
     }
 
     /// The world point of local coordinates.
@@ -132,7 +136,9 @@ impl Wall {
             .or(mid.last())
             .ok_or_else(|| no_body("the mid-sagittal line through the lower body misses it"))?;
         if mid_ant - mid_post < 5.0 {
-            return Err(no_body("the mid-sagittal chord of the lower body is under 5 mm"));
+            return Err(no_body(
+                "the mid-sagittal chord of the lower body is under 5 mm",
+            ));
         }
         let n = (2.0 * WALL_PROBE_HALF_WIDTH_MM) as usize + 1;
         let x0 = -WALL_PROBE_HALF_WIDTH_MM;
@@ -213,8 +219,8 @@ fn laminar_junction(
         let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
         let behind = line_intervals(mesh, q, f.anterior)
             .into_iter()
-            .filter(|&(_, t1)| t1 < wall_y - 3.0)
-            .last();
+            .rev()
+            .find(|&(_, t1)| t1 < wall_y - 3.0);
         if let Some((t0, t1)) = behind {
             let y = t1 - 3.0f64.min(0.5 * (t1 - t0));
             // Centre the junction on the arch's height there.
@@ -228,7 +234,9 @@ fn laminar_junction(
         }
         z -= 1.0;
     }
-    Err(no_body("no posterior arch behind the canal on the mid-sagittal line"))
+    Err(no_body(
+        "no posterior arch behind the canal on the mid-sagittal line",
+    ))
 }
 
 /// Chords of the solid through points of the local frame.

@@ -170,37 +170,10 @@ struct Body {
 impl Body {
     fn measure(mesh: &TriMesh, c0: DVec3, lr: DVec3, ap0: DVec3) -> Result<Body> {
         let ap0 = (ap0 - ap0.dot(lr) * lr).normalize();
-        let body0 = most_anterior(mesh, c0, ap0)?;
-        // Superior axis from the body's end faces (either sign of the rough axis).
-        let si0 = lr.cross(ap0);
-        let (mut n_sum, mut up, mut down) = (DVec3::ZERO, (0.0, 0.0), (0.0, 0.0));
         // Normals smoothed over a few edges: a tilted endplate's voxel staircase (an unsmoothed CT
         // label surface) would otherwise pull the axis onto the voxel grid's.
         let normals = smoothed_normals(mesh);
-        for i in 0..mesh.triangles.len() {
-            let [a, b, c] = mesh.corners(i);
-            let g = (a + b + c) / 3.0 - c0;
-            if g.dot(ap0) < body0.0 + 2.0 || g.dot(lr).abs() > 10.0 {
-                continue;
-            }
-            let area = 0.5 * (b - a).cross(c - a).length();
-            let Some(n) = normals[i].try_normalize() else {
-                continue;
-            };
-            let cos = n.dot(si0);
-            if cos.abs() < 30f64.to_radians().cos() {
-                continue;
-            }
-            n_sum += area * n * cos.signum();
-            let acc = if cos > 0.0 { &mut up } else { &mut down };
-            acc.0 += area * g.dot(si0);
-            acc.1 += area;
-        }
-        if up.1 <= 0.0 || down.1 <= 0.0 {
-            return Err(Error::Numerical(
-                "vertebra frame: no flat superior/inferior body faces found".into(),
-            ));
-        }
+        let EndFaces { n_sum, up, down } = EndFaces::measure(mesh, &normals, c0, lr, ap0)?;
         let si = (n_sum - n_sum.dot(lr) * lr).normalize();
         let ap = si.cross(lr) * si.cross(lr).dot(ap0).signum();
         let mut z_mid = 0.5 * (up.0 / up.1 + down.0 / down.1);
@@ -232,9 +205,13 @@ impl Body {
                 .ok_or_else(|| no_body("superior–inferior"))?;
             (z0, z1)
         };
-        let lam = lam.ok_or_else(|| {
-            Error::Numerical("vertebra frame: no posterior arch behind the body".into())
-        })?;
+        // The arch may miss the body's mid-height on the mid-sagittal line (laminae slope caudally):
+        // then the nearest height over the body's where it is met.
+        let lam = lam
+            .or_else(|| arch_front(mesh, centre, ap, si, y_post, half_h))
+            .ok_or_else(|| {
+                Error::Numerical("vertebra frame: no posterior arch behind the body".into())
+            })?;
         Ok(Body {
             lr,
             ap,
@@ -251,6 +228,80 @@ impl Body {
     fn local(&self, p: DVec3) -> DVec3 {
         let d = p - self.centre;
         DVec3::new(d.dot(self.lr), d.dot(self.ap), d.dot(self.si))
+    }
+}
+
+/// The anterior face of the posterior arch on the mid-sagittal line (mm along `ap` from `centre`),
+/// searched 1 mm at a time above and below `centre` within the body's height `(z0, z1)`.
+fn arch_front(
+    mesh: &TriMesh,
+    centre: DVec3,
+    ap: DVec3,
+    si: DVec3,
+    y_post: f64,
+    (z0, z1): (f64, f64),
+) -> Option<f64> {
+    let steps = z0.abs().max(z1).ceil() as i32;
+    (1..=steps)
+        .flat_map(|k| [-k, k])
+        .map(f64::from)
+        .filter(|&dz| dz >= z0 && dz <= z1)
+        .find_map(|dz| {
+            line_intervals(mesh, centre + dz * si, ap)
+                .into_iter()
+                .rev()
+                .find(|&(_, t1)| t1 < y_post - 1.0)
+                .map(|(_, t1)| t1)
+        })
+}
+
+/// The flat superior/inferior faces of the body: their area-weighted normal sum (signed to point along
+/// the axis) and, per side, the area-weighted height along the axis tried and the area.
+struct EndFaces {
+    n_sum: DVec3,
+    up: (f64, f64),
+    down: (f64, f64),
+}
+
+impl EndFaces {
+    /// Faces whose normal is within 30° of `lr × ap`, anterior of the body's posterior wall along `ap`
+    /// (the most anterior interval from `c0`) and within 10 mm of the mid-sagittal plane.
+    fn measure(
+        mesh: &TriMesh,
+        normals: &[DVec3],
+        c0: DVec3,
+        lr: DVec3,
+        ap: DVec3,
+    ) -> Result<EndFaces> {
+        let body0 = most_anterior(mesh, c0, ap)?;
+        let si0 = lr.cross(ap);
+        let mut f = EndFaces {
+            n_sum: DVec3::ZERO,
+            up: (0.0, 0.0),
+            down: (0.0, 0.0),
+        };
+        for (i, n) in normals.iter().enumerate() {
+            let [a, b, c] = mesh.corners(i);
+            let g = (a + b + c) / 3.0 - c0;
+            if g.dot(ap) < body0.0 + 2.0 || g.dot(lr).abs() > 10.0 {
+                continue;
+            }
+            let area = 0.5 * (b - a).cross(c - a).length();
+            let cos = n.dot(si0);
+            if cos.abs() < 30f64.to_radians().cos() {
+                continue;
+            }
+            f.n_sum += area * *n * cos.signum();
+            let acc = if cos > 0.0 { &mut f.up } else { &mut f.down };
+            acc.0 += area * g.dot(si0);
+            acc.1 += area;
+        }
+        if f.up.1 <= 0.0 || f.down.1 <= 0.0 {
+            return Err(Error::Numerical(
+                "vertebra frame: no flat superior/inferior body faces found".into(),
+            ));
+        }
+        Ok(f)
     }
 }
 

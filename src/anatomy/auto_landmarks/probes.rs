@@ -173,7 +173,12 @@ pub fn smoothed_normals(mesh: &TriMesh) -> Vec<DVec3> {
     }
     mesh.triangles
         .iter()
-        .map(|t| t.iter().map(|&k| vn[k as usize]).sum::<DVec3>().normalize_or_zero())
+        .map(|t| {
+            t.iter()
+                .map(|&k| vn[k as usize])
+                .sum::<DVec3>()
+                .normalize_or_zero()
+        })
         .collect()
 }
 

@@ -55,7 +55,11 @@ impl std::str::FromStr for LandmarkFormat {
 /// True for a name ending `.mrk.json` (any case).
 pub fn is_slicer_name(path: &Path) -> bool {
     path.file_name()
-        .map(|n| n.to_string_lossy().to_ascii_lowercase().ends_with(".mrk.json"))
+        .map(|n| {
+            n.to_string_lossy()
+                .to_ascii_lowercase()
+                .ends_with(".mrk.json")
+        })
         .unwrap_or(false)
 }
 
@@ -200,7 +204,10 @@ fn check_unique_keys(text: &str, path: &Path) -> Result<()> {
             while a.next_element::<Any>()?.is_some() {}
             Ok(Any)
         }
-        fn visit_map<A: serde::de::MapAccess<'de>>(self, a: A) -> std::result::Result<Any, A::Error> {
+        fn visit_map<A: serde::de::MapAccess<'de>>(
+            self,
+            a: A,
+        ) -> std::result::Result<Any, A::Error> {
             unique_keys::<_, Any>(serde::de::value::MapAccessDeserializer::new(a))?;
             Ok(Any)
         }
@@ -220,15 +227,30 @@ mod tests {
         let slicer = r#"{"markups": []}"#;
         let verse = r#"[{"direction": ["P", "I", "R"]}]"#;
         let ours = r#"[{"level": "L3", "units": "mm", "landmarks": {}}]"#;
-        assert_eq!(LandmarkFormat::detect(slicer, p).unwrap(), LandmarkFormat::Slicer);
-        assert_eq!(LandmarkFormat::detect(verse, p).unwrap(), LandmarkFormat::Verse);
-        assert_eq!(LandmarkFormat::detect(ours, p).unwrap(), LandmarkFormat::Spinedrr);
+        assert_eq!(
+            LandmarkFormat::detect(slicer, p).unwrap(),
+            LandmarkFormat::Slicer
+        );
+        assert_eq!(
+            LandmarkFormat::detect(verse, p).unwrap(),
+            LandmarkFormat::Verse
+        );
+        assert_eq!(
+            LandmarkFormat::detect(ours, p).unwrap(),
+            LandmarkFormat::Spinedrr
+        );
         let named = Path::new("a/F.MRK.json");
-        assert_eq!(LandmarkFormat::detect(ours, named).unwrap(), LandmarkFormat::Slicer);
+        assert_eq!(
+            LandmarkFormat::detect(ours, named).unwrap(),
+            LandmarkFormat::Slicer
+        );
         assert_eq!(LandmarkFormat::for_output(named), LandmarkFormat::Slicer);
         assert_eq!(LandmarkFormat::for_output(p), LandmarkFormat::Spinedrr);
         let e = LandmarkFormat::detect("{oops", Path::new("bad.json")).unwrap_err();
-        assert!(e.to_string().contains("bad.json") && e.to_string().contains("not JSON"), "{e}");
+        assert!(
+            e.to_string().contains("bad.json") && e.to_string().contains("not JSON"),
+            "{e}"
+        );
     }
 
     #[test]

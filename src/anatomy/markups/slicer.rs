@@ -204,7 +204,10 @@ pub fn parse_slicer(text: &str, path: &Path) -> Result<Vec<Landmarks>> {
         }
     }
     if sets.iter().all(|s| s.points.is_empty()) {
-        return Err(Error::format(path, "the markups hold no defined control point"));
+        return Err(Error::format(
+            path,
+            "the markups hold no defined control point",
+        ));
     }
     Ok(sets)
 }
@@ -220,7 +223,9 @@ fn units_scale(v: Option<&serde_json::Value>) -> std::result::Result<f64, String
     match code {
         "mm" => Ok(1.0),
         "um" => Ok(1e-3),
-        other => Err(format!("unit {other:?} (only \"mm\" and \"um\" are defined)")),
+        other => Err(format!(
+            "unit {other:?} (only \"mm\" and \"um\" are defined)"
+        )),
     }
 }
 

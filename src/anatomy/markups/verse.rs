@@ -146,7 +146,8 @@ pub fn parse_verse(
             "[0].format: {f:?} is not the VerSe centroid list (format \"docker\")"
         )));
     }
-    let axes = StatedAxes::new(&header.direction, grid).map_err(|m| bad(format!("[0].direction: {m}")))?;
+    let axes =
+        StatedAxes::new(&header.direction, grid).map_err(|m| bad(format!("[0].direction: {m}")))?;
     axes.check_header(&header).map_err(bad)?;
     let mut out: Vec<VerseCentroid> = Vec::with_capacity(entries.len());
     for (i, v) in entries.iter().enumerate() {
@@ -161,15 +162,21 @@ pub fn parse_verse(
             .as_u64()
             .and_then(|l| u16::try_from(l).ok())
             .ok_or_else(|| bad(format!("[{at}].label: {} is not an integer label", e.label)))?;
-        let level = LabelConvention::Verse
-            .level(label)
-            .ok_or_else(|| bad(format!("[{at}].label: {label} is not a VerSe vertebra label (1–28)")))?;
+        let level = LabelConvention::Verse.level(label).ok_or_else(|| {
+            bad(format!(
+                "[{at}].label: {label} is not a VerSe vertebra label (1–28)"
+            ))
+        })?;
         if out.iter().any(|c| c.label == label) {
-            return Err(bad(format!("[{at}].label: {label} ({level}) appears twice")));
+            return Err(bad(format!(
+                "[{at}].label: {label} ({level}) appears twice"
+            )));
         }
         let file_xyz = DVec3::new(e.x, e.y, e.z);
         if !file_xyz.is_finite() {
-            return Err(bad(format!("[{at}]: label {label} ({level}) is not finite")));
+            return Err(bad(format!(
+                "[{at}]: label {label} ({level}) is not finite"
+            )));
         }
         let index = axes.image_index(file_xyz, units);
         let n = grid.dims.map(|d| d as f64);
@@ -217,7 +224,8 @@ pub fn check_levels_in(
                     c.label,
                     c.level,
                     match id {
-                        Some(id) => format!("(label {id} in the {convention} convention) is not in"),
+                        Some(id) =>
+                            format!("(label {id} in the {convention} convention) is not in"),
                         None => format!("has no id in the {convention} convention of"),
                     }
                 ),
@@ -286,7 +294,10 @@ struct StatedAxes {
 impl StatedAxes {
     fn new(codes: &[String], grid: &ImageGrid) -> std::result::Result<StatedAxes, String> {
         if codes.len() != 3 {
-            return Err(format!("{} axis codes, expected 3 (e.g. P, I, R)", codes.len()));
+            return Err(format!(
+                "{} axis codes, expected 3 (e.g. P, I, R)",
+                codes.len()
+            ));
         }
         let parsed: Vec<(usize, f64)> = codes
             .iter()

@@ -39,9 +39,9 @@ use crate::anatomy::ct::{
     label_surface, move_volume, read_ct, read_labels,
 };
 use crate::anatomy::labels::LabelConvention;
-use crate::anatomy::tissue_mu;
 use crate::anatomy::markups::{LandmarkContext, read_landmarks_with};
 use crate::anatomy::structure_split::split_structures;
+use crate::anatomy::tissue_mu;
 use crate::anatomy::{Landmarks, Tissue, TriMesh};
 use crate::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
 use crate::render::{RenderScene, SceneMesh};
