@@ -132,11 +132,13 @@ impl fmt::Display for Shard {
 /// the same rows in the restricted context as in the full one.
 pub fn restrict_config(cfg: &StudyConfig, units: &[&Unit]) -> StudyConfig {
     let groups = target_groups(cfg);
+    let calibration = assign::calibration_target(cfg);
     let needed: BTreeSet<InputGroup> = units
         .iter()
         .map(|u| {
             let t = match u {
                 Unit::Projection { target, .. } | Unit::Registration { target, .. } => target,
+                Unit::Calibration(_) => &calibration,
             };
             groups
                 .get(t)
@@ -144,6 +146,10 @@ pub fn restrict_config(cfg: &StudyConfig, units: &[&Unit]) -> StudyConfig {
         })
         .collect();
     let mut c = cfg.clone();
+    // The restricted study's first target may differ: name the calibration's target explicitly.
+    if units.iter().any(|u| matches!(u, Unit::Calibration(_))) {
+        c.calibration.target = Some(calibration.clone());
+    }
     if !needed.contains(&InputGroup::Phantom) {
         c.anatomy.levels.clear();
     }

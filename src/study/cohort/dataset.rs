@@ -63,6 +63,10 @@ pub struct DatasetConfig {
     /// Also study each case's levels together (`<name>-<C>-segment`).
     #[serde(default)]
     pub segment: bool,
+    /// Taubin smoothing of every case's label surfaces, as `[[anatomy.ct]]`'s `smooth_iterations`
+    /// (about 10 for thick slices, whose stair steps automatic landmarks cannot read).
+    #[serde(default)]
+    pub smooth_iterations: usize,
 }
 
 /// One case found on disk (files not yet read).
@@ -366,6 +370,7 @@ mod tests {
             exclude: vec![],
             strict: false,
             segment: false,
+            smooth_iterations: 0,
         }
     }
 

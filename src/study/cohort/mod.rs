@@ -178,6 +178,9 @@ fn ct_entry(d: &DatasetConfig, target: &str, ct: &Path, seg: &Path) -> Result<Ct
         levels: d.levels.clone(),
         landmarks: None,
         segment: d.segment,
+        align: Default::default(),
+        smooth_iterations: d.smooth_iterations,
+        method: Default::default(),
     })
 }
 

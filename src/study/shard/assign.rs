@@ -57,6 +57,18 @@ pub struct CostModel {
     megapixels: f64,
     landmarks: bool,
     projection: bool,
+    /// The target the calibration experiment measures the vertebra on.
+    calibration_target: String,
+}
+
+/// The target the calibration experiment measures the vertebra on: the configured one, else the
+/// study's first target (as the experiment's context resolves it).
+pub fn calibration_target(cfg: &StudyConfig) -> String {
+    cfg.calibration
+        .target
+        .clone()
+        .or_else(|| crate::study::units::targets(cfg).into_iter().next())
+        .unwrap_or_default()
 }
 
 /// Per megapixel: a thickness DRR of one vertebra, the image and contour metrics of one pair, a CT
@@ -68,6 +80,8 @@ const CT_DRR_MS: f64 = 200.0;
 const MARKER_MS: f64 = 0.1;
 const LANDMARKS_PER_LEVEL: f64 = 17.0;
 const TRIAL_MS: f64 = 0.03;
+/// One calibration trial: the estimate and the vertebra's projection-domain metrics under it.
+const CALIBRATION_TRIAL_MS: f64 = 2.0;
 const PHANTOM_LEVEL_MS: f64 = 600.0;
 const CT_LEVEL_MS: f64 = 1500.0;
 const MESH_MS: f64 = 300.0;
@@ -93,6 +107,7 @@ impl CostModel {
             megapixels,
             landmarks: cfg.runs(Experiment::Landmarks),
             projection: cfg.runs(Experiment::Projection),
+            calibration_target: calibration_target(cfg),
         }
     }
 
@@ -133,6 +148,7 @@ impl CostModel {
                 self.render_ms(target) + metrics
             }
             Unit::Registration { count, .. } => TRIAL_MS * *count as f64,
+            Unit::Calibration(c) => CALIBRATION_TRIAL_MS * c.count as f64,
         }
     }
 
@@ -144,6 +160,7 @@ impl CostModel {
                 (self.target(target).0, Some((target.clone(), view.clone())))
             }
             Unit::Registration { target, .. } => (self.target(target).0, None),
+            Unit::Calibration(_) => (self.target(&self.calibration_target).0, None),
         }
     }
 
@@ -213,7 +230,7 @@ fn items(model: &CostModel, units: &[Unit], costs: &[f64], n: usize) -> Vec<Item
         let cost: f64 = idx.iter().map(|&i| costs[i]).sum();
         let ref_ms = match &units[idx[0]] {
             Unit::Projection { target, .. } => model.render_ms(target),
-            Unit::Registration { .. } => 0.0,
+            Unit::Registration { .. } | Unit::Calibration(_) => 0.0,
         };
         let pieces = ((cost / limit).ceil() as usize).clamp(1, idx.len());
         let per = idx.len().div_ceil(pieces);
