@@ -61,8 +61,8 @@ pub fn section(
 well it reprojects those BBs — the *reconstruction-domain* figure a vendor reports. Here the calibration \
 itself is simulated: phantoms {} are imaged with the true geometry, every BB's detected position gets \
 Gaussian noise σ ∈ {{{}}} px, and the calibration is estimated again, {} times per phantom and σ. A plate \
-(planar BBs, {} tilted poses of {}° per view) is calibrated by Zhang's method (OpenCV `calibrateCamera`: \
-fx, fy, cx, cy free, skew fixed at 0, no lens distortion); a 3-D phantom (one image per view) by a \
+(planar BBs, {} tilted poses of {}° per view) is calibrated by Zhang's method (his closed form, refined by \
+OpenCV `calibrateCamera`: fx, fy, cx, cy free, skew fixed at 0, no lens distortion); a 3-D phantom (one image per view) by a \
 normalised DLT, RQ decomposition and Levenberg–Marquardt of one K with skew and the poses. Each \
 estimate is then used on the vertebra ({}) under two protocols: **intrinsic** — K_est with the true \
 extrinsics, the paper's intrinsic-only perturbation with magnitudes a real calibration produces — and \
