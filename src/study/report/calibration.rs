@@ -6,31 +6,18 @@ use std::fmt::Write as _;
 use super::layout;
 use crate::analysis::percentile;
 use crate::study::config::{Protocol, StudyConfig};
-use crate::study::figures::{FigureEntry, Section};
-use crate::study::schema::{CalibrationRow, StudyTables};
+use crate::study::figures::{FigureEntry, Section, distinct};
+use crate::study::schema::{CalibrationRow, StudyTables, mean_sd};
 
 /// The section heading.
 pub const HEADING: &str = "Calibration in the loop: phantom error vs anatomy error";
 
 fn mean(v: &[f64]) -> f64 {
-    let f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    f.iter().sum::<f64>() / f.len().max(1) as f64
+    mean_sd(v).0
 }
 
 fn sd(v: &[f64]) -> f64 {
-    let m = mean(v);
-    let f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    (f.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (f.len().max(2) - 1) as f64).sqrt()
-}
-
-fn distinct<T: PartialEq + Clone>(values: impl IntoIterator<Item = T>) -> Vec<T> {
-    let mut v: Vec<T> = Vec::new();
-    for x in values {
-        if !v.contains(&x) {
-            v.push(x);
-        }
-    }
-    v
+    mean_sd(v).1
 }
 
 fn num(v: f64, digits: usize) -> String {
