@@ -255,7 +255,9 @@ pub fn run_request(
         trials: req.trials,
         seed: req.seed,
         estimator: match req.phantom.kind {
-            PhantomKind::Planar => "zhang (OpenCV calibrateCamera, skew fixed at 0)",
+            PhantomKind::Planar => {
+                "zhang (closed form, refined by OpenCV calibrateCamera; skew fixed at 0)"
+            }
             PhantomKind::Volumetric => "normalised DLT + RQ, then LM of K (skew free) and poses",
         },
     };

@@ -14,8 +14,8 @@ use spinedrr::geometry::CArm;
 #[command(
     after_help = "Each trial images the phantom with the true geometry (--geometry or the built-in \
 AP + LAT C-arm), adds Gaussian detection noise of --noise-px to every BB, and calibrates: a plate (or a \
-planar FILE) by Zhang's method (OpenCV calibrateCamera: fx, fy, cx, cy free, skew fixed at 0, no \
-distortion), a helix (or a 3-D FILE) by a normalised DLT per view, RQ, then LM of one K with skew and \
+planar FILE) by Zhang's method (his closed form refined by OpenCV calibrateCamera: fx, fy, cx, cy free, \
+skew fixed at 0, no distortion), a helix (or a 3-D FILE) by a normalised DLT per view, RQ, then LM of one K with skew and \
 the poses. calibrations.csv has one row per trial and view: K_est, the view's estimated world→camera \
 pose and its error, the reprojection RMS and the mean 3-D error of held-out BBs triangulated from all \
 views. phantom.json records the BB centres, the true K and views, and every placement imaged."

@@ -6,31 +6,18 @@ use std::fmt::Write as _;
 use super::layout;
 use crate::analysis::percentile;
 use crate::study::config::{Protocol, StudyConfig};
-use crate::study::figures::{FigureEntry, Section};
-use crate::study::schema::{CalibrationRow, StudyTables};
+use crate::study::figures::{FigureEntry, Section, distinct};
+use crate::study::schema::{CalibrationRow, StudyTables, mean_sd};
 
 /// The section heading.
 pub const HEADING: &str = "Calibration in the loop: phantom error vs anatomy error";
 
 fn mean(v: &[f64]) -> f64 {
-    let f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    f.iter().sum::<f64>() / f.len().max(1) as f64
+    mean_sd(v).0
 }
 
 fn sd(v: &[f64]) -> f64 {
-    let m = mean(v);
-    let f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    (f.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (f.len().max(2) - 1) as f64).sqrt()
-}
-
-fn distinct<T: PartialEq + Clone>(values: impl IntoIterator<Item = T>) -> Vec<T> {
-    let mut v: Vec<T> = Vec::new();
-    for x in values {
-        if !v.contains(&x) {
-            v.push(x);
-        }
-    }
-    v
+    mean_sd(v).1
 }
 
 fn num(v: f64, digits: usize) -> String {
@@ -61,8 +48,8 @@ pub fn section(
 well it reprojects those BBs — the *reconstruction-domain* figure a vendor reports. Here the calibration \
 itself is simulated: phantoms {} are imaged with the true geometry, every BB's detected position gets \
 Gaussian noise σ ∈ {{{}}} px, and the calibration is estimated again, {} times per phantom and σ. A plate \
-(planar BBs, {} tilted poses of {}° per view) is calibrated by Zhang's method (OpenCV `calibrateCamera`: \
-fx, fy, cx, cy free, skew fixed at 0, no lens distortion); a 3-D phantom (one image per view) by a \
+(planar BBs, {} tilted poses of {}° per view) is calibrated by Zhang's method (his closed form, refined by \
+OpenCV `calibrateCamera`: fx, fy, cx, cy free, skew fixed at 0, no lens distortion); a 3-D phantom (one image per view) by a \
 normalised DLT, RQ decomposition and Levenberg–Marquardt of one K with skew and the poses. Each \
 estimate is then used on the vertebra ({}) under two protocols: **intrinsic** — K_est with the true \
 extrinsics, the paper's intrinsic-only perturbation with magnitudes a real calibration produces — and \
