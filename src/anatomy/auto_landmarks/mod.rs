@@ -173,9 +173,13 @@ impl Body {
         // Normals smoothed over a few edges: a tilted endplate's voxel staircase (an unsmoothed CT
         // label surface) would otherwise pull the axis onto the voxel grid's.
         let normals = smoothed_normals(mesh);
-        let EndFaces { n_sum, up, down } = EndFaces::measure(mesh, &normals, c0, lr, ap0)?;
+        // The rough axis points at the spinous process, which can slope far caudally (≈ 40° on a real
+        // L1): first turn it to the body's principal face direction nearest to it.
+        let si1 = body_face_axis(mesh, &normals, c0, lr, ap0)?;
+        let ap1 = si1.cross(lr) * si1.cross(lr).dot(ap0).signum();
+        let EndFaces { n_sum, up, down } = EndFaces::measure(mesh, &normals, c0, lr, ap1)?;
         let si = (n_sum - n_sum.dot(lr) * lr).normalize();
-        let ap = si.cross(lr) * si.cross(lr).dot(ap0).signum();
+        let ap = si.cross(lr) * si.cross(lr).dot(ap1).signum();
         let mut z_mid = 0.5 * (up.0 / up.1 + down.0 / down.1);
         let mut centre = c0 + z_mid * si;
         let (mut y_ant, mut y_post, mut lam) = (0.0, 0.0, None);
@@ -253,6 +257,42 @@ fn arch_front(
                 .find(|&(_, t1)| t1 < y_post - 1.0)
                 .map(|(_, t1)| t1)
         })
+}
+
+/// Of the two principal directions of the body's surface normals in the mid-sagittal plane (the
+/// eigenvectors of `Σ A n nᵀ` over the faces anterior of the posterior wall along `ap0`, within 10 mm of
+/// the plane: for a body's sagittal outline, its endplate and wall directions), the one nearer to
+/// `lr × ap0`: the endplate normal whenever the rough axis is within 45° of it.
+fn body_face_axis(
+    mesh: &TriMesh,
+    normals: &[DVec3],
+    c0: DVec3,
+    lr: DVec3,
+    ap0: DVec3,
+) -> Result<DVec3> {
+    let body0 = most_anterior(mesh, c0, ap0)?;
+    let si0 = lr.cross(ap0);
+    let (mut uu, mut uv, mut vv) = (0.0, 0.0, 0.0);
+    for (i, n) in normals.iter().enumerate() {
+        let [a, b, c] = mesh.corners(i);
+        let g = (a + b + c) / 3.0 - c0;
+        if g.dot(ap0) < body0.0 + 2.0 || g.dot(lr).abs() > 10.0 {
+            continue;
+        }
+        let area = 0.5 * (b - a).cross(c - a).length();
+        let (u, v) = (n.dot(ap0), n.dot(si0));
+        uu += area * u * u;
+        uv += area * u * v;
+        vv += area * v * v;
+    }
+    // Principal angle from the ap0 axis: tan 2θ = 2·uv / (uu − vv); the other is θ + 90°.
+    let theta = 0.5 * (2.0 * uv).atan2(uu - vv);
+    let d1 = (theta.cos(), theta.sin());
+    let d2 = (-theta.sin(), theta.cos());
+    let (u, v) = if d1.1.abs() >= d2.1.abs() { d1 } else { d2 };
+    let si = (u * ap0 + v * si0) * v.signum();
+    si.try_normalize()
+        .ok_or_else(|| Error::Numerical("vertebra frame: no body faces to orient by".into()))
 }
 
 /// The flat superior/inferior faces of the body: their area-weighted normal sum (signed to point along
