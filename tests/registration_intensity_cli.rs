@@ -11,7 +11,7 @@ use glam::DVec3;
 use serde_json::{Value, json};
 use spinedrr::anatomy::{TriMesh, write_mesh};
 use spinedrr::geometry::{CArm, RigidTransform, View, rotation_exp};
-use spinedrr::io::{ImageF32, XrayModel, expected_counts, poisson_counts, write_tiff_f32};
+use spinedrr::io::{ImageF32, expected_counts, poisson_counts, write_tiff_f32};
 use spinedrr::registration::intensity::{binned_view, fixed_image};
 use spinedrr::render::{Backend, RenderScene, SceneMesh};
 
@@ -170,6 +170,9 @@ fn write_problem(dir: &Path, truth: &RigidTransform) -> Value {
     })
 }
 
+/// An edit that breaks a problem file.
+type Edit = Box<dyn Fn(&mut Value)>;
+
 fn register(dir: &Path, problem: &Value) -> (bool, String) {
     std::fs::write(
         dir.join("p.json"),
@@ -217,7 +220,7 @@ fn register_intensity_recovers_the_pose_and_refuses_bad_problems_naming_the_fiel
 
     let wrong_size = ImageF32::zeros(64, 64);
     write_tiff_f32(&d.join("small.tiff"), &wrong_size).unwrap();
-    let bad: Vec<(&str, Box<dyn Fn(&mut Value)>, &str)> = vec![
+    let bad: Vec<(&str, Edit, &str)> = vec![
         (
             "missing fixed",
             Box::new(|p| p["views"][0]["fixed"] = json!("nope.tiff")),

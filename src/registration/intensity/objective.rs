@@ -29,7 +29,7 @@ pub enum MovingDrr {
     /// Closed meshes with μ (the level alone, or the whole anatomy), rendered by a thickness renderer.
     Mesh(MeshDrr),
     /// A CT (optionally masked to the level) rendered by Siddon or trilinear sampling.
-    Volume(VolumeRenderer),
+    Volume(Box<VolumeRenderer>),
 }
 
 /// Fewest triangles a decimated mesh of a coarse level keeps.
@@ -102,7 +102,7 @@ impl MovingDrr {
     fn level(&self, detail: u32) -> Result<LevelRenderer<'_>> {
         Ok(match self {
             MovingDrr::Mesh(m) => LevelRenderer::Mesh(m.at_detail(detail)?),
-            MovingDrr::Volume(v) => LevelRenderer::Volume(v),
+            MovingDrr::Volume(v) => LevelRenderer::Volume(v.as_ref()),
         })
     }
 }

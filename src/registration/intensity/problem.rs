@@ -294,7 +294,7 @@ fn build_anatomy(
             let mask = (scope == MovingScope::Level).then_some(&mask);
             let renderer = VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), mask)?;
             let targets = subsample(&surface.vertices, super::MAX_TARGET_POINTS);
-            Ok((MovingDrr::Volume(renderer), targets))
+            Ok((MovingDrr::Volume(Box::new(renderer)), targets))
         }
     }
 }
