@@ -99,8 +99,7 @@ fn render_photons_writes_a_seeded_radiograph_and_records_the_model() {
         "render",
         "--phantom",
         "L3",
-        "--photons",
-        "-5",
+        "--photons=-5",
         "--out",
         &out("bad.tiff").display().to_string(),
     ]);
