@@ -27,6 +27,7 @@ pub use landmarks::{
 pub use markers::marker_centroid;
 pub use overlap::dice_iou;
 pub use similarity::{gradient_correlation, mutual_information, ncc, ssim};
+pub(crate) use similarity::{sobel_at, three_rows};
 
 /// Maps an OpenCV error to [`crate::Error::External`].
 pub(crate) fn cv_err(e: opencv::Error) -> crate::Error {

@@ -205,7 +205,7 @@ pub fn mutual_information(a: &ImageF32, b: &ImageF32, bins: usize) -> Result<f64
 
 /// Sobel x and y responses at interior pixel `u + 1` of the three rows `r0, r1, r2`.
 #[inline]
-fn sobel_at(r0: &[f32], r1: &[f32], r2: &[f32], u: usize) -> (f64, f64) {
+pub(crate) fn sobel_at(r0: &[f32], r1: &[f32], r2: &[f32], u: usize) -> (f64, f64) {
     let f = |r: &[f32], k: usize| f64::from(r[k]);
     let gx = f(r0, u + 2) - f(r0, u) + 2.0 * (f(r1, u + 2) - f(r1, u)) + f(r2, u + 2) - f(r2, u);
     let gy =
@@ -214,7 +214,7 @@ fn sobel_at(r0: &[f32], r1: &[f32], r2: &[f32], u: usize) -> (f64, f64) {
 }
 
 /// Rows `v, v + 1, v + 2` of an image of width `w`.
-fn three_rows(img: &ImageF32, v: usize, w: usize) -> (&[f32], &[f32], &[f32]) {
+pub(crate) fn three_rows(img: &ImageF32, v: usize, w: usize) -> (&[f32], &[f32], &[f32]) {
     let r = |k: usize| &img.data[(v + k) * w..(v + k + 1) * w];
     (r(0), r(1), r(2))
 }

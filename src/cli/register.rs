@@ -1,5 +1,6 @@
 //! `spinedrr register`: rigid pose of a vertebra from landmark observations (direct LM, two-view
-//! Kabsch, or OpenCV solvePnP), written as `R.json`.
+//! Kabsch, or OpenCV solvePnP), or with `--intensity` from images (DRRs matched to fixed radiographs),
+//! written as `R.json`.
 
 use std::path::PathBuf;
 
@@ -8,6 +9,13 @@ use spinedrr::registration::{LoadedProblem, RegisterOutcome, RegisterRequest, ru
 
 #[derive(clap::Args)]
 pub struct Args {
+    /// Intensity-based registration: --problem is an intensity problem ({"anatomy", "moving"?,
+    /// "views": [{"name", "fixed": "ap.tiff", "K" (assumed), "world_to_camera"}], "init", "truth"?,
+    /// "similarity"?: ncc | gc | gncc | lncc[:P], "levels"?: [8, 4, 2], "global"?, "seed"?}; see the
+    /// README). R.json then holds R, t, similarity, evaluations, seconds, converged (+ rot_err_deg,
+    /// trans_err_mm, mtre_mm with a truth).
+    #[arg(long, conflicts_with_all = ["views", "noise_px", "init_rot_deg", "init_trans_mm"])]
+    intensity: bool,
     /// Problem JSON: {"landmarks_3d": {...}, "views": [{"name", "K", "world_to_camera", "observed"}],
     /// "init"?: {"R", "t"}, "truth"?: {"R", "t"}} (R, t map model to world).
     #[arg(long)]
@@ -43,6 +51,9 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    if a.intensity {
+        return run_intensity(&a);
+    }
     let loaded = LoadedProblem::read(&a.problem)
         .with_context(|| format!("reading problem {}", a.problem.display()))?;
     let req = RegisterRequest {
@@ -94,4 +105,46 @@ fn unconverged_summary(
         s += &format!(", translation error {e:.3} mm");
     }
     s + &format!("; the pose was written to {}", a.out.display())
+}
+
+/// `--intensity`: reads and builds the problem (every input checked before anything is written),
+/// registers, writes R.json.
+fn run_intensity(a: &Args) -> anyhow::Result<()> {
+    use spinedrr::registration::intensity::{LoadedIntensityProblem, run_intensity_problem};
+    let loaded = LoadedIntensityProblem::read(&a.problem)
+        .with_context(|| format!("reading intensity problem {}", a.problem.display()))?;
+    eprintln!(
+        "registering {} view(s) by {} over levels {:?}…",
+        loaded.problem.views.len(),
+        loaded.options.similarity.name(),
+        loaded.options.levels
+    );
+    let out = run_intensity_problem(&loaded)
+        .with_context(|| format!("registering {}", a.problem.display()))?;
+    let text = serde_json::to_string_pretty(&out)?;
+    spinedrr::io::write_atomic_bytes(&a.out, text.as_bytes())
+        .with_context(|| format!("writing {}", a.out.display()))?;
+    let mut summary = format!(
+        "{}: similarity {:.6}, {} evaluations, {:.2} s",
+        a.out.display(),
+        out["similarity"].as_f64().unwrap_or(f64::NAN),
+        out["evaluations"],
+        out["seconds"].as_f64().unwrap_or(f64::NAN)
+    );
+    if let Some(m) = out["mtre_mm"].as_f64() {
+        summary += &format!(", mTRE {m:.3} mm");
+    }
+    eprintln!("{summary}");
+    if out["converged"] != serde_json::Value::Bool(true) {
+        let what =
+            "the intensity registration did not converge (the finest level hit its iteration cap)";
+        if !a.allow_unconverged {
+            bail!(
+                "{what}; the pose was written to {}; pass --allow-unconverged to accept it",
+                a.out.display()
+            );
+        }
+        eprintln!("warning: {what} (accepted: --allow-unconverged)");
+    }
+    Ok(())
 }

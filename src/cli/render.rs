@@ -8,7 +8,9 @@ use glam::DVec3;
 use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
 use spinedrr::geometry::{CArm, Perturbation};
-use spinedrr::io::{DrrProducts, DrrValues, check_output_paths, drr_set_paths, write_drr_set};
+use spinedrr::io::{
+    DrrProducts, DrrValues, XrayModel, check_output_paths, drr_set_paths, write_drr_set,
+};
 use spinedrr::render::{
     Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, orient_outward_warning,
     phantom_scene,
@@ -74,6 +76,25 @@ pub struct Args {
     /// Write I0·exp(−line integral) instead of the line integral (a radiograph look), for meshes and CT.
     #[arg(long, value_name = "I0")]
     intensity: Option<f64>,
+    /// Write a radiograph of the X-ray image model instead: expected counts I0·exp(−L) with I0 photons
+    /// per pixel in air, Poisson quantum noise (seeded by --seed), Gaussian blur --blur-px, and with --log
+    /// −ln(N/I0). The sidecar records the model (details.xray_model).
+    #[arg(long, value_name = "I0", conflicts_with = "intensity")]
+    photons: Option<f64>,
+    /// With --photons: Gaussian detector blur σ (px), applied to the detected counts.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "SIGMA",
+        requires = "photons"
+    )]
+    blur_px: f64,
+    /// With --photons: seed of the Poisson noise (the same seed gives the same image).
+    #[arg(long, default_value_t = 0, value_name = "S", requires = "photons")]
+    seed: u64,
+    /// With --photons: write the log-converted image −ln(N/I0) (a noisy line integral).
+    #[arg(long, requires = "photons")]
+    log: bool,
     /// Render N times and print timing statistics as one JSON line on stderr (meshes, phantom and CT).
     #[arg(long, default_value_t = 1, value_name = "N")]
     repeat: u32,
@@ -101,7 +122,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let rendered = view
         .perturbed(&perturbation)
         .context("applying the perturbation")?;
-    let values = DrrValues::new(a.intensity).context("--intensity")?;
+    let values = match a.photons {
+        Some(i0) => DrrValues::Xray(
+            XrayModel::new(i0, a.blur_px, a.seed, a.log).context("--photons/--blur-px")?,
+        ),
+        None => DrrValues::new(a.intensity).context("--intensity")?,
+    };
     if a.repeat == 0 {
         bail!("invalid --repeat 0: render at least once");
     }

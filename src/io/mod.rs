@@ -7,6 +7,7 @@ mod image;
 mod output_set;
 mod products;
 mod sidecar;
+mod xray;
 
 pub use atomic::{remove_stale_temporaries, write_atomic, write_atomic_bytes, write_json};
 pub use heatmap::{format_label, heatmap_rgb, write_heatmap_png};
@@ -18,3 +19,4 @@ pub use products::{
     write_difference_set, write_drr, write_drr_set, write_masks,
 };
 pub use sidecar::{Sidecar, kind, sidecar_path, units};
+pub use xray::{XrayModel, expected_counts, gaussian_blur, poisson_counts};

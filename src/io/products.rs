@@ -9,6 +9,7 @@ use serde::Serialize;
 use serde_json::json;
 
 use super::output_set::{file_names, folder_of, remove_marker};
+use super::xray::XrayModel;
 use super::{
     ImageF32, Sidecar, check_output_paths, kind, read_tiff_f32, remove_stale_temporaries,
     sidecar_path, units, write_heatmap_png, write_mask_png, write_preview_png, write_tiff_f32,
@@ -23,6 +24,8 @@ pub enum DrrValues {
     LineIntegral,
     /// The transmitted intensity `I = I0 · exp(−L)` (Beer–Lambert), a radiograph's look.
     Intensity { i0: f64 },
+    /// A radiograph of the X-ray image model ([`XrayModel`]: Poisson counts, blur, optional log).
+    Xray(XrayModel),
 }
 
 impl DrrValues {
@@ -43,6 +46,8 @@ impl DrrValues {
         match self {
             DrrValues::LineIntegral => units::LINE_INTEGRAL,
             DrrValues::Intensity { .. } => units::INTENSITY,
+            DrrValues::Xray(m) if m.log => units::XRAY_LOG,
+            DrrValues::Xray(_) => units::XRAY_COUNTS,
         }
     }
 
@@ -58,6 +63,7 @@ impl DrrValues {
                     .collect(),
                 ..*line_integral
             },
+            DrrValues::Xray(m) => m.apply(line_integral),
         }
     }
 }
@@ -120,8 +126,10 @@ pub fn write_drr_set(
     let values = products.values;
     let mut sidecar =
         Sidecar::new(kind::DRR, values.units(), view, perturbation)?.with_details(details)?;
-    if let DrrValues::Intensity { i0 } = values {
-        sidecar = sidecar.with_details(&json!({ "I0": i0 }))?;
+    match values {
+        DrrValues::Intensity { i0 } => sidecar = sidecar.with_details(&json!({ "I0": i0 }))?,
+        DrrValues::Xray(m) => sidecar = sidecar.with_details(&json!({ "xray_model": m }))?,
+        DrrValues::LineIntegral => {}
     }
     let paths = drr_set_paths(out, products.silhouettes, products.depth.is_some());
     check_output_paths(&paths)?;

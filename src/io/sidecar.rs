@@ -30,6 +30,10 @@ pub mod units {
     pub const LINE_INTEGRAL: &str = "line integral ∫μ dl (μ in 1/mm)";
     /// Transmitted intensity by the Beer–Lambert law.
     pub const INTENSITY: &str = "intensity I0·exp(−∫μ dl)";
+    /// Detected photons of the X-ray image model (`crate::io::XrayModel`).
+    pub const XRAY_COUNTS: &str = "detected photons per pixel (I0·exp(−∫μ dl), Poisson, blurred)";
+    /// The log-converted X-ray image model.
+    pub const XRAY_LOG: &str = "−ln(N/I0) of detected photons N (an estimate of ∫μ dl)";
     /// Camera depth of the first surface a ray enters.
     pub const DEPTH_MM: &str = "camera z of the first surface, mm (0 = no surface)";
     /// Silhouette pixels of a mask PNG.

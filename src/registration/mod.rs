@@ -8,6 +8,7 @@
 //! Everything is a pure function of its inputs (no global state, no printing), so a study can run
 //! thousands of registrations in parallel.
 
+pub mod intensity;
 mod kabsch;
 mod lm;
 mod pnp;

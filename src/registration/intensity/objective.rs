@@ -1,0 +1,277 @@
+//! The moving DRR and the cost one resolution level minimises.
+//!
+//! The anatomy is built once (a thickness renderer over its meshes, or a CT volume renderer) in model
+//! coordinates. A DRR at pose `T` (model → world) seen from view `(K, W)` is the DRR of the unmoved
+//! model seen from `(K, W · T)`: the camera moves instead of the anatomy, so nothing is rebuilt per
+//! evaluation (the raster backend only re-projects the vertices).
+//!
+//! Parameters `p = (ρ ω, t)` (six numbers, all in mm-equivalents) act on a base pose `T₀` about the
+//! rotation centre `c = T₀(c_model)` in world coordinates, as in landmark registration:
+//! `T(p) = [Y ↦ exp([ω]×)(Y − c) + c + t] ∘ T₀`, with `ρ` the RMS radius of the target points about
+//! the centre (so a unit of rotation parameter moves the targets by about 1 mm).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use super::similarity::{FixedFeatures, Similarity};
+use crate::anatomy::decimate;
+use crate::geometry::{RigidTransform, View, rotation_exp};
+use crate::io::{ImageF32, gaussian_blur};
+use crate::render::volume::VolumeRenderer;
+use crate::render::{Backend, RenderScene, SceneMesh, ThicknessOptions, ThicknessRenderer};
+use crate::{Error, Result};
+
+/// What the moving DRR is rendered from (built once, model coordinates).
+pub enum MovingDrr {
+    /// Closed meshes with μ (the level alone, or the whole anatomy), rendered by a thickness renderer.
+    Mesh(MeshDrr),
+    /// A CT (optionally masked to the level) rendered by Siddon or trilinear sampling.
+    Volume(Box<VolumeRenderer>),
+}
+
+/// Fewest triangles a decimated mesh of a coarse level keeps.
+const MIN_LOD_TRIANGLES: usize = 500;
+
+/// A mesh scene and its coarser versions for coarse resolution levels: at detail factor `f` (the
+/// level's binning over the finest level's), each mesh decimated to `1/f²` of its triangles (at least
+/// [`MIN_LOD_TRIANGLES`]), built on first use and kept. The finest level always renders the full
+/// meshes, so the final optimum is the full model's.
+pub struct MeshDrr {
+    full: Arc<ThicknessRenderer>,
+    lods: Mutex<Vec<(u32, Arc<ThicknessRenderer>)>>,
+}
+
+impl MeshDrr {
+    pub fn new(renderer: ThicknessRenderer) -> Self {
+        MeshDrr {
+            full: Arc::new(renderer),
+            lods: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// The renderer of detail factor `factor` (1 = the full meshes).
+    pub fn at_detail(&self, factor: u32) -> Result<Arc<ThicknessRenderer>> {
+        if factor <= 1 {
+            return Ok(self.full.clone());
+        }
+        let mut lods = self
+            .lods
+            .lock()
+            .map_err(|_| Error::Internal("level-of-detail cache poisoned".into()))?;
+        if let Some((_, r)) = lods.iter().find(|(f, _)| *f == factor) {
+            return Ok(r.clone());
+        }
+        let div = (factor as usize).pow(2);
+        let meshes = self
+            .full
+            .scene()
+            .meshes
+            .iter()
+            .map(|m| {
+                let n = m.mesh.triangles.len();
+                let target = (n / div).max(MIN_LOD_TRIANGLES);
+                let mesh = if target < n {
+                    Arc::new(decimate(&m.mesh, target)?)
+                } else {
+                    m.mesh.clone()
+                };
+                Ok(SceneMesh { mesh, ..m.clone() })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let r = Arc::new(Backend::Raster.renderer(RenderScene::new(meshes)?)?);
+        lods.push((factor, r.clone()));
+        Ok(r)
+    }
+}
+
+/// The renderer one level uses: a mesh renderer of its detail, or the volume.
+enum LevelRenderer<'a> {
+    Mesh(Arc<ThicknessRenderer>),
+    Volume(&'a VolumeRenderer),
+}
+
+impl MovingDrr {
+    /// The line-integral DRR of the model at `pose` seen from `view` (full detail).
+    pub fn render_at(&self, view: &View, pose: &RigidTransform) -> Result<ImageF32> {
+        self.level(1)?.render_at(view, pose)
+    }
+
+    fn level(&self, detail: u32) -> Result<LevelRenderer<'_>> {
+        Ok(match self {
+            MovingDrr::Mesh(m) => LevelRenderer::Mesh(m.at_detail(detail)?),
+            MovingDrr::Volume(v) => LevelRenderer::Volume(v.as_ref()),
+        })
+    }
+}
+
+impl LevelRenderer<'_> {
+    fn render_at(&self, view: &View, pose: &RigidTransform) -> Result<ImageF32> {
+        let moved = View {
+            world_to_camera: view.world_to_camera.compose(pose),
+            ..view.clone()
+        };
+        match self {
+            LevelRenderer::Mesh(r) => Ok(r
+                .render(&moved, &ThicknessOptions::image_only())?
+                .line_integral),
+            LevelRenderer::Volume(v) => Ok(v.render(&moved)),
+        }
+    }
+}
+
+/// The pose of parameters `p` about world centre `c` applied after `base` (see the module docs).
+pub fn pose_of(p: &[f64; 6], base: &RigidTransform, c: DVec3, rho_mm: f64) -> RigidTransform {
+    let r = rotation_exp(DVec3::new(p[0], p[1], p[2]) / rho_mm);
+    let t = DVec3::new(p[3], p[4], p[5]);
+    RigidTransform {
+        rotation: r * base.rotation,
+        translation: r * (base.translation - c) + c + t,
+    }
+}
+
+/// One view of one level: the binned view with the assumed K and the fixed image's features.
+pub struct LevelView {
+    pub view: View,
+    pub fixed: FixedFeatures,
+    eps: Vec<f64>,
+}
+
+/// A similarity value and the least-squares cost of one pose.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evaluation {
+    /// `Σ_v ‖r_v‖² / V`, which is `2 (1 − S)` when every moving block has energy.
+    pub cost: f64,
+    /// The mean over views of the similarity.
+    pub similarity: f64,
+    pub per_view: Vec<f64>,
+}
+
+/// The cost of one resolution level.
+pub struct Objective<'a> {
+    moving: LevelRenderer<'a>,
+    smooth_px: f64,
+    views: Vec<LevelView>,
+    base: RigidTransform,
+    centre: DVec3,
+    rho_mm: f64,
+    evaluations: AtomicU64,
+}
+
+impl<'a> Objective<'a> {
+    /// The objective of `views` (binned, assumed K) against `fixed` (binned alike) about the model centre
+    /// `centre_model`, starting from `base`, with the moving meshes at detail factor `detail` (see
+    /// [`MeshDrr`]) and both images smoothed by a Gaussian of `smooth_px` (0 = none) before
+    /// comparison. The moving normalisation's regulariser is scaled by the moving-to-fixed energy ratio
+    /// at `base`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        moving: &'a MovingDrr,
+        detail: u32,
+        views: Vec<(View, ImageF32)>,
+        sim: Similarity,
+        smooth_px: f64,
+        base: RigidTransform,
+        centre_model: DVec3,
+        rho_mm: f64,
+    ) -> Result<Self> {
+        let moving = moving.level(detail)?;
+        let mut out = Vec::with_capacity(views.len());
+        for (view, fixed) in views {
+            let fixed = gaussian_blur(&fixed, smooth_px);
+            let f = FixedFeatures::new(sim, &fixed, &format!("views[{}].fixed", view.name))?;
+            let img = gaussian_blur(&moving.render_at(&view, &base)?, smooth_px);
+            let mut scratch = Vec::new();
+            let layout = super::similarity::features(sim, &img, &mut scratch)?;
+            let e = super::similarity::normalise(
+                &mut scratch,
+                &layout,
+                &vec![0.0; layout.blocks.len()],
+            );
+            let moving_energy: f64 = e
+                .iter()
+                .zip(&f.layout.weights)
+                .filter(|(_, w)| **w > 0.0)
+                .map(|(e, _)| e)
+                .sum();
+            if moving_energy <= 0.0 {
+                return Err(Error::invalid(
+                    "init",
+                    format!(
+                        "the anatomy is not visible in view '{}' at the initial pose",
+                        view.name
+                    ),
+                ));
+            }
+            let eps = f.moving_eps(moving_energy / f.used_energy());
+            out.push(LevelView {
+                view,
+                fixed: f,
+                eps,
+            });
+        }
+        Ok(Objective {
+            moving,
+            smooth_px,
+            views: out,
+            base,
+            centre: base.apply(centre_model),
+            rho_mm,
+            // The render at `base` above counts as one evaluation.
+            evaluations: AtomicU64::new(1),
+        })
+    }
+
+    /// The pose of parameters `p`.
+    pub fn pose(&self, p: &[f64; 6]) -> RigidTransform {
+        pose_of(p, &self.base, self.centre, self.rho_mm)
+    }
+
+    /// Evaluations so far (each renders every view once).
+    pub fn evaluations(&self) -> u64 {
+        self.evaluations.load(Ordering::Relaxed)
+    }
+
+    pub fn view_count(&self) -> usize {
+        self.views.len()
+    }
+
+    /// Evaluates `p`; with `residual`, also writes the stacked residual `r_v / √V` of every view.
+    pub fn evaluate(&self, p: &[f64; 6], residual: Option<&mut Vec<f64>>) -> Result<Evaluation> {
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        let pose = self.pose(p);
+        let scale = 1.0 / (self.views.len() as f64).sqrt();
+        let per: Vec<(f64, Vec<f64>)> = self
+            .views
+            .par_iter()
+            .map(|lv| {
+                let img = gaussian_blur(&self.moving.render_at(&lv.view, &pose)?, self.smooth_px);
+                let (mut scratch, mut r) = (Vec::new(), Vec::new());
+                let s = lv.fixed.residual(&img, &lv.eps, &mut scratch, &mut r)?;
+                Ok((s, r))
+            })
+            .collect::<Result<_>>()?;
+        let mut cost = 0.0;
+        let mut per_view = Vec::with_capacity(per.len());
+        let want = residual.is_some();
+        let mut stacked = Vec::new();
+        for (s, r) in per {
+            cost += r.iter().map(|x| x * x).sum::<f64>();
+            per_view.push(s);
+            if want {
+                stacked.extend(r.into_iter().map(|x| x * scale));
+            }
+        }
+        if let Some(out) = residual {
+            *out = stacked;
+        }
+        let n = per_view.len() as f64;
+        Ok(Evaluation {
+            cost: cost / n,
+            similarity: per_view.iter().sum::<f64>() / n,
+            per_view,
+        })
+    }
+}
