@@ -13,7 +13,8 @@
 //! label's largest component meshed at the 0.5 level with 10 Taubin iterations
 //! (`anatomy::ct::label_surface`). Both solids are centred at their volume centroids; "centred" compares
 //! them in the scanner's axes, "aligned" after rotating the real vertebra (±20° about each axis) to the
-//! orientation that overlaps best (`anatomy::morphometry_realism`). For reference the real L1 is also
+//! orientation that overlaps best (`anatomy::morphometry_realism`), "aligned+size" after also scaling the
+//! phantom to the real vertebra's volume. For reference the real L1 is also
 //! compared with the real L2 (adjacent levels of one patient). With `--out`, overlays are written as PNGs
 //! (red: real only, green: phantom only, white: both).
 
@@ -38,7 +39,9 @@ fn main() -> anyhow::Result<()> {
     let (mut dir, mut table, mut out, mut meshes) = (None, None, None, None::<PathBuf>);
     while let Some(a) = args.next() {
         match a.as_str() {
-            "--morphometry" => table = Some(PathBuf::from(args.next().context("--morphometry FILE")?)),
+            "--morphometry" => {
+                table = Some(PathBuf::from(args.next().context("--morphometry FILE")?))
+            }
             "--out" => out = Some(PathBuf::from(args.next().context("--out DIR")?)),
             "--phantom-meshes" => {
                 meshes = Some(PathBuf::from(args.next().context("--phantom-meshes DIR")?))
@@ -67,21 +70,24 @@ fn main() -> anyhow::Result<()> {
     for (level, label) in LEVELS {
         real.push(label_surface(&seg, label, &surface).with_context(|| format!("{level}"))?);
     }
-    println!("pair                      view   centred  aligned");
-    let report = |name: &str, c: &SilhouetteComparison, a: &SilhouetteComparison| {
+    println!("pair                      view   centred  aligned  aligned+size");
+    let report = |name: &str, r: [&SilhouetteComparison; 3]| {
         for (k, v) in SilhouetteView::ALL.iter().enumerate() {
             println!(
-                "{name:<25} {:<6} {:.3}    {:.3}",
+                "{name:<25} {:<6} {:.3}    {:.3}    {:.3}",
                 v.name(),
-                c.dice[k],
-                a.dice[k]
+                r[0].dice[k],
+                r[1].dice[k],
+                r[2].dice[k]
             );
         }
         println!(
-            "{name:<25} mean   {:.3}    {:.3}   (rotation {:.1?}°)",
-            c.mean(),
-            a.mean(),
-            a.rotation_deg.to_array()
+            "{name:<25} mean   {:.3}    {:.3}    {:.3}   (rotation {:.1?}°, scale {:.3})",
+            r[0].mean(),
+            r[1].mean(),
+            r[2].mean(),
+            r[1].rotation_deg.to_array(),
+            r[2].scale
         );
     };
     for ((level, _), r) in LEVELS.iter().zip(&real) {
@@ -98,16 +104,18 @@ fn main() -> anyhow::Result<()> {
             }
         };
         let ph = &ph;
-        let c = compare_silhouettes(ph, r, 0.0);
-        let a = compare_silhouettes(ph, r, MAX_DEG);
-        report(&format!("phantom {level} vs real {level}"), &c, &a);
+        let c = compare_silhouettes(ph, r, 0.0, false);
+        let a = compare_silhouettes(ph, r, MAX_DEG, false);
+        let s = compare_silhouettes(ph, r, MAX_DEG, true);
+        report(&format!("phantom {level} vs real {level}"), [&c, &a, &s]);
         if let Some(o) = &out {
             write_overlays(o, &format!("{level}"), ph, r, a.rotation_deg)?;
         }
     }
-    let c = compare_silhouettes(&real[0], &real[1], 0.0);
-    let a = compare_silhouettes(&real[0], &real[1], MAX_DEG);
-    report("real L1 vs real L2", &c, &a);
+    let c = compare_silhouettes(&real[0], &real[1], 0.0, false);
+    let a = compare_silhouettes(&real[0], &real[1], MAX_DEG, false);
+    let s = compare_silhouettes(&real[0], &real[1], MAX_DEG, true);
+    report("real L1 vs real L2", [&c, &a, &s]);
     Ok(())
 }
 

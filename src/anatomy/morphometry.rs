@@ -164,7 +164,12 @@ impl MorphometryTable {
             within(f("body_height"), m.body_height, 12.0, 45.0)?;
             within(f("pedicle_width"), m.pedicle_width, 3.0, 25.0)?;
             within(f("pedicle_height"), m.pedicle_height, 5.0, 25.0)?;
-            within(f("pedicle_transverse_deg"), m.pedicle_transverse_deg, 0.0, 45.0)?;
+            within(
+                f("pedicle_transverse_deg"),
+                m.pedicle_transverse_deg,
+                0.0,
+                45.0,
+            )?;
             within(f("canal_width"), m.canal_width, 10.0, 40.0)?;
             within(f("canal_depth"), m.canal_depth, 8.0, 30.0)?;
             within(f("spinous_length"), m.spinous_length, 10.0, 50.0)?;
@@ -178,13 +183,28 @@ impl MorphometryTable {
             within(f("superior_facet_deg"), m.superior_facet_deg, 0.0, 80.0)?;
             within(f("inferior_facet_deg"), m.inferior_facet_deg, 0.0, 80.0)?;
             // The pedicles must sit inside the body's upper half.
-            within(f("pedicle_height"), m.pedicle_height, 5.0, m.body_height * 0.8)?;
+            within(
+                f("pedicle_height"),
+                m.pedicle_height,
+                5.0,
+                m.body_height * 0.8,
+            )?;
         }
         let s = &self.shape;
         let f = |k: &str| format!("shape.{k}");
         within(f("body_rim_mm"), s.body_rim_mm, 0.5, 4.0)?;
-        within(f("endplate_concavity_mm"), s.endplate_concavity_mm, 0.0, 3.0)?;
-        within(f("posterior_concavity_mm"), s.posterior_concavity_mm, 0.0, 6.0)?;
+        within(
+            f("endplate_concavity_mm"),
+            s.endplate_concavity_mm,
+            0.0,
+            3.0,
+        )?;
+        within(
+            f("posterior_concavity_mm"),
+            s.posterior_concavity_mm,
+            0.0,
+            6.0,
+        )?;
         within(f("waist"), s.waist, 0.0, 0.15)?;
         within(f("blend_mm"), s.blend_mm, 0.0, 6.0)?;
         within(f("process_rounding_mm"), s.process_rounding_mm, 0.5, 5.0)?;
@@ -193,7 +213,12 @@ impl MorphometryTable {
         within(f("lamina_height_mm"), s.lamina_height_mm, 10.0, 35.0)?;
         within(f("lamina_slope_deg"), s.lamina_slope_deg, 0.0, 60.0)?;
         within(f("spinous_height_mm"), s.spinous_height_mm, 6.0, 30.0)?;
-        within(f("spinous_tip_height_mm"), s.spinous_tip_height_mm, 6.0, 30.0)?;
+        within(
+            f("spinous_tip_height_mm"),
+            s.spinous_tip_height_mm,
+            6.0,
+            30.0,
+        )?;
         within(f("spinous_thickness_mm"), s.spinous_thickness_mm, 3.0, 12.0)?;
         within(
             f("spinous_tip_thickness_mm"),
@@ -202,11 +227,21 @@ impl MorphometryTable {
             15.0,
         )?;
         within(f("spinous_slope_deg"), s.spinous_slope_deg, 0.0, 45.0)?;
-        within(f("transverse_thickness_mm"), s.transverse_thickness_mm, 3.0, 12.0)?;
+        within(
+            f("transverse_thickness_mm"),
+            s.transverse_thickness_mm,
+            3.0,
+            12.0,
+        )?;
         within(f("transverse_tilt_deg"), s.transverse_tilt_deg, 0.0, 40.0)?;
         within(f("facet_width_mm"), s.facet_width_mm, 6.0, 25.0)?;
         within(f("facet_height_mm"), s.facet_height_mm, 6.0, 25.0)?;
-        within(f("articular_thickness_mm"), s.articular_thickness_mm, 3.0, 12.0)?;
+        within(
+            f("articular_thickness_mm"),
+            s.articular_thickness_mm,
+            3.0,
+            12.0,
+        )?;
         within(f("facet_gap_mm"), s.facet_gap_mm, 1.0, 6.0)?;
         Ok(())
     }
@@ -231,14 +266,24 @@ mod tests {
 
     #[test]
     fn bad_tables_name_the_field() {
-        let bad = DEFAULT_MORPHOMETRY_TOML.replacen("endplate_width = 44.5", "endplate_width = -4", 1);
-        let e = MorphometryTable::parse(&bad, "x.toml").unwrap_err().to_string();
-        assert!(e.contains("x.toml") && e.contains("L3.endplate_width"), "{e}");
+        let bad =
+            DEFAULT_MORPHOMETRY_TOML.replacen("endplate_width = 44.5", "endplate_width = -4", 1);
+        let e = MorphometryTable::parse(&bad, "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("x.toml") && e.contains("L3.endplate_width"),
+            "{e}"
+        );
         let bad = DEFAULT_MORPHOMETRY_TOML.replacen("name = \"L4\"", "name = \"L3\"", 1);
-        let e = MorphometryTable::parse(&bad, "x.toml").unwrap_err().to_string();
+        let e = MorphometryTable::parse(&bad, "x.toml")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("twice"), "{e}");
         let bad = DEFAULT_MORPHOMETRY_TOML.replacen("waist =", "waste =", 1);
-        let e = MorphometryTable::parse(&bad, "x.toml").unwrap_err().to_string();
+        let e = MorphometryTable::parse(&bad, "x.toml")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("waste"), "{e}");
     }
 }

@@ -8,7 +8,8 @@
 //! the anatomical ones, a CT vertebra's are the scanner's, so a vertebra tilted in the scanner (lordosis,
 //! scoliosis, patient rotation) is compared after the rotation search, which is a coordinate descent over
 //! rotations about x, y and z (±`max_deg`, steps halving from 4° to 0.5°) maximising the mean of the three
-//! views' Dice.
+//! views' Dice. Optionally the first mesh is scaled to the second's volume first, so a patient larger or
+//! smaller than the morphometry's means is compared by shape.
 
 use glam::{DMat3, DVec2, DVec3};
 
@@ -24,8 +25,11 @@ pub enum SilhouetteView {
 }
 
 impl SilhouetteView {
-    pub const ALL: [SilhouetteView; 3] =
-        [SilhouetteView::Ap, SilhouetteView::Lat, SilhouetteView::Axial];
+    pub const ALL: [SilhouetteView; 3] = [
+        SilhouetteView::Ap,
+        SilhouetteView::Lat,
+        SilhouetteView::Axial,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -127,6 +131,8 @@ pub struct SilhouetteComparison {
     pub dice: [f64; 3],
     /// Rotation applied to the second mesh (about x, y, z in turn, degrees; zero when not aligned).
     pub rotation_deg: DVec3,
+    /// Scale applied to the first mesh (1 unless sizes were matched).
+    pub scale: f64,
 }
 
 impl SilhouetteComparison {
@@ -154,9 +160,21 @@ pub fn rotated(m: &TriMesh, deg: DVec3) -> TriMesh {
 }
 
 /// Silhouette Dice of `a` and `b` in the three views, both centred; when `max_deg > 0`, `b` is also
-/// rotated (about its centroid) to the orientation within ±`max_deg` per axis that maximises the mean.
-pub fn compare_silhouettes(a: &TriMesh, b: &TriMesh, max_deg: f64) -> SilhouetteComparison {
-    let (a, b) = (centred(a), centred(b));
+/// rotated (about its centroid) to the orientation within ±`max_deg` per axis that maximises the mean;
+/// with `match_size`, `a` is first scaled about its centroid to the volume of `b` (shape, not size).
+pub fn compare_silhouettes(
+    a: &TriMesh,
+    b: &TriMesh,
+    max_deg: f64,
+    match_size: bool,
+) -> SilhouetteComparison {
+    let (mut a, b) = (centred(a), centred(b));
+    let scale = if match_size {
+        (solid_moments(&b).0 / solid_moments(&a).0).cbrt()
+    } else {
+        1.0
+    };
+    a.vertices.iter_mut().for_each(|v| *v *= scale);
     let sa: Vec<Silhouette> = SilhouetteView::ALL
         .iter()
         .map(|&v| silhouette(&a, v, GRID, PIXEL_MM))
@@ -196,6 +214,7 @@ pub fn compare_silhouettes(a: &TriMesh, b: &TriMesh, max_deg: f64) -> Silhouette
     SilhouetteComparison {
         dice: best.1,
         rotation_deg: best.0,
+        scale,
     }
 }
 
@@ -205,7 +224,11 @@ mod tests {
 
     #[test]
     fn silhouettes_of_a_box_have_its_face_areas_and_dice_is_one_for_itself() {
-        let m = TriMesh::cuboid("b", DVec3::new(-10.0, -5.0, -3.0), DVec3::new(10.0, 5.0, 3.0));
+        let m = TriMesh::cuboid(
+            "b",
+            DVec3::new(-10.0, -5.0, -3.0),
+            DVec3::new(10.0, 5.0, 3.0),
+        );
         let ap = silhouette(&m, SilhouetteView::Ap, GRID, PIXEL_MM);
         // Pixel edges fall on the box's faces (pixel centres at half-pixel offsets from them): the areas
         // are exact, 20 × 6 and 10 × 6 mm².
@@ -215,18 +238,30 @@ mod tests {
         assert_eq!(dice(&ap, &ap), 1.0);
         // A box and the same box shifted: centring makes them identical.
         let mut moved = m.clone();
-        moved.vertices.iter_mut().for_each(|v| *v += DVec3::new(7.0, -3.0, 2.0));
-        let c = compare_silhouettes(&m, &moved, 0.0);
+        moved
+            .vertices
+            .iter_mut()
+            .for_each(|v| *v += DVec3::new(7.0, -3.0, 2.0));
+        let c = compare_silhouettes(&m, &moved, 0.0, false);
         assert!(c.dice.iter().all(|&d| d > 0.999), "{c:?}");
     }
 
     #[test]
     fn the_rotation_search_undoes_a_tilt() {
-        let m = TriMesh::cuboid("b", DVec3::new(-20.0, -8.0, -4.0), DVec3::new(20.0, 8.0, 4.0));
+        let m = TriMesh::cuboid(
+            "b",
+            DVec3::new(-20.0, -8.0, -4.0),
+            DVec3::new(20.0, 8.0, 4.0),
+        );
         let tilted = rotated(&m, DVec3::new(6.0, 0.0, -8.0));
-        let plain = compare_silhouettes(&m, &tilted, 0.0);
-        let aligned = compare_silhouettes(&m, &tilted, 15.0);
+        let plain = compare_silhouettes(&m, &tilted, 0.0, false);
+        let aligned = compare_silhouettes(&m, &tilted, 15.0, false);
         assert!(aligned.mean() > 0.98 && aligned.mean() > plain.mean() + 0.02);
         assert!((aligned.rotation_deg - DVec3::new(-6.0, 0.0, 8.0)).length() < 1.5);
+        // Size matching: a box and the same box doubled overlap fully once scaled.
+        let mut big = m.clone();
+        big.vertices.iter_mut().for_each(|v| *v *= 2.0);
+        let c = compare_silhouettes(&m, &big, 0.0, true);
+        assert!((c.scale - 2.0).abs() < 1e-9 && c.mean() > 0.99, "{c:?}");
     }
 }

@@ -162,10 +162,7 @@ impl Phantom {
 }
 
 /// Poses of every level from the first to the last requested (see the placement rule).
-fn level_poses(
-    levels: &[Level],
-    opts: &PhantomOptions,
-) -> Vec<(Level, RigidTransform)> {
+fn level_poses(levels: &[Level], opts: &PhantomOptions) -> Vec<(Level, RigidTransform)> {
     let (disc_mm, lordosis_deg) = (opts.disc_mm, opts.lordosis_deg);
     let (first, last) = (levels[0].index(), levels[levels.len() - 1].index());
     let mid = levels[(levels.len() - 1) / 2].index();
@@ -173,9 +170,8 @@ fn level_poses(
         |i: usize| DMat3::from_rotation_x((lordosis_deg * (mid as f64 - i as f64)).to_radians());
     // Endplate centres (inside the concave endplates' rims) are `disc_mm` apart.
     let table = &opts.morphometry;
-    let half_h = |i: usize| {
-        table.level(Level::ALL[i]).body_height / 2.0 - table.shape.endplate_concavity_mm
-    };
+    let half_h =
+        |i: usize| table.level(Level::ALL[i]).body_height / 2.0 - table.shape.endplate_concavity_mm;
     let mut centres = [DVec3::ZERO; 5];
     for i in (first..mid).rev() {
         let (rl, ru) = (tilt(i + 1), tilt(i));

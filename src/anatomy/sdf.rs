@@ -75,7 +75,7 @@ pub enum Shape {
     /// A vertebral body: a prism `|z| ≤ half_h` over the kidney section of [`kidney_distance`]
     /// (half-width `a`, mid-sagittal half-depth `b`, posterior wall concave by `posterior`), rim rounded
     /// by `radius`; the lateral and anterior walls narrow by the fraction `waist` at mid-height
-    /// (scaled by `1 − waist·(1 − (z/half_h)²)`), and each endplate is concave by `concavity` at its
+    /// (scaled by `1 − waist·(1 − (z/half_h)²)²`, flat toward the rims), and each endplate is concave by `concavity` at its
     /// centre, falling to zero at the rim.
     Body {
         a: f64,
@@ -129,7 +129,7 @@ impl Shape {
                 concavity,
             } => {
                 let t = (p.z / half_h).clamp(-1.0, 1.0);
-                let s = 1.0 - waist * (1.0 - t * t);
+                let s = 1.0 - waist * (1.0 - t * t).powi(2);
                 let q = DVec2::new(p.x / s, if p.y > 0.0 { p.y / s } else { p.y });
                 let d2 = kidney_distance(q, a - radius, b - radius, posterior) * s;
                 let rho2 = (p.x / a).powi(2) + (p.y / b).powi(2);

@@ -114,7 +114,7 @@ pub struct VertebraShape {
 /// the pedicle, just behind its posterior end.
 fn joint_centre(m: &Morphometry, s: &ShapeParams) -> DVec2 {
     DVec2::new(
-        m.canal_width / 2.0 + 1.0,
+        m.canal_width / 2.0 + 3.0,
         -m.endplate_depth / 2.0 - s.pedicle_length_mm - 2.0,
     )
 }
@@ -124,7 +124,10 @@ fn joint_centre(m: &Morphometry, s: &ShapeParams) -> DVec2 {
 /// sagittal plane.
 fn facet_axes(side: f64, deg: f64) -> (DVec3, DVec3) {
     let (s, c) = deg.to_radians().sin_cos();
-    (DVec3::new(-side * c, -s, 0.0), DVec3::new(-side * s, c, 0.0))
+    (
+        DVec3::new(-side * c, -s, 0.0),
+        DVec3::new(-side * s, c, 0.0),
+    )
 }
 
 /// A plate centred at `centre`, `half` along (`u`, `n`, `u × n`), edges rounded by `radius` (at most
@@ -179,7 +182,9 @@ impl VertebraShape {
         let m = *table.level(level);
         let s = table.shape;
         // The next level's superior facets meet this level's inferior ones (L5: its own geometry).
-        let below = Level::ALL.get(level.index() + 1).map_or(m, |l| *table.level(*l));
+        let below = Level::ALL
+            .get(level.index() + 1)
+            .map_or(m, |l| *table.level(*l));
         let (d, h) = (m.endplate_depth / 2.0, m.body_height / 2.0);
         let mut parts = vec![(
             Structure::Body,
@@ -202,8 +207,9 @@ impl VertebraShape {
         let isthmus = DVec2::new(m.canal_width / 2.0 + m.pedicle_width / 2.0, -d - lp / 2.0);
         // The laminae meet at the midline behind the canal; the spinolaminar junction is the canal's
         // posterior border there.
-        let z_lamina = h - s.lamina_height_mm / 2.0;
-        let y_lamina = -d - m.canal_depth - s.lamina_thickness_mm / 2.0;
+        // The laminae's upper border 4.5 mm below the upper rim leaves room for the inferior articular
+        // processes of the level above.
+        let z_lamina = h - 4.5 - s.lamina_height_mm / 2.0;
         let slope = s.lamina_slope_deg.to_radians();
         let lamina_up = DVec3::new(0.0, slope.sin(), slope.cos());
         let round = s.process_rounding_mm;
@@ -217,7 +223,10 @@ impl VertebraShape {
             // Axis through the isthmus, running posterolaterally at θ from the sagittal plane.
             let dir = DVec3::new(side * theta.sin(), -theta.cos(), 0.0);
             let c = DVec3::new(side * isthmus.x, isthmus.y, zp);
-            let (t0, t1) = ((-lp / 2.0 - 5.0) / theta.cos(), (lp / 2.0 + 4.0) / theta.cos());
+            let (t0, t1) = (
+                (-lp / 2.0 - 5.0) / theta.cos(),
+                (lp / 2.0 + 4.0) / theta.cos(),
+            );
             parts.push((
                 pedicle,
                 Placed {
@@ -237,7 +246,13 @@ impl VertebraShape {
             pedicle_centres[k] = c + dir * t_mark;
             // Lamina: from the pedicle's posterior end to just past the midline.
             let end = c + dir * (lp / 2.0 / theta.cos());
+            // The oblique bar's anterior face at the midline (its half-thickness over the cosine of its
+            // angle to the coronal plane, plus ~1 mm that the fillet between the two laminae fills) lies on
+            // the canal's posterior border.
             let lam0 = DVec3::new(end.x, end.y, z_lamina);
+            let run = DVec2::new(end.x.abs(), end.y + d + m.canal_depth);
+            let cos_psi = run.x / (run + DVec2::new(0.0, s.lamina_thickness_mm / 2.0)).length();
+            let y_lamina = -d - m.canal_depth - s.lamina_thickness_mm / 2.0 / cos_psi - 1.0;
             let lam1 = DVec3::new(-side * 2.0, y_lamina, z_lamina);
             let lam_half = DVec2::new(s.lamina_thickness_mm / 2.0, s.lamina_height_mm / 2.0);
             parts.push((
@@ -246,7 +261,11 @@ impl VertebraShape {
             ));
             // Transverse process: from the pedicle–lamina junction out to half the span.
             let tilt = s.transverse_tilt_deg.to_radians();
-            let tp0 = DVec3::new(side * (isthmus.x + m.pedicle_width / 2.0 - 2.0), end.y + 1.0, zp);
+            let tp0 = DVec3::new(
+                side * (isthmus.x + m.pedicle_width / 2.0 - 2.0),
+                end.y + 1.0,
+                zp,
+            );
             let reach = m.transverse_span / 2.0 - tp0.x.abs();
             let tp1 = DVec3::new(
                 side * m.transverse_span / 2.0,
@@ -267,12 +286,12 @@ impl VertebraShape {
             let off = s.facet_gap_mm / 2.0 + s.articular_thickness_mm / 2.0;
             let j = joint_centre(&m, &s);
             let (n, u) = facet_axes(side, m.superior_facet_deg);
-            let sup = DVec3::new(side * j.x, j.y, h + 4.0) - n * off;
+            let sup = DVec3::new(side * j.x, j.y, h + 1.0) - n * off;
             parts.push((Structure::Articular, plate(sup, u, n, half, round)));
             // Inferior articular process: medial/posterior of the next level's superior joint.
             let j = joint_centre(&below, &s);
             let (n, u) = facet_axes(side, m.inferior_facet_deg);
-            let inf = DVec3::new(side * j.x, j.y, -h - 3.0) + n * off;
+            let inf = DVec3::new(side * j.x, j.y, -h - 1.0) + n * off;
             parts.push((Structure::Articular, plate(inf, u, n, half, round)));
         }
         // Spinous process: from the spinolaminar junction, posterior and inferior, to a thickened tip.
@@ -316,7 +335,12 @@ impl VertebraShape {
             parts,
             landmarks: BTreeMap::new(),
         };
-        shape.landmarks = shape.place_landmarks(pedicle_centres, tip_centre, sdir);
+        // The spinous tip is the process's most posterior point: the tip ellipsoid's support point in −y.
+        let axes = tip_frame.axes;
+        let u = axes.transpose() * -DVec3::Y;
+        let support = tip_centre + axes * (tip_r * tip_r * u / (tip_r * u).length());
+        let toward_tip = (support - tip_centre).normalize();
+        shape.landmarks = shape.place_landmarks(pedicle_centres, tip_centre, toward_tip);
         shape
     }
 
@@ -325,7 +349,7 @@ impl VertebraShape {
         &self,
         pedicles: [DVec3; 2],
         tip_centre: DVec3,
-        sdir: DVec3,
+        toward_tip: DVec3,
     ) -> BTreeMap<String, DVec3> {
         let m = &self.morphometry;
         let (d, h) = (m.endplate_depth / 2.0, m.body_height / 2.0);
@@ -348,7 +372,10 @@ impl VertebraShape {
             ),
             ("left_pedicle", pedicles[0]),
             ("right_pedicle", pedicles[1]),
-            ("spinous_tip", surface_along(f, tip_centre, sdir, 12.0)),
+            (
+                "spinous_tip",
+                surface_along(f, tip_centre, toward_tip, 12.0),
+            ),
             ("corner_anterior_superior", corner(1.0, 1.0)),
             ("corner_anterior_inferior", corner(1.0, -1.0)),
             ("corner_posterior_superior", corner(-1.0, 1.0)),
