@@ -6,6 +6,7 @@ pub mod decimate;
 pub mod isosurface;
 pub mod labels;
 pub mod landmarks;
+mod level;
 mod mesh;
 pub mod meshio;
 pub mod morphometry;

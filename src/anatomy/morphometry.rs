@@ -7,7 +7,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
-use super::vertebra::Level;
+use super::level::Level;
 use crate::{Error, Result};
 
 /// The embedded default table.
