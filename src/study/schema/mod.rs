@@ -5,8 +5,8 @@
 //!
 //! f64 cells are written with `{}` Display and read back exactly (see [`num`]).
 
-mod calibration;
 pub mod cohort;
+mod calibration;
 pub mod num;
 mod tables;
 
