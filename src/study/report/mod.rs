@@ -2,8 +2,8 @@
 //! made, the products, and the paper's reported figures (`reference/paper-results.toml`, embedded)
 //! beside ours. Writing to a `String` cannot fail, so `writeln!` results are discarded (`let _`).
 
-pub mod cohort;
 mod calibration;
+pub mod cohort;
 mod comparison;
 mod findings;
 pub mod latex;

@@ -5,8 +5,8 @@
 //!
 //! f64 cells are written with `{}` Display and read back exactly (see [`num`]).
 
-pub mod cohort;
 mod calibration;
+pub mod cohort;
 pub mod num;
 mod tables;
 
