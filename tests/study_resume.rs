@@ -6,28 +6,11 @@ use std::path::Path;
 use std::process::Output;
 
 mod common;
-use common::Spinedrr;
+use common::{Spinedrr, csv_tables as tables};
 
 /// Runs `spinedrr ARGS --out OUT`.
 fn spinedrr(args: &[&str], out: &Path) -> Output {
     Spinedrr::new().args(args).arg("--out").arg(out).output()
-}
-
-fn tables(out: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(out.join("tables"))
-        .expect("tables dir")
-        .map(|e| e.expect("entry").path())
-        // The CSV tables (the LaTeX renderings of the paper's tables beside them are report products).
-        .filter(|p| p.extension().is_some_and(|x| x == "csv"))
-        .map(|p| {
-            (
-                p.file_name().unwrap().to_string_lossy().into_owned(),
-                std::fs::read(&p).unwrap(),
-            )
-        })
-        .collect();
-    v.sort();
-    v
 }
 
 #[test]

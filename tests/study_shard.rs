@@ -12,7 +12,7 @@ use spinedrr::study::shard::{Shard, assign, units_of};
 use spinedrr::study::units::enumerate_units;
 
 mod common;
-use common::Spinedrr;
+use common::{Spinedrr, csv_tables};
 
 /// A config from the generated choices: phantom levels, segment, grid sizes, experiments, trials.
 fn config(
@@ -77,22 +77,6 @@ proptest! {
             prop_assert!(a.iter().all(|&s| s < n));
         }
     }
-}
-
-fn csv_tables(out: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(out.join("tables"))
-        .expect("tables dir")
-        .map(|e| e.expect("entry").path())
-        .filter(|p| p.extension().is_some_and(|x| x == "csv"))
-        .map(|p| {
-            (
-                p.file_name().unwrap().to_string_lossy().into_owned(),
-                std::fs::read(&p).unwrap(),
-            )
-        })
-        .collect();
-    v.sort();
-    v
 }
 
 fn study(args: &[&str], out: &Path) -> (bool, String) {

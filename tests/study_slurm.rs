@@ -19,7 +19,7 @@ use spinedrr::study::shard::{Shard, units_of};
 use spinedrr::study::units::enumerate_units;
 
 mod common;
-use common::Spinedrr;
+use common::{Spinedrr, csv_tables};
 
 /// One cluster at a time (they share the Slurm ports and munged).
 static CLUSTER: Mutex<()> = Mutex::new(());
@@ -225,22 +225,6 @@ trials_per_unit = 1
             tables,
         }
     })
-}
-
-fn csv_tables(out: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(out.join("tables"))
-        .expect("tables dir")
-        .map(|e| e.expect("entry").path())
-        .filter(|p| p.extension().is_some_and(|x| x == "csv"))
-        .map(|p| {
-            (
-                p.file_name().unwrap().to_string_lossy().into_owned(),
-                std::fs::read(&p).unwrap(),
-            )
-        })
-        .collect();
-    v.sort();
-    v
 }
 
 /// `spinedrr study --slurm --submit` (4 tasks, 1 CPU each); returns (array job, assemble job).

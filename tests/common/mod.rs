@@ -90,3 +90,21 @@ pub fn stderr(o: &Output) -> String {
 pub fn outcome(o: &Output) -> (bool, String) {
     (o.status.success(), stderr(o))
 }
+
+/// The CSV tables of a study output folder, `(file name, bytes)` sorted by name — what byte-identity
+/// checks compare (the LaTeX renderings beside them are report products).
+pub fn csv_tables(out: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(out.join("tables"))
+        .expect("tables dir")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|x| x == "csv"))
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
