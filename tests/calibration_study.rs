@@ -97,6 +97,7 @@ noise_px = [0.25, 0.5]
 trials = 6
 trials_per_unit = 3
 silhouette_trials = 1
+intensity_trials = 1
 "#,
     )
     .unwrap();
@@ -189,6 +190,44 @@ silhouette_trials = 1
         mean_dice("intrinsic")
     );
     assert!(mean_dice("full") > 0.9, "{}", mean_dice("full"));
+    // intensity_trials = 1: an intensity registration on trial 0 of each (phantom, σ) and protocol.
+    let ireg: Vec<&csv::StringRecord> = rows
+        .iter()
+        .filter(|r| f(r, "ireg_mtre_mm").is_finite())
+        .collect();
+    assert_eq!(ireg.len(), 2 * 2 * 2 * 2);
+    assert!(ireg.iter().all(|r| &r[col("trial")] == "0"));
+    let mut compared = 0;
+    let intrinsic = ireg
+        .iter()
+        .filter(|r| &r[col("protocol")] == "intrinsic")
+        .count();
+    for r in &ireg {
+        let (lm, im) = (f(r, "reg_mtre_mm"), f(r, "ireg_mtre_mm"));
+        match &r[col("protocol")] {
+            // The estimated geometry reproduces the vertebra's projections: both registrations stay put.
+            "full" => assert!(
+                im < 0.5 && lm < 0.5,
+                "full: intensity {im} landmark {lm} mm"
+            ),
+            // K_est alone: both registrations absorb the same projective error into the pose, so the
+            // intensity registration's bias is the landmark registration's, up to what the image
+            // matching weighs differently from 17 landmarks — wherever that optimum lies within a
+            // local registration's reach of the true pose (its capture range, ~15 mm).
+            _ if lm <= 15.0 => {
+                compared += 1;
+                assert!(
+                    (im - lm).abs() <= 0.25 * lm + 0.25,
+                    "intrinsic: intensity {im} vs landmark {lm} mm"
+                );
+            }
+            _ => {}
+        }
+    }
+    assert!(
+        2 * compared >= intrinsic,
+        "{compared} of {intrinsic} compared"
+    );
     let tol = std::fs::read_to_string(out.join("tables/calibration_tolerance.csv")).unwrap();
     assert_eq!(tol.lines().count(), 1 + 2 * 2 * 2 * 3);
     assert!(out.join("tables/calibration_ambiguity.csv").exists());

@@ -71,6 +71,30 @@ pub fn rms(g: &Geometry, images: &[CalibrationImage], bbs: &[DVec3]) -> f64 {
     (r.norm_squared() / r.len().max(1) as f64).sqrt()
 }
 
+/// One observed BB's two Jacobian rows (u, then v): the K part (`fx, fy, cx, cy, s`; the `s` entry is
+/// used only when the skew is free) and the pose part (`δω, δt`).
+fn point_rows(k: &Intrinsics, pose: &RigidTransform, x: DVec3) -> [([f64; 5], [f64; 6]); 2] {
+    let q = pose.rotation * x;
+    let p = q + pose.translation;
+    let iz = 1.0 / p.z;
+    let (xn, yn) = (p.x * iz, p.y * iz);
+    let du = DVec3::new(
+        k.fx * iz,
+        k.skew * iz,
+        -(k.fx * p.x + k.skew * p.y) * iz * iz,
+    );
+    let dv = DVec3::new(0.0, k.fy * iz, -k.fy * p.y * iz * iz);
+    // a · (−[q]× δω) = (q × a) · δω.
+    let pose_row = |a: DVec3| {
+        let w = q.cross(a);
+        [w.x, w.y, w.z, a.x, a.y, a.z]
+    };
+    [
+        ([xn, 0.0, 1.0, 0.0, yn], pose_row(du)),
+        ([0.0, yn, 0.0, 1.0, 0.0], pose_row(dv)),
+    ]
+}
+
 /// The Jacobian `∂ projected / ∂ parameters` (rows as in [`residuals`]).
 pub fn jacobian(
     g: &Geometry,
@@ -80,42 +104,69 @@ pub fn jacobian(
 ) -> DMatrix<f64> {
     let nk = skew.n();
     let mut j = DMatrix::zeros(residual_count(images), unknowns(skew, images.len()));
-    let k = &g.k;
     let mut row = 0;
     for (m, im) in images.iter().enumerate() {
-        let pose = g.poses[m];
         let col = nk + 6 * m;
         for &(i, _) in &im.observed {
-            let q = pose.rotation * bbs[i];
-            let p = q + pose.translation;
-            let iz = 1.0 / p.z;
-            let (xn, yn) = (p.x * iz, p.y * iz);
-            let du = DVec3::new(
-                k.fx * iz,
-                k.skew * iz,
-                -(k.fx * p.x + k.skew * p.y) * iz * iz,
-            );
-            let dv = DVec3::new(0.0, k.fy * iz, -k.fy * p.y * iz * iz);
-            // u: fx, fy, cx, cy, s
-            j[(row, 0)] = xn;
-            j[(row, 2)] = 1.0;
-            j[(row + 1, 1)] = yn;
-            j[(row + 1, 3)] = 1.0;
-            if skew == Skew::Free {
-                j[(row, 4)] = yn;
-            }
-            for (r, a) in [(row, du), (row + 1, dv)] {
-                // a · (−[q]× δω) = (q × a) · δω.
-                let w = q.cross(a);
-                for c in 0..3 {
-                    j[(r, col + c)] = w[c];
-                    j[(r, col + 3 + c)] = a[c];
+            for (kr, pr) in point_rows(&g.k, &g.poses[m], bbs[i]) {
+                for c in 0..nk {
+                    j[(row, c)] = kr[c];
                 }
+                for c in 0..6 {
+                    j[(row, col + c)] = pr[c];
+                }
+                row += 1;
             }
-            row += 2;
         }
     }
     j
+}
+
+/// `JᵀJ` and `Jᵀr` accumulated point by point (each row touches only K and one pose, so this costs a
+/// small fraction of forming the dense `J`), with `r = observed − projected`.
+fn normal_equations(
+    g: &Geometry,
+    images: &[CalibrationImage],
+    bbs: &[DVec3],
+    skew: Skew,
+    r: &DVector<f64>,
+) -> (DMatrix<f64>, DVector<f64>) {
+    let nk = skew.n();
+    let n = unknowns(skew, images.len());
+    let mut jtj = DMatrix::zeros(n, n);
+    let mut jtr = DVector::zeros(n);
+    let mut row = 0;
+    let mut idx = [0usize; 11];
+    let mut val = [0.0f64; 11];
+    for (m, im) in images.iter().enumerate() {
+        let col = nk + 6 * m;
+        for &(i, _) in &im.observed {
+            for (kr, pr) in point_rows(&g.k, &g.poses[m], bbs[i]) {
+                let len = nk + 6;
+                for c in 0..nk {
+                    (idx[c], val[c]) = (c, kr[c]);
+                }
+                for c in 0..6 {
+                    (idx[nk + c], val[nk + c]) = (col + c, pr[c]);
+                }
+                let ri = r[row];
+                for a in 0..len {
+                    jtr[idx[a]] += val[a] * ri;
+                    for b in 0..=a {
+                        jtj[(idx[a], idx[b])] += val[a] * val[b];
+                    }
+                }
+                row += 1;
+            }
+        }
+    }
+    // Mirror the lower triangle (every index pair above was visited with idx[a] ≥ idx[b]).
+    for a in 0..n {
+        for b in 0..a {
+            jtj[(b, a)] = jtj[(a, b)];
+        }
+    }
+    (jtj, jtr)
 }
 
 fn apply(g: &Geometry, delta: &DVector<f64>, skew: Skew) -> Result<Geometry> {
@@ -184,9 +235,7 @@ pub fn refine(
     let mut iterations = 0;
     'outer: while iterations < max_iterations && f > 0.0 {
         iterations += 1;
-        let j = jacobian(&g, images, bbs, skew);
-        let jtj = j.tr_mul(&j);
-        let jtr = j.tr_mul(&r);
+        let (jtj, jtr) = normal_equations(&g, images, bbs, skew, &r);
         loop {
             let mut a = jtj.clone();
             for d in 0..n {
@@ -264,4 +313,87 @@ pub fn view_rms(view: &View, observed: &[(usize, DVec2)], bbs: &[DVec3]) -> f64 
         .map(|&(i, x)| (x - view.project(bbs[i])).length_squared())
         .sum();
     (s / (2 * observed.len()).max(1) as f64).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A skewed K, two poses and BBs off a plane, observed with offsets so that `r ≠ 0`.
+    fn fixture() -> (Geometry, Vec<CalibrationImage>, Vec<DVec3>) {
+        let k = Intrinsics {
+            fx: 4400.0,
+            fy: 4550.0,
+            skew: 3.0,
+            cx: 500.0,
+            cy: 530.0,
+            width: 1024,
+            height: 1024,
+        };
+        let poses = vec![
+            RigidTransform::new(
+                rotation_exp(DVec3::new(0.1, -0.2, 0.05)),
+                DVec3::new(5.0, -3.0, 950.0),
+            ),
+            RigidTransform::new(
+                rotation_exp(DVec3::new(-0.3, 1.2, 0.1)),
+                DVec3::new(-4.0, 2.0, 1010.0),
+            ),
+        ];
+        let bbs: Vec<DVec3> = (0..24)
+            .map(|i| {
+                let a = f64::from(i) * 0.7;
+                DVec3::new(40.0 * a.cos(), 40.0 * a.sin(), f64::from(i) * 3.0 - 30.0)
+            })
+            .collect();
+        let g = Geometry { k, poses };
+        let images = (0..2)
+            .map(|m| {
+                let v = view_of(&g, m);
+                CalibrationImage {
+                    view: format!("v{m}"),
+                    phantom_to_camera: g.poses[m],
+                    phantom_to_world: RigidTransform::IDENTITY,
+                    observed: bbs
+                        .iter()
+                        .enumerate()
+                        .map(|(i, &x)| (i, v.project(x) + DVec2::new(0.3 * (i % 3) as f64, -0.2)))
+                        .collect(),
+                }
+            })
+            .collect();
+        (g, images, bbs)
+    }
+
+    #[test]
+    fn jacobian_matches_central_differences() {
+        let (g, images, bbs) = fixture();
+        let j = jacobian(&g, &images, &bbs, Skew::Free);
+        let n = unknowns(Skew::Free, images.len());
+        for c in 0..n {
+            let h = if c < 5 { 1e-3 } else { 1e-6 };
+            let mut d = DVector::zeros(n);
+            d[c] = h;
+            let plus = residuals(&apply(&g, &d, Skew::Free).unwrap(), &images, &bbs);
+            d[c] = -h;
+            let minus = residuals(&apply(&g, &d, Skew::Free).unwrap(), &images, &bbs);
+            // residual = observed − projected, so ∂projected = −∂residual.
+            let fd = (minus - plus) / (2.0 * h);
+            let err = (&fd - j.column(c)).abs().max();
+            assert!(err <= 1e-5 * fd.abs().max().max(1.0), "column {c}: {err}");
+        }
+    }
+
+    #[test]
+    fn normal_equations_equal_the_dense_products() {
+        let (g, images, bbs) = fixture();
+        for skew in [Skew::Free, Skew::Fixed] {
+            let r = residuals(&g, &images, &bbs);
+            let j = jacobian(&g, &images, &bbs, skew);
+            let (jtj, jtr) = normal_equations(&g, &images, &bbs, skew, &r);
+            let scale = j.tr_mul(&j).abs().max();
+            assert!((jtj - j.tr_mul(&j)).abs().max() <= 1e-12 * scale);
+            assert!((jtr - j.tr_mul(&r)).abs().max() <= 1e-9 * j.tr_mul(&r).abs().max());
+        }
+    }
 }

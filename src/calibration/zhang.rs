@@ -3,11 +3,12 @@
 //! the start OpenCV's `calibrateCamera` refines (with `CALIB_USE_INTRINSIC_GUESS`). Pixels are first
 //! mapped to `[−1, 1]` by the detector's size, which keeps `V` well conditioned.
 
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 
 use super::acquisition::CalibrationImage;
-use crate::geometry::Intrinsics;
+use super::bundle::Geometry;
+use crate::geometry::{Intrinsics, RigidTransform};
 
 /// The homography mapping plate points `(X, Y, 1)` to (normalised) pixels, or `None` if degenerate.
 fn homography(plate: &[(f64, f64)], px: &[(f64, f64)]) -> Option<Matrix3<f64>> {
@@ -75,6 +76,69 @@ pub fn closed_form(
     width: u32,
     height: u32,
 ) -> Option<Intrinsics> {
+    closed_form_with_homographies(images, bbs, width, height).map(|(k, _)| k)
+}
+
+/// Zhang's start of the whole geometry: the closed-form K with its skew set to `skew`, and each image's
+/// plate → camera pose from its homography (Zhang 2000, §3.1: `r₁ = λK⁻¹h₁`, `r₂ = λK⁻¹h₂`,
+/// `r₃ = r₁ × r₂`, `t = λK⁻¹h₃`, the rotation made orthonormal by SVD; the sign puts the plate in front).
+pub fn initial_geometry(
+    images: &[CalibrationImage],
+    bbs: &[DVec3],
+    width: u32,
+    height: u32,
+    skew: f64,
+) -> Option<Geometry> {
+    let (mut k, hs) = closed_form_with_homographies(images, bbs, width, height)?;
+    k.skew = skew;
+    let km = Matrix3::new(k.fx, k.skew, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0);
+    let k_inv = km.try_inverse()?;
+    let mut poses = Vec::with_capacity(hs.len());
+    for h in hs {
+        let (a1, a2, a3) = (
+            k_inv * h.column(0),
+            k_inv * h.column(1),
+            k_inv * h.column(2),
+        );
+        let mut lambda = 1.0 / a1.norm();
+        if (lambda * a3).z < 0.0 {
+            lambda = -lambda;
+        }
+        let (r1, r2) = (lambda * a1, lambda * a2);
+        let q = Matrix3::from_columns(&[r1, r2, r1.cross(&r2)]);
+        let svd = q.svd(true, true);
+        let (u, vt) = (svd.u?, svd.v_t?);
+        let r = u * vt;
+        if r.determinant() < 0.0 {
+            return None;
+        }
+        let t = lambda * a3;
+        let rot = DMat3::from_cols_array(&[
+            r[(0, 0)],
+            r[(1, 0)],
+            r[(2, 0)],
+            r[(0, 1)],
+            r[(1, 1)],
+            r[(2, 1)],
+            r[(0, 2)],
+            r[(1, 2)],
+            r[(2, 2)],
+        ]);
+        if !rot.is_finite() || !t.iter().all(|x| x.is_finite()) {
+            return None;
+        }
+        poses.push(RigidTransform::new(rot, DVec3::new(t.x, t.y, t.z)));
+    }
+    Some(Geometry { k, poses })
+}
+
+/// The closed-form K and each image's pixel homography.
+fn closed_form_with_homographies(
+    images: &[CalibrationImage],
+    bbs: &[DVec3],
+    width: u32,
+    height: u32,
+) -> Option<(Intrinsics, Vec<Matrix3<f64>>)> {
     if images.len() < 3 {
         return None;
     }
@@ -92,6 +156,7 @@ pub fn closed_form(
         1.0,
     );
     let mut vm = DMatrix::<f64>::zeros(2 * images.len(), 6);
+    let mut hs = Vec::with_capacity(images.len());
     for (m, im) in images.iter().enumerate() {
         let plate: Vec<(f64, f64)> = im
             .observed
@@ -104,6 +169,7 @@ pub fn closed_form(
             .map(|&(_, x)| ((x.x + 0.5) * sw - 1.0, (x.y + 0.5) * sh - 1.0))
             .collect();
         let h = homography(&plate, &px)?;
+        hs.push(n_inv * h);
         let (v12, v11, v22) = (v(&h, 0, 1), v(&h, 0, 0), v(&h, 1, 1));
         for c in 0..6 {
             vm[(2 * m, c)] = v12[c];
@@ -133,5 +199,5 @@ pub fn closed_form(
         width,
         height,
     };
-    out.validate().ok().map(|_| out)
+    out.validate().ok().map(|_| (out, hs))
 }

@@ -54,6 +54,9 @@ pub struct CalibrationSection {
     /// Dice and contour distances (a render per view and protocol) for the first this many trials of
     /// each (phantom, σ); the landmark metrics and registration run for every trial.
     pub silhouette_trials: usize,
+    /// An intensity-based registration (AP + LAT, NCC, from the true pose) with the estimated geometry
+    /// for the first this many trials of each (phantom, σ) and protocol (0 = none).
+    pub intensity_trials: usize,
     /// Plate tilt (deg) and poses per view.
     pub tilt_deg: f64,
     pub poses_per_view: usize,
@@ -69,6 +72,7 @@ impl Default for CalibrationSection {
             protocols: vec![Protocol::Intrinsic, Protocol::Full],
             target: None,
             silhouette_trials: 5,
+            intensity_trials: 2,
             tilt_deg: 30.0,
             poses_per_view: 5,
         }

@@ -8,12 +8,14 @@
 //! geometry). Per view and for the first `silhouette_trials` trials: the target's silhouette rendered
 //! with the estimated geometry against the true one (Dice, mean Chamfer, HD95).
 
-use glam::DVec2;
+use glam::{DVec2, DVec3};
 
+use super::calibration_intensity::{IntensityBench, IntensityError, surface_targets};
 use super::{Context, Target};
 use crate::analysis::{Landmark, MaskPair, landmark_shifts, silhouette_metrics};
 use crate::calibration::{CalibrationSetup, TrialResult, run_trial};
 use crate::geometry::{CArm, RigidTransform, View};
+use crate::registration::intensity::mtre_mm;
 use crate::registration::{
     Method, ObservedView, RegistrationOptions, RegistrationProblem, pose_errors, register,
 };
@@ -64,6 +66,14 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
         })
         .collect();
     let needs_silhouettes = cell.first < c.silhouette_trials;
+    let targets = surface_targets(t);
+    let mut intensity = if cell.first < c.intensity_trials {
+        Some(ctx.timings.time(Phase::Scene, 1, || {
+            IntensityBench::new(t, &carm, targets.clone())
+        })?)
+    } else {
+        None
+    };
     let references = if needs_silhouettes {
         carm.views
             .iter()
@@ -84,8 +94,15 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
                 Protocol::Full => &r.views,
             };
             let reg = ctx.timings.time(Phase::Registration, 1, || {
-                registration(&carm, views, &landmarks)
+                registration(&carm, views, &landmarks, &targets)
             });
+            let ireg = match intensity.as_mut() {
+                Some(bench) if trial < c.intensity_trials => {
+                    ctx.timings
+                        .time(Phase::Registration, 1, || bench.register(views))
+                }
+                _ => (f64::NAN, f64::NAN, f64::NAN),
+            };
             for (truth, est) in carm.views.iter().zip(views) {
                 let shifts = landmark_shifts(truth, est, &landmarks);
                 let n = shifts.len().max(1) as f64;
@@ -122,6 +139,7 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
                         chamfer,
                         hd95,
                         reg,
+                        ireg,
                     },
                 ));
             }
@@ -137,7 +155,10 @@ struct RowMetrics {
     dice: f64,
     chamfer: f64,
     hd95: f64,
-    reg: (f64, f64),
+    /// Landmark registration: (rotation error deg, translation error mm, mTRE mm).
+    reg: (f64, f64, f64),
+    /// Intensity registration: (mTRE mm, rotation error deg, translation error mm).
+    ireg: IntensityError,
 }
 
 fn row(
@@ -175,13 +196,22 @@ fn row(
         hd95_px: m.hd95,
         reg_rot_err_deg: m.reg.0,
         reg_trans_err_mm: m.reg.1,
+        reg_mtre_mm: m.reg.2,
+        ireg_mtre_mm: m.ireg.0,
+        ireg_rot_err_deg: m.ireg.1,
+        ireg_trans_err_mm: m.ireg.2,
     }
 }
 
 /// Registers the target's landmarks (seen exactly through the true views) with `views`: direct LM over
-/// every view from the Kabsch start; (rotation error deg, translation error mm) of the pose, whose truth
-/// is the identity. NaN when the solve fails.
-fn registration(carm: &CArm, views: &[View], landmarks: &[Landmark]) -> (f64, f64) {
+/// every view from the Kabsch start; (rotation error deg, translation error mm, mTRE mm over `targets`)
+/// of the pose, whose truth is the identity. NaN when the solve fails.
+fn registration(
+    carm: &CArm,
+    views: &[View],
+    landmarks: &[Landmark],
+    targets: &[DVec3],
+) -> (f64, f64, f64) {
     let problem = RegistrationProblem {
         names: landmarks.iter().map(|l| l.name.clone()).collect(),
         model_points: landmarks.iter().map(|l| l.position).collect(),
@@ -202,9 +232,13 @@ fn registration(carm: &CArm, views: &[View], landmarks: &[Landmark]) -> (f64, f6
     match register(&problem, Method::Direct, &RegistrationOptions::default()) {
         Ok(r) => {
             let e = pose_errors(&r.pose, &RigidTransform::IDENTITY);
-            (e.rot_err_deg, e.trans_err_mm)
+            (
+                e.rot_err_deg,
+                e.trans_err_mm,
+                mtre_mm(&r.pose, &RigidTransform::IDENTITY, targets),
+            )
         }
-        Err(_) => (f64::NAN, f64::NAN),
+        Err(_) => (f64::NAN, f64::NAN, f64::NAN),
     }
 }
 

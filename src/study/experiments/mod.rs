@@ -5,6 +5,7 @@
 //! the output folder is touched), [`Context::build`], [`Context::prepare_references`], [`Context::run`].
 
 mod calibration;
+mod calibration_intensity;
 mod ct;
 mod on_detector;
 mod projection;

@@ -67,6 +67,18 @@ pub struct CalibrationRow {
     pub reg_rot_err_deg: f64,
     #[serde(with = "num")]
     pub reg_trans_err_mm: f64,
+    /// The landmark registration's mTRE over the target's surface points (mm).
+    #[serde(with = "num")]
+    pub reg_mtre_mm: f64,
+    /// Intensity-based registration (AP + LAT, NCC, from the true pose, noise-free fixed images of the
+    /// target through the true views) with this geometry: mTRE over the target's surface points (mm),
+    /// rotation and translation error (NaN for trials beyond `intensity_trials`).
+    #[serde(with = "num")]
+    pub ireg_mtre_mm: f64,
+    #[serde(with = "num")]
+    pub ireg_rot_err_deg: f64,
+    #[serde(with = "num")]
+    pub ireg_trans_err_mm: f64,
 }
 
 /// The calibration tolerance: per phantom, protocol, view and threshold, the detection noise at which

@@ -59,6 +59,9 @@ pub struct CostModel {
     projection: bool,
     /// The target the calibration experiment measures the vertebra on.
     calibration_target: String,
+    /// Intensity registrations of a calibration trial (one per protocol) and how many trials per cell
+    /// run them.
+    calibration_intensity: (usize, usize),
 }
 
 /// The target the calibration experiment measures the vertebra on: the configured one, else the
@@ -82,6 +85,8 @@ const LANDMARKS_PER_LEVEL: f64 = 17.0;
 const TRIAL_MS: f64 = 0.03;
 /// One calibration trial: the estimate and the vertebra's projection-domain metrics under it.
 const CALIBRATION_TRIAL_MS: f64 = 2.0;
+/// One intensity-based registration of a calibration trial (per megapixel of the detector).
+const CALIBRATION_INTENSITY_MS: f64 = 800.0;
 const PHANTOM_LEVEL_MS: f64 = 600.0;
 const CT_LEVEL_MS: f64 = 1500.0;
 const MESH_MS: f64 = 300.0;
@@ -108,6 +113,10 @@ impl CostModel {
             landmarks: cfg.runs(Experiment::Landmarks),
             projection: cfg.runs(Experiment::Projection),
             calibration_target: calibration_target(cfg),
+            calibration_intensity: (
+                cfg.calibration.protocols.len(),
+                cfg.calibration.intensity_trials,
+            ),
         }
     }
 
@@ -148,7 +157,12 @@ impl CostModel {
                 self.render_ms(target) + metrics
             }
             Unit::Registration { count, .. } => TRIAL_MS * *count as f64,
-            Unit::Calibration(c) => CALIBRATION_TRIAL_MS * c.count as f64,
+            Unit::Calibration(c) => {
+                let (protocols, trials) = self.calibration_intensity;
+                let intensity = trials.saturating_sub(c.first).min(c.count) * protocols;
+                CALIBRATION_TRIAL_MS * c.count as f64
+                    + CALIBRATION_INTENSITY_MS * self.megapixels * intensity as f64
+            }
         }
     }
 

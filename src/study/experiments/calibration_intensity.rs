@@ -1,0 +1,107 @@
+//! The calibration experiment's intensity-based registration: the target's DRRs through the **true**
+//! views are the fixed images (noise-free, the target alone), and the pose is registered from the true
+//! pose with DRRs through the **estimated** geometry (AP + LAT summed NCC, Levenberg–Marquardt on the
+//! binned pyramid, no global stage: the question is the bias a calibration error leaves, not the capture
+//! range). Its mTRE is measured on the target's surface points, as the landmark registration's is.
+
+use glam::DVec3;
+
+use super::Target;
+use crate::Result;
+use crate::geometry::{CArm, RigidTransform, View};
+use crate::registration::intensity::{
+    IntensityOptions, IntensityProblem, IntensityView, MAX_TARGET_POINTS, MeshDrr, MovingDrr,
+    mtre_mm, register_intensity, subsample,
+};
+use crate::registration::pose_errors;
+use crate::render::Backend;
+
+/// The finest pyramid level is about this many pixels wide.
+const FINEST_WIDTH_PX: u32 = 512;
+
+/// Binning factors of the registration, coarsest first, relative to the study's detector of `width`
+/// px: the finest about [`FINEST_WIDTH_PX`] wide (1024 px: `[4, 2]`), the coarse one half of it.
+pub fn levels(width: u32) -> Vec<u32> {
+    let finest = (width / FINEST_WIDTH_PX).max(1);
+    vec![2 * finest, finest]
+}
+
+/// The target's surface points (every mesh's vertices, subsampled): where registration error is
+/// measured.
+pub fn surface_targets(t: &Target) -> Vec<DVec3> {
+    let all: Vec<DVec3> = t
+        .renderer
+        .scene()
+        .meshes
+        .iter()
+        .flat_map(|m| m.mesh.vertices.iter().copied())
+        .collect();
+    subsample(&all, MAX_TARGET_POINTS)
+}
+
+/// The moving DRR and the fixed images of one target, built once per work unit: an intensity problem
+/// whose views are swapped for each estimated geometry.
+pub struct IntensityBench {
+    problem: IntensityProblem,
+}
+
+/// Registration error of one geometry: (mTRE mm, rotation error deg, translation error mm).
+pub type IntensityError = (f64, f64, f64);
+
+impl IntensityBench {
+    /// The target's moving DRR (its CT volume when it has one, else its meshes) and its fixed images
+    /// through every true view of `carm`; the mTRE is measured on `targets` (model frame = world: the
+    /// true pose is the identity).
+    pub fn new(t: &Target, carm: &CArm, targets: Vec<DVec3>) -> Result<Self> {
+        let moving = match &t.volume {
+            Some(v) => MovingDrr::Volume(Box::new(v.clone())),
+            None => MovingDrr::Mesh(MeshDrr::new(
+                Backend::Raster.renderer(t.renderer.scene().clone())?,
+            )),
+        };
+        let views = carm
+            .views
+            .iter()
+            .map(|v| {
+                Ok(IntensityView {
+                    view: v.clone(),
+                    fixed: moving.render_at(v, &RigidTransform::IDENTITY)?,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(IntensityBench {
+            problem: IntensityProblem {
+                moving,
+                views,
+                targets,
+            },
+        })
+    }
+
+    /// Registers with `views` (the estimated geometry, one per true view, in the same order); NaN when
+    /// the solve fails.
+    pub fn register(&mut self, views: &[View]) -> IntensityError {
+        for (iv, v) in self.problem.views.iter_mut().zip(views) {
+            iv.view = v.clone();
+        }
+        let width = views
+            .first()
+            .map_or(FINEST_WIDTH_PX, |v| v.intrinsics.width);
+        let opts = IntensityOptions {
+            levels: levels(width),
+            global: false,
+            ..IntensityOptions::default()
+        };
+        match register_intensity(&self.problem, &RigidTransform::IDENTITY, &opts) {
+            Ok(r) => {
+                let e = pose_errors(&r.pose, &RigidTransform::IDENTITY);
+                (
+                    mtre_mm(&r.pose, &RigidTransform::IDENTITY, &self.problem.targets),
+                    e.rot_err_deg,
+                    e.trans_err_mm,
+                )
+            }
+            Err(_) => (f64::NAN, f64::NAN, f64::NAN),
+        }
+    }
+}
