@@ -52,6 +52,21 @@ impl MeshDrr {
         }
     }
 
+    /// Another handle on the same renderers (the full meshes and every level of detail built so far),
+    /// without rebuilding anything: build the levels a schedule needs with [`MeshDrr::at_detail`] first,
+    /// then share one moving DRR between many problems.
+    pub fn share(&self) -> Result<MeshDrr> {
+        let lods = self
+            .lods
+            .lock()
+            .map_err(|_| Error::Internal("level-of-detail cache poisoned".into()))?
+            .clone();
+        Ok(MeshDrr {
+            full: self.full.clone(),
+            lods: Mutex::new(lods),
+        })
+    }
+
     /// The renderer of detail factor `factor` (1 = the full meshes).
     pub fn at_detail(&self, factor: u32) -> Result<Arc<ThicknessRenderer>> {
         if factor <= 1 {

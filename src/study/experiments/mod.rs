@@ -6,6 +6,7 @@
 
 mod calibration;
 mod ct;
+mod intensity;
 mod on_detector;
 mod projection;
 mod registration;
@@ -160,6 +161,8 @@ pub struct Context {
     references: BTreeMap<(String, String), Arc<Reference>>,
     /// Where the time goes (shared with the runner).
     pub timings: Arc<Timings>,
+    /// The levels of the intensity-registration experiment, built once (empty when it does not run).
+    pub intensity: Vec<intensity::IntensityTarget>,
 }
 
 /// The unperturbed render of a target in a view and its marker centroids.
@@ -248,6 +251,11 @@ impl Context {
                     .map_err(|e| Error::Resource(format!("building a metrics thread pool: {e}")))
             })
             .collect::<Result<Vec<_>>>()?;
+        let intensity = if cfg.runs(Experiment::IntensityRegistration) {
+            intensity::prepare(cfg, t)?
+        } else {
+            Vec::new()
+        };
         Ok(Context {
             cfg: cfg.clone(),
             carm,
@@ -257,6 +265,7 @@ impl Context {
             metrics_pools,
             references: BTreeMap::new(),
             timings,
+            intensity,
         })
     }
 
@@ -326,6 +335,7 @@ impl Context {
             }
             Unit::Registration { .. } => registration::run(self, unit),
             Unit::Calibration(c) => calibration::run(self, c),
+            Unit::Intensity(c) => intensity::run(self, c),
         }
     }
 }
