@@ -16,6 +16,7 @@ use std::sync::{Arc, Mutex};
 use glam::DVec3;
 use rayon::prelude::*;
 
+use super::pyramid::binned_image;
 use super::similarity::{FixedFeatures, Similarity};
 use crate::anatomy::decimate;
 use crate::geometry::{RigidTransform, View, rotation_exp};
@@ -167,6 +168,9 @@ pub struct Evaluation {
 /// The cost of one resolution level.
 pub struct Objective<'a> {
     moving: LevelRenderer<'a>,
+    /// The moving DRR is rendered `supersample × supersample` rays per level pixel and box-averaged,
+    /// as the fixed image's binning averages its detector pixels.
+    supersample: u32,
     smooth_px: f64,
     views: Vec<LevelView>,
     base: RigidTransform,
@@ -192,12 +196,49 @@ impl<'a> Objective<'a> {
         centre_model: DVec3,
         rho_mm: f64,
     ) -> Result<Self> {
+        Self::supersampled(
+            moving,
+            detail,
+            1,
+            views,
+            sim,
+            smooth_px,
+            base,
+            centre_model,
+            rho_mm,
+        )
+    }
+
+    /// [`Objective::new`] with the moving DRR rendered through each view binned `supersample` times
+    /// finer (`views` hold those finer views; the fixed images are of the level's size, `supersample`
+    /// times smaller) and box-averaged down to the level: the moving image then samples the anatomy
+    /// as the binned fixed image does, so their optimum is the same sub-pixel pose.
+    #[allow(clippy::too_many_arguments)]
+    pub fn supersampled(
+        moving: &'a MovingDrr,
+        detail: u32,
+        supersample: u32,
+        views: Vec<(View, ImageF32)>,
+        sim: Similarity,
+        smooth_px: f64,
+        base: RigidTransform,
+        centre_model: DVec3,
+        rho_mm: f64,
+    ) -> Result<Self> {
         let moving = moving.level(detail)?;
+        let supersample = supersample.max(1);
         let mut out = Vec::with_capacity(views.len());
         for (view, fixed) in views {
             let fixed = gaussian_blur(&fixed, smooth_px);
             let f = FixedFeatures::new(sim, &fixed, &format!("views[{}].fixed", view.name))?;
-            let img = gaussian_blur(&moving.render_at(&view, &base)?, smooth_px);
+            let first = binned_image(&moving.render_at(&view, &base)?, supersample);
+            if (first.width, first.height) != (fixed.width, fixed.height) {
+                return Err(Error::Internal(format!(
+                    "view '{}': the moving DRR binned by {supersample} is {}×{} px, the fixed image {}×{}",
+                    view.name, first.width, first.height, fixed.width, fixed.height
+                )));
+            }
+            let img = gaussian_blur(&first, smooth_px);
             let mut scratch = Vec::new();
             let layout = super::similarity::features(sim, &img, &mut scratch)?;
             let e = super::similarity::normalise(
@@ -229,6 +270,7 @@ impl<'a> Objective<'a> {
         }
         Ok(Objective {
             moving,
+            supersample,
             smooth_px,
             views: out,
             base,
@@ -262,7 +304,8 @@ impl<'a> Objective<'a> {
             .views
             .par_iter()
             .map(|lv| {
-                let img = gaussian_blur(&self.moving.render_at(&lv.view, &pose)?, self.smooth_px);
+                let img = binned_image(&self.moving.render_at(&lv.view, &pose)?, self.supersample);
+                let img = gaussian_blur(&img, self.smooth_px);
                 let (mut scratch, mut r) = (Vec::new(), Vec::new());
                 let s = lv.fixed.residual(&img, &lv.eps, &mut scratch, &mut r)?;
                 Ok((s, r))

@@ -97,6 +97,11 @@ pub struct IntensityOptions {
     /// flattened so that refinement stopped ~0.2 mm short).
     pub smooth_px: f64,
     pub cmaes: CmaesOptions,
+    /// Rays per level pixel along each axis of the moving DRR (box-averaged, as the fixed image's
+    /// binning averages detector pixels; capped by, and a divisor of, each level's binning; 1 = one ray
+    /// at each binned pixel's centre, whose sampling differs from the binned fixed image's and moves the
+    /// optimum by a fraction of a coarse pixel).
+    pub supersample: u32,
     /// Refinement settings; the finite-difference step is `lm.h · b` at binning `b`.
     pub lm: LmOptions,
 }
@@ -108,6 +113,7 @@ impl Default for IntensityOptions {
             levels: vec![8, 4, 2],
             global: true,
             smooth_px: 1.0,
+            supersample: 4,
             cmaes: CmaesOptions {
                 sigma0: 4.0,
                 lambda: None,
@@ -199,15 +205,21 @@ pub fn register_intensity(
     let mut stages = Vec::new();
     let (mut evaluations, mut last) = (0u64, None);
     for (li, &b) in opts.levels.iter().enumerate() {
+        // The largest factor ≤ opts.supersample that divides the binning.
+        let ss = (1..=opts.supersample.max(1).min(b.max(1)))
+            .rev()
+            .find(|s| b % s == 0)
+            .unwrap_or(1);
         let views = problem
             .views
             .iter()
-            .map(|v| Ok((binned_view(&v.view, b)?, binned_image(&v.fixed, b))))
+            .map(|v| Ok((binned_view(&v.view, b / ss)?, binned_image(&v.fixed, b))))
             .collect::<Result<Vec<_>>>()?;
         let finest = opts.levels[opts.levels.len() - 1].max(1);
-        let obj = Objective::new(
+        let obj = Objective::supersampled(
             &problem.moving,
             (b / finest).max(1),
+            ss,
             views,
             opts.similarity,
             if li + 1 == opts.levels.len() {
