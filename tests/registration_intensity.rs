@@ -127,15 +127,12 @@ fn rate(v: &[f64], below: f64) -> f64 {
 #[test]
 fn exact_at_the_true_k_from_starts_up_to_10_mm() {
     let p = problem(&["ap", "lat"], &Perturbation::NONE, false, None);
-    let mut m = final_mtres(&p, &options(), 40, 10.0, 11);
-    // Every start succeeds (van de Kraats: < 2 mm) and the typical final error is at the 0.05 mm level
-    // (a few starts stall at 0.2–0.8 mm on the finest level; see the notes).
-    assert!(rate(&m, 2.0) >= 0.95, "success {}: {m:?}", rate(&m, 2.0));
-    m.sort_by(f64::total_cmp);
+    let m = final_mtres(&p, &options(), 40, 10.0, 11);
+    // The criterion: ≥ 95 % of 40 seeded starts end at ≤ 0.05 mm.
     assert!(
-        m[m.len() / 2] <= 0.05,
-        "median final mTRE {} mm: {m:?}",
-        m[m.len() / 2]
+        rate(&m, 0.05 + 1e-12) >= 0.95,
+        "≤ 0.05 mm: {} of starts: {m:?}",
+        rate(&m, 0.05 + 1e-12)
     );
 }
 

@@ -139,6 +139,8 @@ pub fn restrict_config(cfg: &StudyConfig, units: &[&Unit]) -> StudyConfig {
             let t = match u {
                 Unit::Projection { target, .. } | Unit::Registration { target, .. } => target,
                 Unit::Calibration(_) => &calibration,
+                // Built from the phantom by the experiment itself.
+                Unit::Intensity(c) => &c.target,
             };
             groups
                 .get(t)

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::config::{CalibrationCell, Experiment, RegistrationMethod, SEGMENT_TARGET, StudyConfig};
+use super::config::{CalibrationCell, Experiment, IntensityCell, RegistrationMethod, SEGMENT_TARGET, StudyConfig};
 use super::schema::{Family, UnitRows};
 use crate::Result;
 use crate::geometry::Perturbation;
@@ -34,6 +34,8 @@ pub enum Unit {
     },
     /// Trials of one (phantom, σ) of the calibration experiment.
     Calibration(CalibrationCell),
+    /// Every start of one initial-mTRE bin of one intensity-registration cell.
+    Intensity(IntensityCell),
 }
 
 impl Unit {
@@ -56,6 +58,7 @@ impl Unit {
                 ..
             } => format!("reg_{target}_{method}_df{df_px}_p{piercing_px}_t{first}"),
             Unit::Calibration(c) => c.id(),
+            Unit::Intensity(c) => c.id(),
         };
         raw.replace('+', "_")
     }
@@ -80,6 +83,7 @@ impl Unit {
                 first + count
             ),
             Unit::Calibration(c) => c.describe(),
+            Unit::Intensity(c) => c.describe(),
         }
     }
 
@@ -95,6 +99,7 @@ impl Unit {
                 ..
             } => format!("reg/{target}/{method}/{df_px}/{piercing_px}"),
             Unit::Calibration(c) => c.seed_key(),
+            Unit::Intensity(c) => c.seed_key(),
             other => other.id(),
         }
     }
@@ -188,6 +193,14 @@ pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
     }
     if cfg.runs(Experiment::Calibration) {
         units.extend(cfg.calibration.cells().into_iter().map(Unit::Calibration));
+    }
+    if cfg.runs(Experiment::IntensityRegistration) {
+        units.extend(
+            cfg.intensity_registration
+                .cells()
+                .into_iter()
+                .map(Unit::Intensity),
+        );
     }
     Ok(units)
 }

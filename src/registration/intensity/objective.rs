@@ -16,12 +16,13 @@ use std::sync::{Arc, Mutex};
 use glam::DVec3;
 use rayon::prelude::*;
 
+use super::pyramid::{binned_image, binned_image_into};
 use super::similarity::{FixedFeatures, Similarity};
 use crate::anatomy::decimate;
 use crate::geometry::{RigidTransform, View, rotation_exp};
 use crate::io::{ImageF32, gaussian_blur};
 use crate::render::volume::VolumeRenderer;
-use crate::render::{Backend, RenderScene, SceneMesh, ThicknessOptions, ThicknessRenderer};
+use crate::render::{Backend, RenderScene, SceneMesh, ThicknessRenderer};
 use crate::{Error, Result};
 
 /// What the moving DRR is rendered from (built once, model coordinates).
@@ -50,6 +51,21 @@ impl MeshDrr {
             full: Arc::new(renderer),
             lods: Mutex::new(Vec::new()),
         }
+    }
+
+    /// Another handle on the same renderers (the full meshes and every level of detail built so far),
+    /// without rebuilding anything: build the levels a schedule needs with [`MeshDrr::at_detail`] first,
+    /// then share one moving DRR between many problems.
+    pub fn share(&self) -> Result<MeshDrr> {
+        let lods = self
+            .lods
+            .lock()
+            .map_err(|_| Error::Internal("level-of-detail cache poisoned".into()))?
+            .clone();
+        Ok(MeshDrr {
+            full: self.full.clone(),
+            lods: Mutex::new(lods),
+        })
     }
 
     /// The renderer of detail factor `factor` (1 = the full meshes).
@@ -109,15 +125,42 @@ impl MovingDrr {
 
 impl LevelRenderer<'_> {
     fn render_at(&self, view: &View, pose: &RigidTransform) -> Result<ImageF32> {
+        let mut out = ImageF32::zeros(0, 0);
+        self.render_into(view, pose, &mut out)?;
+        Ok(out)
+    }
+
+    /// Renders into `out`, reusing its buffer (mesh renderers; the volume renderer returns a new image).
+    fn render_into(&self, view: &View, pose: &RigidTransform, out: &mut ImageF32) -> Result<()> {
         let moved = View {
             world_to_camera: view.world_to_camera.compose(pose),
             ..view.clone()
         };
         match self {
-            LevelRenderer::Mesh(r) => Ok(r
-                .render(&moved, &ThicknessOptions::image_only())?
-                .line_integral),
-            LevelRenderer::Volume(v) => Ok(v.render(&moved)),
+            LevelRenderer::Mesh(r) => {
+                r.render_line_integral_into(&moved, out)?;
+            }
+            LevelRenderer::Volume(v) => *out = v.render(&moved),
+        }
+        Ok(())
+    }
+}
+
+/// The buffers one view's evaluation works in, kept between evaluations.
+struct Buffers {
+    render: ImageF32,
+    binned: ImageF32,
+    features: Vec<f64>,
+    residual: Vec<f64>,
+}
+
+impl Default for Buffers {
+    fn default() -> Self {
+        Buffers {
+            render: ImageF32::zeros(0, 0),
+            binned: ImageF32::zeros(0, 0),
+            features: Vec::new(),
+            residual: Vec::new(),
         }
     }
 }
@@ -152,12 +195,18 @@ pub struct Evaluation {
 /// The cost of one resolution level.
 pub struct Objective<'a> {
     moving: LevelRenderer<'a>,
+    /// The moving DRR is rendered `supersample × supersample` rays per level pixel and box-averaged,
+    /// as the fixed image's binning averages its detector pixels.
+    supersample: u32,
     smooth_px: f64,
     views: Vec<LevelView>,
     base: RigidTransform,
     centre: DVec3,
     rho_mm: f64,
     evaluations: AtomicU64,
+    /// Evaluation buffers, one set taken per view being evaluated and put back afterwards, so the loop
+    /// renders, bins and normalises into memory it already has.
+    buffers: Mutex<Vec<Buffers>>,
 }
 
 impl<'a> Objective<'a> {
@@ -177,12 +226,49 @@ impl<'a> Objective<'a> {
         centre_model: DVec3,
         rho_mm: f64,
     ) -> Result<Self> {
+        Self::supersampled(
+            moving,
+            detail,
+            1,
+            views,
+            sim,
+            smooth_px,
+            base,
+            centre_model,
+            rho_mm,
+        )
+    }
+
+    /// [`Objective::new`] with the moving DRR rendered through each view binned `supersample` times
+    /// finer (`views` hold those finer views; the fixed images are of the level's size, `supersample`
+    /// times smaller) and box-averaged down to the level: the moving image then samples the anatomy
+    /// as the binned fixed image does, so their optimum is the same sub-pixel pose.
+    #[allow(clippy::too_many_arguments)]
+    pub fn supersampled(
+        moving: &'a MovingDrr,
+        detail: u32,
+        supersample: u32,
+        views: Vec<(View, ImageF32)>,
+        sim: Similarity,
+        smooth_px: f64,
+        base: RigidTransform,
+        centre_model: DVec3,
+        rho_mm: f64,
+    ) -> Result<Self> {
         let moving = moving.level(detail)?;
+        let supersample = supersample.max(1);
         let mut out = Vec::with_capacity(views.len());
         for (view, fixed) in views {
             let fixed = gaussian_blur(&fixed, smooth_px);
             let f = FixedFeatures::new(sim, &fixed, &format!("views[{}].fixed", view.name))?;
-            let img = gaussian_blur(&moving.render_at(&view, &base)?, smooth_px);
+            let first = binned_image(&moving.render_at(&view, &base)?, supersample);
+            if (first.width, first.height) != (fixed.width, fixed.height) {
+                return Err(Error::Internal(format!(
+                    "view '{}': the moving DRR binned by {supersample} is {}×{} px, the fixed image {}×{}",
+                    view.name, first.width, first.height, fixed.width, fixed.height
+                )));
+            }
+            let img = gaussian_blur(&first, smooth_px);
             let mut scratch = Vec::new();
             let layout = super::similarity::features(sim, &img, &mut scratch)?;
             let e = super::similarity::normalise(
@@ -214,6 +300,7 @@ impl<'a> Objective<'a> {
         }
         Ok(Objective {
             moving,
+            supersample,
             smooth_px,
             views: out,
             base,
@@ -221,7 +308,41 @@ impl<'a> Objective<'a> {
             rho_mm,
             // The render at `base` above counts as one evaluation.
             evaluations: AtomicU64::new(1),
+            buffers: Mutex::new(Vec::new()),
         })
+    }
+
+    fn take_buffers(&self) -> Buffers {
+        self.buffers
+            .lock()
+            .ok()
+            .and_then(|mut v| v.pop())
+            .unwrap_or_default()
+    }
+
+    fn put_buffers(&self, b: Buffers) {
+        if let Ok(mut v) = self.buffers.lock() {
+            v.push(b);
+        }
+    }
+
+    /// The similarity of one view at `pose`; its residual is left in `b.residual`.
+    fn evaluate_view(&self, lv: &LevelView, pose: &RigidTransform, b: &mut Buffers) -> Result<f64> {
+        self.moving.render_into(&lv.view, pose, &mut b.render)?;
+        let img = if self.supersample > 1 {
+            binned_image_into(&b.render, self.supersample, &mut b.binned);
+            &b.binned
+        } else {
+            &b.render
+        };
+        if self.smooth_px > 0.0 {
+            let img = gaussian_blur(img, self.smooth_px);
+            lv.fixed
+                .residual(&img, &lv.eps, &mut b.features, &mut b.residual)
+        } else {
+            lv.fixed
+                .residual(img, &lv.eps, &mut b.features, &mut b.residual)
+        }
     }
 
     /// The pose of parameters `p`.
@@ -243,29 +364,34 @@ impl<'a> Objective<'a> {
         self.evaluations.fetch_add(1, Ordering::Relaxed);
         let pose = self.pose(p);
         let scale = 1.0 / (self.views.len() as f64).sqrt();
-        let per: Vec<(f64, Vec<f64>)> = self
+        let per: Vec<(f64, Buffers)> = self
             .views
             .par_iter()
             .map(|lv| {
-                let img = gaussian_blur(&self.moving.render_at(&lv.view, &pose)?, self.smooth_px);
-                let (mut scratch, mut r) = (Vec::new(), Vec::new());
-                let s = lv.fixed.residual(&img, &lv.eps, &mut scratch, &mut r)?;
-                Ok((s, r))
+                let mut b = self.take_buffers();
+                let r = self.evaluate_view(lv, &pose, &mut b);
+                match r {
+                    Ok(s) => Ok((s, b)),
+                    Err(e) => {
+                        self.put_buffers(b);
+                        Err(e)
+                    }
+                }
             })
             .collect::<Result<_>>()?;
         let mut cost = 0.0;
         let mut per_view = Vec::with_capacity(per.len());
-        let want = residual.is_some();
-        let mut stacked = Vec::new();
-        for (s, r) in per {
-            cost += r.iter().map(|x| x * x).sum::<f64>();
-            per_view.push(s);
-            if want {
-                stacked.extend(r.into_iter().map(|x| x * scale));
-            }
+        let mut residual = residual;
+        if let Some(out) = residual.as_deref_mut() {
+            out.clear();
         }
-        if let Some(out) = residual {
-            *out = stacked;
+        for (s, b) in per {
+            cost += b.residual.iter().map(|x| x * x).sum::<f64>();
+            per_view.push(s);
+            if let Some(out) = residual.as_deref_mut() {
+                out.extend(b.residual.iter().map(|x| x * scale));
+            }
+            self.put_buffers(b);
         }
         let n = per_view.len() as f64;
         Ok(Evaluation {

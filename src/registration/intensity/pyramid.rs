@@ -46,21 +46,31 @@ pub fn binned_image(img: &ImageF32, b: u32) -> ImageF32 {
     if b <= 1 {
         return img.clone();
     }
+    let mut out = ImageF32::zeros(0, 0);
+    binned_image_into(img, b, &mut out);
+    out
+}
+
+/// [`binned_image`] into `out`, reusing its buffer (`b ≥ 1`; `b = 1` copies).
+pub fn binned_image_into(img: &ImageF32, b: u32, out: &mut ImageF32) {
+    let b = b.max(1);
     let (w, h) = (img.width / b, img.height / b);
-    let (b, fw) = (b as usize, img.width as usize);
-    let mut out = ImageF32::zeros(w, h);
-    let norm = 1.0 / (b * b) as f64;
+    let (bu, fw) = (b as usize, img.width as usize);
+    out.width = w;
+    out.height = h;
+    out.data.clear();
+    out.data.resize(w as usize * h as usize, 0.0);
+    let norm = 1.0 / (bu * bu) as f64;
     for v in 0..h as usize {
         for u in 0..w as usize {
             let mut s = 0.0;
-            for dv in 0..b {
-                let row = &img.data[(v * b + dv) * fw + u * b..][..b];
+            for dv in 0..bu {
+                let row = &img.data[(v * bu + dv) * fw + u * bu..][..bu];
                 s += row.iter().map(|&x| f64::from(x)).sum::<f64>();
             }
             out.data[v * w as usize + u] = (s * norm) as f32;
         }
     }
-    out
 }
 
 #[cfg(test)]

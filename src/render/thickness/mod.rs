@@ -164,6 +164,62 @@ impl ThicknessRenderer {
     /// Renders the scene from `view` (its intrinsics may be perturbed; rays follow them).
     pub fn render(&self, view: &View, opts: &ThicknessOptions) -> Result<ThicknessDrr> {
         view.intrinsics.validate()?;
+        let (w, h) = (view.intrinsics.width, view.intrinsics.height);
+        // Zeroed by the allocator: fresh pages cost nothing until a traced pixel touches them.
+        let n = w as usize * h as usize;
+        let mut li = vec![0f32; n];
+        let mut depth = vec![0f32; if opts.depth { n } else { 0 }];
+        let mut obj = vec![0u64; if opts.masks { n } else { 0 }];
+        let mut st = vec![0u32; if opts.masks { n } else { 0 }];
+        let stats = self.render_buffers(view, opts, &mut li, &mut depth, &mut obj, &mut st)?;
+        let image = |data| ImageF32 {
+            width: w,
+            height: h,
+            data,
+        };
+        Ok(ThicknessDrr {
+            line_integral: image(li),
+            depth: opts.depth.then(|| image(depth)),
+            masks: opts.masks.then_some(Masks {
+                object_bits: obj,
+                structure_bits: st,
+            }),
+            objects: self.scene.objects.clone(),
+            stats,
+        })
+    }
+
+    /// Renders the line integral alone from `view` into `out`, reusing its buffer (resized to the view,
+    /// zeroed, no allocation when it is already large enough): the path of loops that render the same
+    /// scene many times (intensity registration).
+    pub fn render_line_integral_into(&self, view: &View, out: &mut ImageF32) -> Result<RenderStats> {
+        view.intrinsics.validate()?;
+        let (w, h) = (view.intrinsics.width, view.intrinsics.height);
+        out.width = w;
+        out.height = h;
+        out.data.clear();
+        out.data.resize(w as usize * h as usize, 0.0);
+        self.render_buffers(
+            view,
+            &ThicknessOptions::image_only(),
+            &mut out.data,
+            &mut [],
+            &mut [],
+            &mut [],
+        )
+    }
+
+    /// Renders into zeroed buffers of the view's size (`depth`, `obj`, `st` empty unless `opts` asks
+    /// for them).
+    fn render_buffers(
+        &self,
+        view: &View,
+        opts: &ThicknessOptions,
+        li: &mut [f32],
+        depth: &mut [f32],
+        obj: &mut [u64],
+        st: &mut [u32],
+    ) -> Result<RenderStats> {
         let start = Instant::now();
         let cam = Camera::new(view);
         let (w, h) = (cam.width as usize, cam.height as usize);
@@ -184,20 +240,13 @@ impl ThicknessRenderer {
             BandSource::Trace { .. } => TILE as usize,
             BandSource::Raster(r) => r.band_rows(),
         };
-
-        // Zeroed by the allocator: fresh pages cost nothing until a traced pixel touches them.
-        let n = w * h;
-        let mut li = vec![0f32; n];
-        let mut depth = vec![0f32; if opts.depth { n } else { 0 }];
-        let mut obj = vec![0u64; if opts.masks { n } else { 0 }];
-        let mut st = vec![0u32; if opts.masks { n } else { 0 }];
         let band = w * band_rows;
         let n_bands = h.div_ceil(band_rows);
         let stats = li
             .par_chunks_mut(band)
-            .zip(bands(&mut depth, band, n_bands))
-            .zip(bands(&mut obj, band, n_bands))
-            .zip(bands(&mut st, band, n_bands))
+            .zip(bands(depth, band, n_bands))
+            .zip(bands(obj, band, n_bands))
+            .zip(bands(st, band, n_bands))
             .enumerate()
             .map(|(b, (((li, depth), obj), st))| {
                 let out = BandOut {
@@ -209,25 +258,9 @@ impl ThicknessRenderer {
                 self.render_band(&source, &cam, b, band_rows, out, opts)
             })
             .reduce(RenderStats::default, RenderStats::add);
-
-        let stats = RenderStats {
+        Ok(RenderStats {
             render_ms: start.elapsed().as_secs_f64() * 1e3,
             ..stats
-        };
-        let image = |data| ImageF32 {
-            width: cam.width,
-            height: cam.height,
-            data,
-        };
-        Ok(ThicknessDrr {
-            line_integral: image(li),
-            depth: opts.depth.then(|| image(depth)),
-            masks: opts.masks.then_some(Masks {
-                object_bits: obj,
-                structure_bits: st,
-            }),
-            objects: self.scene.objects.clone(),
-            stats,
         })
     }
 

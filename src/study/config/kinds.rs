@@ -24,22 +24,26 @@ pub enum Experiment {
     Registration,
     /// Simulated C-arm calibrations whose errors feed the projection-domain analysis.
     Calibration,
+    /// Intensity-based 2D–3D registration (DRR against fixed image) under perturbed intrinsics.
+    IntensityRegistration,
 }
 
 impl Experiment {
     /// Every experiment.
-    pub const ALL: [Experiment; 4] = [
+    pub const ALL: [Experiment; 5] = [
         Experiment::Projection,
         Experiment::Landmarks,
         Experiment::Registration,
         Experiment::Calibration,
+        Experiment::IntensityRegistration,
     ];
 
     /// The experiments of the default config (calibration runs when asked for).
-    pub const DEFAULT: [Experiment; 3] = [
+    pub const DEFAULT: [Experiment; 4] = [
         Experiment::Projection,
         Experiment::Landmarks,
         Experiment::Registration,
+        Experiment::IntensityRegistration,
     ];
 
     /// The config spelling.
@@ -49,6 +53,7 @@ impl Experiment {
             Experiment::Landmarks => "landmarks",
             Experiment::Registration => "registration",
             Experiment::Calibration => "calibration",
+            Experiment::IntensityRegistration => "intensity-registration",
         }
     }
 }

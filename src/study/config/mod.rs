@@ -17,11 +17,13 @@ use crate::render::volume::VolumeMethod;
 use crate::{Error, Result};
 
 mod calibration;
+mod intensity;
 mod kinds;
 mod limits;
 mod validate;
 
 pub use calibration::{CalibrationCell, CalibrationSection, MAX_CALIBRATION_TRIALS, Protocol};
+pub use intensity::{FixedScope, IntensityCell, IntensitySection, MAX_STARTS_PER_BIN};
 pub use kinds::{Experiment, Family, RegistrationMethod};
 pub use limits::{MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate};
 
@@ -42,6 +44,8 @@ pub struct StudyConfig {
     pub registration: RegistrationConfig,
     /// `[calibration]`: the calibration-in-the-loop experiment.
     pub calibration: CalibrationSection,
+    /// `[intensity_registration]`: intensity-based 2D–3D registration under perturbed intrinsics.
+    pub intensity_registration: IntensitySection,
     /// Δf values (px, focal family) at which difference heatmaps are written.
     pub heatmaps_df_px: Vec<f64>,
 }
@@ -263,6 +267,7 @@ impl Default for StudyConfig {
             perturbations: PerturbationGrid::default(),
             registration: RegistrationConfig::default(),
             calibration: CalibrationSection::default(),
+            intensity_registration: IntensitySection::default(),
             heatmaps_df_px: vec![100.0, 500.0],
         }
     }
@@ -350,9 +355,12 @@ impl StudyConfig {
 
     /// This study's targets, views and settings on the quick grid: 2× binned detector (unless already
     /// coarser), Δf {100, 500}, piercing {0, 50}, registration at Δf {0, 100, 500} × piercing {0, 50} with
-    /// 3 trials — a smoke test of a config before its full run.
+    /// 3 trials, intensity registration of the last view set at Δf {0, 300}, one start in 0–5 mm — a
+    /// smoke test of a config before its full run.
     pub fn with_quick_grid(self) -> Self {
+        let intensity_registration = self.intensity_registration.quick(self.geometry.binning.max(2) / self.geometry.binning.max(1));
         StudyConfig {
+            intensity_registration,
             geometry: GeometrySection {
                 binning: self.geometry.binning.max(2),
                 ..self.geometry

@@ -83,6 +83,10 @@ impl StudyConfig {
         if self.runs(super::Experiment::Calibration) {
             self.calibration.validate()?;
         }
+        if self.runs(super::Experiment::IntensityRegistration) {
+            self.intensity_registration
+                .validate(&carm, &self.geometry.views)?;
+        }
         self.validate_grid_intrinsics(&carm)?;
         self.check_work()
     }

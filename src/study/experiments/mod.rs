@@ -7,6 +7,7 @@
 mod calibration;
 mod calibration_intensity;
 mod ct;
+mod intensity;
 mod on_detector;
 mod projection;
 mod registration;
@@ -161,6 +162,8 @@ pub struct Context {
     references: BTreeMap<(String, String), Arc<Reference>>,
     /// Where the time goes (shared with the runner).
     pub timings: Arc<Timings>,
+    /// The levels of the intensity-registration experiment, built once (empty when it does not run).
+    pub intensity: Vec<intensity::IntensityTarget>,
 }
 
 /// The unperturbed render of a target in a view and its marker centroids.
@@ -249,6 +252,11 @@ impl Context {
                     .map_err(|e| Error::Resource(format!("building a metrics thread pool: {e}")))
             })
             .collect::<Result<Vec<_>>>()?;
+        let intensity = if cfg.runs(Experiment::IntensityRegistration) {
+            intensity::prepare(cfg, t)?
+        } else {
+            Vec::new()
+        };
         Ok(Context {
             cfg: cfg.clone(),
             carm,
@@ -258,6 +266,7 @@ impl Context {
             metrics_pools,
             references: BTreeMap::new(),
             timings,
+            intensity,
         })
     }
 
@@ -327,6 +336,7 @@ impl Context {
             }
             Unit::Registration { .. } => registration::run(self, unit),
             Unit::Calibration(c) => calibration::run(self, c),
+            Unit::Intensity(c) => intensity::run(self, c),
         }
     }
 }

@@ -20,6 +20,7 @@ pub enum Section {
     Landmarks,
     Registration,
     Calibration,
+    Intensity,
 }
 
 /// One figure: `file` (a PNG in `figures/`, with its SVG beside it).

@@ -14,6 +14,7 @@ mod charts;
 pub mod cohort;
 mod composed;
 pub mod heatmap_panel;
+mod intensity;
 mod labels;
 pub mod manifest;
 mod overlap;
@@ -177,6 +178,7 @@ pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<
         entries.extend(cohort::write(&figs, &rows, m.cases.len())?);
     }
     entries.extend(calibration::figures(&figs, tables, &conditions)?);
+    entries.extend(intensity::figures(&figs, tables, &conditions)?);
     manifest::write(&figs, &entries)?;
     let n = std::fs::read_dir(&figs)
         .map_err(|e| Error::io(&figs, e))?

@@ -6,6 +6,7 @@ mod calibration;
 pub mod cohort;
 mod comparison;
 mod findings;
+mod intensity;
 pub mod latex;
 mod layout;
 mod paper;
@@ -66,6 +67,7 @@ configuration is `study.toml`.\n",
         (!tables.landmarks.is_empty(), LANDMARKS),
         (!tables.registration_summary.is_empty(), REGISTRATION),
         (!tables.calibration.is_empty(), calibration::HEADING),
+        (!tables.intensity_summary.is_empty(), intensity::HEADING),
     ];
     let mut headings = vec!["Findings".to_string()];
     if !cfg.anatomy.dataset.is_empty() {
@@ -93,6 +95,7 @@ configuration is `study.toml`.\n",
         registration_section(&mut md, &tables.registration_summary, &paper, &first);
     }
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
+    intensity::section(&mut md, cfg, tables, &figs, &mut n);
     renderers_section(&mut md, cfg);
     layout::products(&mut md, out)?;
     timings_section(&mut md, rows, run);

@@ -7,6 +7,7 @@
 
 mod calibration;
 pub mod cohort;
+mod intensity;
 pub mod num;
 mod tables;
 
@@ -18,6 +19,7 @@ use super::config::RegistrationMethod;
 pub use calibration::{
     CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, TOLERANCE_THRESHOLDS_PX,
 };
+pub use intensity::{IntensityBinRow, IntensityRow, IntensitySummaryRow};
 pub use tables::{StudyTables, TableRow, mean_sd, read_rows, write_rows};
 
 /// Whole-object silhouette, contour and image-similarity metrics (table `projection.csv`).
@@ -174,4 +176,6 @@ pub struct UnitRows {
     pub registration: Vec<RegistrationRow>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub calibration: Vec<CalibrationRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub intensity: Vec<IntensityRow>,
 }

@@ -6,7 +6,8 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use super::{
-    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, LandmarkRow, ProjectionRow,
+    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, IntensityBinRow, IntensityRow,
+    IntensitySummaryRow, LandmarkRow, ProjectionRow,
     RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
 };
 use crate::io::write_atomic_bytes;
@@ -40,6 +41,15 @@ impl TableRow for CalibrationToleranceRow {
 }
 impl TableRow for CalibrationAmbiguityRow {
     const TABLE: &'static str = "calibration_ambiguity";
+}
+impl TableRow for IntensityRow {
+    const TABLE: &'static str = "intensity_registration";
+}
+impl TableRow for IntensityBinRow {
+    const TABLE: &'static str = "intensity_registration_bins";
+}
+impl TableRow for IntensitySummaryRow {
+    const TABLE: &'static str = "intensity_registration_summary";
 }
 
 fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
@@ -80,6 +90,9 @@ pub struct StudyTables {
     pub calibration: Vec<CalibrationRow>,
     pub calibration_tolerance: Vec<CalibrationToleranceRow>,
     pub calibration_ambiguity: Vec<CalibrationAmbiguityRow>,
+    pub intensity: Vec<IntensityRow>,
+    pub intensity_bins: Vec<IntensityBinRow>,
+    pub intensity_summary: Vec<IntensitySummaryRow>,
 }
 
 impl StudyTables {
@@ -93,10 +106,13 @@ impl StudyTables {
             t.landmarks.extend(u.landmarks);
             t.registration.extend(u.registration);
             t.calibration.extend(u.calibration);
+            t.intensity.extend(u.intensity);
         }
         t.registration_summary = summarize_registration(&t.registration);
         t.calibration_tolerance = super::calibration::tolerance(&t.calibration);
         t.calibration_ambiguity = super::calibration::ambiguity(&t.calibration);
+        t.intensity_bins = super::intensity::bins(&t.intensity);
+        t.intensity_summary = super::intensity::summary(&t.intensity);
         t
     }
 
@@ -118,6 +134,9 @@ impl StudyTables {
         put(dir, &self.calibration, &mut n)?;
         put(dir, &self.calibration_tolerance, &mut n)?;
         put(dir, &self.calibration_ambiguity, &mut n)?;
+        put(dir, &self.intensity, &mut n)?;
+        put(dir, &self.intensity_bins, &mut n)?;
+        put(dir, &self.intensity_summary, &mut n)?;
         Ok(n)
     }
 
@@ -133,6 +152,9 @@ impl StudyTables {
             calibration: read_rows(&dir)?,
             calibration_tolerance: read_rows(&dir)?,
             calibration_ambiguity: read_rows(&dir)?,
+            intensity: read_rows(&dir)?,
+            intensity_bins: read_rows(&dir)?,
+            intensity_summary: read_rows(&dir)?,
         })
     }
 }

@@ -62,6 +62,8 @@ pub struct CostModel {
     /// Intensity registrations of a calibration trial (one per protocol) and how many trials per cell
     /// run them.
     calibration_intensity: (usize, usize),
+    /// The intensity registration's finest pyramid binning.
+    intensity_finest_bin: u32,
 }
 
 /// The target the calibration experiment measures the vertebra on: the configured one, else the
@@ -88,6 +90,9 @@ const CALIBRATION_TRIAL_MS: f64 = 2.0;
 /// One intensity-based registration of a calibration trial (per megapixel of the detector).
 const CALIBRATION_INTENSITY_MS: f64 = 800.0;
 const PHANTOM_LEVEL_MS: f64 = 600.0;
+/// One intensity registration per view and 64² px of its finest pyramid level (CMA-ES and LM, a few
+/// hundred DRRs of one vertebra at the coarse levels, release, one core).
+const INTENSITY_START_MS: f64 = 250.0;
 const CT_LEVEL_MS: f64 = 1500.0;
 const MESH_MS: f64 = 300.0;
 
@@ -117,6 +122,12 @@ impl CostModel {
                 cfg.calibration.protocols.len(),
                 cfg.calibration.intensity_trials,
             ),
+            intensity_finest_bin: cfg
+                .intensity_registration
+                .levels
+                .last()
+                .copied()
+                .unwrap_or(1),
         }
     }
 
@@ -163,6 +174,12 @@ impl CostModel {
                 CALIBRATION_TRIAL_MS * c.count as f64
                     + CALIBRATION_INTENSITY_MS * self.megapixels * intensity as f64
             }
+            Unit::Intensity(c) => {
+                let views = c.views.split('+').count() as f64;
+                let finest = f64::from(self.intensity_finest_bin.max(1));
+                let tiles = (self.megapixels * 1e6 / (finest * finest) / 4096.0).max(1.0);
+                INTENSITY_START_MS * views * tiles.sqrt() * c.starts as f64
+            }
         }
     }
 
@@ -175,6 +192,8 @@ impl CostModel {
             }
             Unit::Registration { target, .. } => (self.target(target).0, None),
             Unit::Calibration(_) => (self.target(&self.calibration_target).0, None),
+            // The experiment builds its own levels (with the study's phantom).
+            Unit::Intensity(_) => (InputGroup::Phantom, None),
         }
     }
 
@@ -244,7 +263,7 @@ fn items(model: &CostModel, units: &[Unit], costs: &[f64], n: usize) -> Vec<Item
         let cost: f64 = idx.iter().map(|&i| costs[i]).sum();
         let ref_ms = match &units[idx[0]] {
             Unit::Projection { target, .. } => model.render_ms(target),
-            Unit::Registration { .. } | Unit::Calibration(_) => 0.0,
+            Unit::Registration { .. } | Unit::Calibration(_) | Unit::Intensity(_) => 0.0,
         };
         let pieces = ((cost / limit).ceil() as usize).clamp(1, idx.len());
         let per = idx.len().div_ceil(pieces);

@@ -1,0 +1,296 @@
+//! The intensity-registration experiment: a phantom level's pose registered by matching DRRs rendered
+//! with the **assumed** K (true or perturbed) to fixed images rendered with the true K
+//! ([`crate::registration::intensity`]), from starts spread uniformly in initial mTRE (van de Kraats et
+//! al. 2005). Beside every cell, the landmark registration of the same level under the same assumed K.
+//!
+//! The anatomy is built once per target ([`prepare`]); a unit shares its moving DRR (renderers and
+//! levels of detail, nothing rebuilt), renders the fixed images of its views and runs its starts.
+
+use glam::DVec3;
+
+use super::Context;
+use crate::anatomy::{Level, Phantom, PhantomOptions, build_phantom, parse_levels};
+use crate::geometry::{RigidTransform, View, rotation_log};
+use crate::io::{ImageF32, XrayModel};
+use crate::registration::intensity::{
+    IntensityOptions, IntensityProblem, IntensityView, MeshDrr, MovingDrr, SUCCESS_MTRE_MM,
+    level_alone, level_targets, mtre_mm, phantom_renderer, projected_tre_px, register_intensity,
+    start_at_mtre,
+};
+use crate::registration::{
+    Method, RegistrationOptions, RegistrationProblem, SplitMix64, pose_errors, register,
+};
+use crate::render::{ThicknessOptions, ThicknessRenderer};
+use crate::study::config::{FixedScope, IntensityCell, IntensitySection, StudyConfig};
+use crate::study::schema::{IntensityRow, UnitRows};
+use crate::study::timings::{Phase, Timings};
+use crate::study::units::derive_seed;
+use crate::{Error, Result};
+
+/// The truth: the phantom is built where the views aim.
+const TRUTH: RigidTransform = RigidTransform::IDENTITY;
+
+/// One level prepared for intensity registration.
+pub struct IntensityTarget {
+    pub name: String,
+    /// The level alone (its meshes and the pyramid's levels of detail, built once).
+    moving: MeshDrr,
+    /// What the fixed images show when it is more than the level ([`FixedScope::Anatomy`]).
+    fixed: Option<ThicknessRenderer>,
+    /// The level's cortical surface vertices (subsampled): where the mTRE is measured.
+    pub targets: Vec<DVec3>,
+    pub landmarks: Vec<(String, DVec3)>,
+}
+
+/// Builds each target of `[intensity_registration]`: the level alone (moving DRR, target points,
+/// landmarks) and, for `fixed = "anatomy"`, the whole phantom with discs and soft tissue.
+pub fn prepare(cfg: &StudyConfig, timings: &Timings) -> Result<Vec<IntensityTarget>> {
+    let s = &cfg.intensity_registration;
+    let build = |levels: Vec<Level>, whole: bool| {
+        timings.time(Phase::Anatomy, 1, || {
+            build_phantom(&PhantomOptions {
+                levels,
+                voxel_mm: cfg.anatomy.voxel_mm,
+                discs: whole,
+                soft_tissue: whole,
+                ..PhantomOptions::default()
+            })
+        })
+    };
+    let whole = match s.fixed {
+        FixedScope::Anatomy => Some(build(Level::ALL.to_vec(), true)?),
+        FixedScope::Level => None,
+    };
+    let finest = s.levels.last().copied().unwrap_or(1).max(1);
+    let mut out = Vec::new();
+    for name in &s.targets {
+        let level = *parse_levels(name)?.first().ok_or_else(|| {
+            Error::invalid("intensity_registration.targets", format!("'{name}'"))
+        })?;
+        let own;
+        let phantom: &Phantom = match &whole {
+            Some(w) => w,
+            None => {
+                own = build(vec![level], false)?;
+                &own
+            }
+        };
+        let alone = level_alone(phantom, level)?;
+        let moving = timings.time(Phase::Scene, 1, || -> Result<MeshDrr> {
+            let m = MeshDrr::new(phantom_renderer(&alone)?);
+            for &b in &s.levels {
+                m.at_detail(b / finest)?;
+            }
+            Ok(m)
+        })?;
+        let fixed = match &whole {
+            Some(w) => Some(timings.time(Phase::Scene, 1, || phantom_renderer(w))?),
+            None => None,
+        };
+        let landmarks = alone
+            .landmarks()
+            .into_iter()
+            .flat_map(|set| set.points.into_iter())
+            .collect();
+        out.push(IntensityTarget {
+            name: name.clone(),
+            moving,
+            fixed,
+            targets: level_targets(phantom, level)?,
+            landmarks,
+        });
+    }
+    Ok(out)
+}
+
+/// The fixed image of `t` in the true `view`: the line integral, through the X-ray model (Poisson at
+/// `photons`, blur, log) when `photons > 0`, its noise seeded per (target, view).
+fn fixed_image(ctx: &Context, t: &IntensityTarget, view: &View) -> Result<ImageF32> {
+    let s = &ctx.cfg.intensity_registration;
+    let li = match &t.fixed {
+        Some(r) => r.render(view, &ThicknessOptions::image_only())?.line_integral,
+        None => MovingDrr::Mesh(t.moving.share()?).render_at(view, &TRUTH)?,
+    };
+    if s.photons <= 0.0 {
+        return Ok(li);
+    }
+    let seed = derive_seed(
+        ctx.cfg.seed,
+        &format!("int-fixed/{}/{}", t.name, view.name),
+        0,
+    );
+    Ok(XrayModel::new(s.photons, s.blur_px, seed, true)?.apply(&li))
+}
+
+/// The registration settings of the section (the CMA-ES seeded per start).
+fn options(s: &IntensitySection, seed: u64) -> Result<IntensityOptions> {
+    let d = IntensityOptions::default();
+    Ok(IntensityOptions {
+        similarity: s.similarity()?,
+        levels: s.levels.clone(),
+        global: s.global,
+        cmaes: crate::registration::intensity::CmaesOptions { seed, ..d.cmaes },
+        ..d
+    })
+}
+
+/// mTRE over `targets` of the landmark registration of `landmarks` seen exactly through `truth` views
+/// and solved with `assumed` views (direct LM, started at the truth); NaN when it fails.
+fn landmark_mtre(
+    landmarks: &[(String, DVec3)],
+    truth: &[View],
+    assumed: &[View],
+    targets: &[DVec3],
+) -> f64 {
+    let names = landmarks.iter().map(|(n, _)| n.clone()).collect();
+    let points = landmarks.iter().map(|(_, p)| *p).collect();
+    let solve = || -> Result<RigidTransform> {
+        let observed = RegistrationProblem::synthesize(names, points, truth, &TRUTH)?;
+        let problem = observed.with_intrinsics(|v| {
+            assumed
+                .iter()
+                .find(|a| a.name == v.name)
+                .map(|a| a.intrinsics)
+                .ok_or_else(|| Error::Internal(format!("no assumed view '{}'", v.name)))
+        })?;
+        let opts = RegistrationOptions {
+            init: Some(TRUTH),
+            ..RegistrationOptions::default()
+        };
+        Ok(register(&problem, Method::Direct, &opts)?.pose)
+    };
+    solve().map_or(f64::NAN, |pose| mtre_mm(&pose, &TRUTH, targets))
+}
+
+/// Runs every start of one cell's bin.
+pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
+    let s = &ctx.cfg.intensity_registration;
+    let t = ctx
+        .intensity
+        .iter()
+        .find(|t| t.name == cell.target)
+        .ok_or_else(|| Error::Internal(format!("intensity target '{}' not prepared", cell.target)))?;
+    let truth_views = IntensitySection::view_names(&cell.views)
+        .into_iter()
+        .map(|n| ctx.carm.view(n).cloned())
+        .collect::<Result<Vec<View>>>()?;
+    let pert = cell.perturbation();
+    let assumed = truth_views
+        .iter()
+        .map(|v| v.perturbed(&pert))
+        .collect::<Result<Vec<View>>>()?;
+    let views = truth_views
+        .iter()
+        .zip(&assumed)
+        .map(|(tv, av)| {
+            Ok(IntensityView {
+                fixed: ctx
+                    .timings
+                    .time(Phase::RenderTarget, 1, || fixed_image(ctx, t, tv))?,
+                view: av.clone(),
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let problem = IntensityProblem {
+        moving: MovingDrr::Mesh(t.moving.share()?),
+        views,
+        targets: t.targets.clone(),
+    };
+    let landmark = landmark_mtre(&t.landmarks, &truth_views, &assumed, &t.targets);
+    // The intensity optimum under this K: the registration started at the truth (local stage only).
+    // Its mTRE is the calibration's bias, free of capture failures; a start "reached" it when it ends
+    // within the success radius of it.
+    let optimum = ctx.timings.time(Phase::Registration, 1, || {
+        register_intensity(
+            &problem,
+            &TRUTH,
+            &IntensityOptions {
+                global: false,
+                ..options(s, 0)?
+            },
+        )
+    });
+    let optimum = optimum.ok().map(|r| r.pose);
+    let optimum_mtre = optimum.map_or(f64::NAN, |o| mtre_mm(&o, &TRUTH, &t.targets));
+    let (centre, rho) = (problem.centre(), problem.rho_mm());
+    let key = cell.seed_key();
+    let mut rng = SplitMix64::new(derive_seed(ctx.cfg.seed, &key, 0));
+    let ptre = |name: &str, pose: &RigidTransform| {
+        truth_views
+            .iter()
+            .find(|v| v.name == name)
+            .map_or(f64::NAN, |v| projected_tre_px(v, pose, &TRUTH, &t.targets))
+    };
+    let mut rows = UnitRows::default();
+    for start in 0..cell.starts {
+        let initial = cell.lo_mm + (cell.hi_mm - cell.lo_mm) * rng.uniform();
+        let init = start_at_mtre(&TRUTH, &t.targets, centre, rho, initial, &mut rng);
+        let opts = options(s, derive_seed(ctx.cfg.seed, &key, 1 + start as u64))?;
+        let solved = ctx.timings.time(Phase::Registration, 1, || {
+            register_intensity(&problem, &init, &opts)
+        });
+        // A failed registration is a measurement too: NaN errors, not a lost study.
+        let (pose, similarity, evaluations, converged) = match solved {
+            Ok(r) => (Some(r.pose), r.similarity, r.evaluations, r.converged),
+            Err(_) => (None, f64::NAN, 0, false),
+        };
+        let nan = f64::NAN;
+        let to_optimum = match (&pose, &optimum) {
+            (Some(p), Some(o)) => mtre_mm(p, o, &t.targets),
+            _ => nan,
+        };
+        let (fin, err, rv, tr, pa, pl) = match &pose {
+            Some(p) => (
+                mtre_mm(p, &TRUTH, &t.targets),
+                pose_errors(p, &TRUTH),
+                rotation_log(p.rotation),
+                p.translation,
+                ptre("ap", p),
+                ptre("lat", p),
+            ),
+            None => (
+                nan,
+                pose_errors(&TRUTH, &TRUTH),
+                DVec3::splat(nan),
+                DVec3::splat(nan),
+                nan,
+                nan,
+            ),
+        };
+        let (rot_err_deg, trans_err_mm) = match pose {
+            Some(_) => (err.rot_err_deg, err.trans_err_mm),
+            None => (nan, nan),
+        };
+        rows.intensity.push(IntensityRow {
+            target: cell.target.clone(),
+            views: cell.views.clone(),
+            df_px: cell.df_px,
+            piercing_px: cell.piercing_px,
+            bin: cell.bin,
+            bin_lo_mm: cell.lo_mm,
+            bin_hi_mm: cell.hi_mm,
+            start,
+            initial_mtre_mm: initial,
+            final_mtre_mm: fin,
+            success: fin < SUCCESS_MTRE_MM,
+            rot_err_deg,
+            trans_err_mm,
+            ptre_ap_px: pa,
+            ptre_lat_px: pl,
+            similarity,
+            evaluations,
+            converged,
+            rx: rv.x,
+            ry: rv.y,
+            rz: rv.z,
+            tx_mm: tr.x,
+            ty_mm: tr.y,
+            tz_mm: tr.z,
+            landmark_mtre_mm: landmark,
+            optimum_mtre_mm: optimum_mtre,
+            to_optimum_mm: to_optimum,
+            reached_optimum: to_optimum < SUCCESS_MTRE_MM,
+        });
+    }
+    Ok(rows)
+}

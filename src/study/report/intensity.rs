@@ -1,0 +1,204 @@
+//! The report's intensity-registration section: how the registrations were run, the per-cell summary,
+//! and intensity-based beside landmark registration under the same assumed K, in words computed from
+//! this run's tables.
+
+use std::fmt::Write as _;
+
+use super::layout;
+use crate::registration::intensity::{CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
+use crate::study::config::{FixedScope, StudyConfig};
+use crate::study::figures::{FigureEntry, Section, distinct};
+use crate::study::schema::{IntensitySummaryRow, StudyTables};
+
+/// The section heading.
+pub const HEADING: &str = "Intensity-based registration: DRR against radiograph";
+
+fn num(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "n/a".into()
+    }
+}
+
+/// Writes the section (nothing when the experiment did not run).
+pub fn section(
+    md: &mut String,
+    cfg: &StudyConfig,
+    tables: &StudyTables,
+    figs: &[FigureEntry],
+    n: &mut usize,
+) {
+    let rows = &tables.intensity_summary;
+    if rows.is_empty() {
+        return;
+    }
+    let s = &cfg.intensity_registration;
+    let _ = writeln!(md, "## {HEADING}\n");
+    let fixed = match s.fixed {
+        FixedScope::Level => "the level alone".to_string(),
+        FixedScope::Anatomy => {
+            "the whole phantom (L1–L5, discs, soft tissue), the moving DRR the level alone".to_string()
+        }
+    };
+    let noise = if s.photons > 0.0 {
+        format!(
+            "through the X-ray image model (Poisson noise at I0 = {} photons per pixel, Gaussian blur σ = {} px, log conversion)",
+            s.photons, s.blur_px
+        )
+    } else {
+        "noise-free (the line integrals themselves)".to_string()
+    };
+    let _ = writeln!(
+        md,
+        "The level's pose is registered by matching DRRs rendered with the **assumed** K (true, or \
+perturbed by Δf ∈ {{{}}} px and piercing shifts (p, p), p ∈ {{{}}} px) to fixed images rendered with the \
+true K: {fixed}, {noise}. Similarity {}, summed over the views of a set; pyramid binning {:?} of the study \
+detector{}, then Levenberg–Marquardt at every level. Starts: {} per bin of initial mTRE {:?} mm (uniform \
+in the bin, random direction in the six pose parameters), measured over the level's cortical surface \
+vertices; success = final mTRE < {SUCCESS_MTRE_MM} mm, capture range = the last bin edge of the leading \
+run of bins with ≥ {:.0} % success. Beside each cell: the **landmark** registration of the same level \
+under the same assumed K (direct LM over the same views, the landmarks' exact true-K projections \
+observed, started at the truth), its mTRE over the same target points.\n",
+        list(&s.df_px),
+        list(&s.piercing_px),
+        s.similarity,
+        s.levels,
+        if s.global {
+            ", CMA-ES at the coarsest level"
+        } else {
+            ""
+        },
+        s.starts_per_bin,
+        s.init_mtre_mm,
+        100.0 * CAPTURE_SUCCESS_RATE,
+    );
+    layout::figures(md, figs, Section::Intensity, n);
+    summary_table(md, rows);
+    comparison(md, rows);
+}
+
+fn list(v: &[f64]) -> String {
+    v.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(", ")
+}
+
+fn summary_table(md: &mut String, rows: &[IntensitySummaryRow]) {
+    let _ = writeln!(
+        md,
+        "| target | views | Δf (px) | piercing (px) | starts | success | capture (mm) | final mTRE of successes, mean ± sd (mm) | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+    );
+    for r in rows {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {:.0} % | {} | {} ± {} | {} | {} | {:.0} % | {} | {:.0} |",
+            r.target,
+            r.views,
+            r.df_px,
+            r.piercing_px,
+            r.trials,
+            100.0 * r.success_rate,
+            num(r.capture_range_mm, 1),
+            num(r.final_mtre_mean_mm, 3),
+            num(r.final_mtre_sd_mm, 3),
+            num(r.final_mtre_median_mm, 3),
+            num(r.optimum_mtre_mm, 3),
+            100.0 * r.reached_optimum_rate,
+            num(r.landmark_mtre_mm, 3),
+            r.evaluations_mean
+        );
+    }
+    let _ = writeln!(md);
+}
+
+/// Per target and view set: the floor at the true K, the bias under the largest perturbation, and what
+/// differs from the landmark registration and why.
+fn comparison(md: &mut String, rows: &[IntensitySummaryRow]) {
+    let _ = writeln!(md, "### Intensity beside landmark registration\n");
+    for target in distinct(rows.iter().map(|r| r.target.clone())) {
+        for views in distinct(
+            rows.iter()
+                .filter(|r| r.target == target)
+                .map(|r| r.views.clone()),
+        ) {
+            let cell: Vec<&IntensitySummaryRow> = rows
+                .iter()
+                .filter(|r| r.target == target && r.views == views)
+                .collect();
+            let truth = cell.iter().find(|r| r.df_px == 0.0 && r.piercing_px == 0.0);
+            let worst = cell
+                .iter()
+                .filter(|r| r.df_px != 0.0 || r.piercing_px != 0.0)
+                .max_by(|a, b| a.landmark_mtre_mm.total_cmp(&b.landmark_mtre_mm));
+            let mut words = format!("**{target}, {views}.** ");
+            if let Some(t) = truth {
+                let _ = write!(
+                    words,
+                    "At the true K the landmark registration is exact (mTRE {} mm: noise-free landmarks, \
+started at the truth) while the intensity-based one ends at a median {} mm with {:.0} % of {} starts \
+successful and a capture range of {} mm — its floor is the image comparison's own (the finest pyramid \
+level's pixel size, the optimiser's stopping rules, the start), not the calibration's. ",
+                    num(t.landmark_mtre_mm, 3),
+                    num(t.final_mtre_median_mm, 3),
+                    100.0 * t.success_rate,
+                    t.trials,
+                    num(t.capture_range_mm, 1)
+                );
+                if t.success_rate < 0.5 {
+                    let _ = write!(
+                        words,
+                        "Most starts fail even here: one view constrains the pose along its central ray \
+only through magnification, which the DRR barely shows, so the depth stays where the start put it. "
+                    );
+                }
+            }
+            if let Some(w) = worst {
+                let (i, l) = (w.optimum_mtre_mm, w.landmark_mtre_mm);
+                let _ = write!(
+                    words,
+                    "Under Δf = {} px with piercing ({p}, {p}) px, both started at the truth, the landmark \
+registration ends {} mm from it and the intensity-based one {} mm; from the spread starts the intensity \
+median is {} mm, {:.0} % of them reaching the intensity optimum under this K and {:.0} % within {SUCCESS_MTRE_MM} mm \
+of the truth. ",
+                    w.df_px,
+                    num(l, 3),
+                    num(i, 3),
+                    num(w.final_mtre_median_mm, 3),
+                    100.0 * w.reached_optimum_rate,
+                    100.0 * w.success_rate,
+                    p = w.piercing_px
+                );
+                let floor = truth.map_or(0.0, |t| t.optimum_mtre_mm.max(0.0));
+                let ratio = i / l;
+                if !(ratio.is_finite() && l > 0.0) {
+                    let _ = write!(words, "The two cannot be compared in this cell. ");
+                } else if (i - l).abs() <= floor.max(0.1 * l) {
+                    let _ = write!(
+                        words,
+                        "The two biases agree (within 10 % or the intensity registration's floor at the \
+true K): the calibration error, not the way the pose is measured, sets the error — a wrong K moves both \
+optima to the pose whose projection through it best matches the true projections, and the level's \
+landmarks and its projected density agree on that pose. "
+                    );
+                } else {
+                    let _ = write!(
+                        words,
+                        "The intensity bias is {:.2}× the landmark one. A wrong K cannot be absorbed \
+exactly by a rigid pose (a focal error scales points at different depths differently, a piercing shift \
+is a rotation about the source only to first order), so each method settles on a compromise weighted by \
+what it matches: the landmark registration by a handful of points, the image similarity by every edge \
+and density of the projected vertebra; the two compromises differ by the difference of those weights. ",
+                        ratio
+                    );
+                }
+                if w.reached_optimum_rate > w.success_rate + 0.25 {
+                    let _ = write!(
+                        words,
+                        "Most starts do converge — to the biased optimum: under this K a failure by the \
+{SUCCESS_MTRE_MM} mm criterion is the calibration's bias, not a lost capture. "
+                    );
+                }
+            }
+            let _ = writeln!(md, "{words}\n");
+        }
+    }
+}
