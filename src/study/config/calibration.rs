@@ -72,7 +72,7 @@ impl Default for CalibrationSection {
             protocols: vec![Protocol::Intrinsic, Protocol::Full],
             target: None,
             silhouette_trials: 5,
-            intensity_trials: 2,
+            intensity_trials: 1,
             tilt_deg: 30.0,
             poses_per_view: 5,
         }

@@ -1,8 +1,14 @@
 //! The calibration experiment's intensity-based registration: the target's DRRs through the **true**
 //! views are the fixed images (noise-free, the target alone), and the pose is registered from the true
-//! pose with DRRs through the **estimated** geometry (AP + LAT summed NCC, Levenberg–Marquardt on the
-//! binned pyramid, no global stage: the question is the bias a calibration error leaves, not the capture
-//! range). Its mTRE is measured on the target's surface points, as the landmark registration's is.
+//! pose with DRRs through the **estimated** geometry (AP + LAT summed NCC, Levenberg–Marquardt on a
+//! two-level pyramid, no global stage: the question is the bias a calibration error leaves, not the
+//! capture range). Its mTRE is measured on the target's surface points, as the landmark registration's
+//! is.
+//!
+//! Both images are rendered on the registration's finest grid (the study's detector binned to about
+//! [`FINEST_WIDTH_PX`] wide, K scaled with it), one ray per pixel centre, so that at the true K the
+//! fixed and the moving DRR are sampled alike and the optimum is exactly the true pose — without the
+//! supersampled moving DRR the library needs when it bins a full-resolution fixed image.
 
 use glam::DVec3;
 
@@ -11,7 +17,7 @@ use crate::Result;
 use crate::geometry::{CArm, RigidTransform, View};
 use crate::registration::intensity::{
     IntensityOptions, IntensityProblem, IntensityView, MAX_TARGET_POINTS, MeshDrr, MovingDrr,
-    mtre_mm, register_intensity, subsample,
+    binned_view, mtre_mm, register_intensity, subsample,
 };
 use crate::registration::pose_errors;
 use crate::render::Backend;
@@ -19,12 +25,14 @@ use crate::render::Backend;
 /// The finest pyramid level is about this many pixels wide.
 const FINEST_WIDTH_PX: u32 = 512;
 
-/// Binning factors of the registration, coarsest first, relative to the study's detector of `width`
-/// px: the finest about [`FINEST_WIDTH_PX`] wide (1024 px: `[4, 2]`), the coarse one half of it.
-pub fn levels(width: u32) -> Vec<u32> {
-    let finest = (width / FINEST_WIDTH_PX).max(1);
-    vec![2 * finest, finest]
+/// The binning of the study's detector of `width` px that gives the registration's finest grid (about
+/// [`FINEST_WIDTH_PX`] wide; 1024 px: 2).
+pub fn finest_bin(width: u32) -> u32 {
+    (width / FINEST_WIDTH_PX).max(1)
 }
+
+/// The pyramid, relative to the finest grid: half of it, then itself.
+const LEVELS: [u32; 2] = [2, 1];
 
 /// The target's surface points (every mesh's vertices, subsampled): where registration error is
 /// measured.
@@ -42,6 +50,8 @@ pub fn surface_targets(t: &Target) -> Vec<DVec3> {
 /// The moving DRR and the fixed images of one target, built once per work unit: an intensity problem
 /// whose views are swapped for each estimated geometry.
 pub struct IntensityBench {
+    /// The study detector's binning to the finest grid.
+    bin: u32,
     problem: IntensityProblem,
 }
 
@@ -53,6 +63,7 @@ impl IntensityBench {
     /// through every true view of `carm`; the mTRE is measured on `targets` (model frame = world: the
     /// true pose is the identity).
     pub fn new(t: &Target, carm: &CArm, targets: Vec<DVec3>) -> Result<Self> {
+        let bin = finest_bin(carm.views.first().map_or(1, |v| v.intrinsics.width));
         let moving = match &t.volume {
             Some(v) => MovingDrr::Volume(Box::new(v.clone())),
             None => MovingDrr::Mesh(MeshDrr::new(
@@ -63,13 +74,13 @@ impl IntensityBench {
             .views
             .iter()
             .map(|v| {
-                Ok(IntensityView {
-                    view: v.clone(),
-                    fixed: moving.render_at(v, &RigidTransform::IDENTITY)?,
-                })
+                let view = binned_view(v, bin)?;
+                let fixed = moving.render_at(&view, &RigidTransform::IDENTITY)?;
+                Ok(IntensityView { view, fixed })
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(IntensityBench {
+            bin,
             problem: IntensityProblem {
                 moving,
                 views,
@@ -82,14 +93,15 @@ impl IntensityBench {
     /// the solve fails.
     pub fn register(&mut self, views: &[View]) -> IntensityError {
         for (iv, v) in self.problem.views.iter_mut().zip(views) {
-            iv.view = v.clone();
+            match binned_view(v, self.bin) {
+                Ok(b) => iv.view = b,
+                Err(_) => return (f64::NAN, f64::NAN, f64::NAN),
+            }
         }
-        let width = views
-            .first()
-            .map_or(FINEST_WIDTH_PX, |v| v.intrinsics.width);
         let opts = IntensityOptions {
-            levels: levels(width),
+            levels: LEVELS.to_vec(),
             global: false,
+            supersample: 1,
             ..IntensityOptions::default()
         };
         match register_intensity(&self.problem, &RigidTransform::IDENTITY, &opts) {
