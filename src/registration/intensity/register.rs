@@ -264,7 +264,7 @@ pub fn register_intensity(
             // pocket a fraction of a pixel from the optimum. Once more with a step 8× wider (the
             // difference averages over the kinks), then with the fine step again; each kept only if
             // it lowers the cost.
-            for mult in [32.0, 4.0, 1.0] {
+            for mult in [8.0, 1.0] {
                 let before = obj.evaluations();
                 let q = refine(
                     &obj,
