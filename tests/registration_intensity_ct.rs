@@ -21,7 +21,7 @@ const TRUTH: RigidTransform = RigidTransform::IDENTITY;
 const L3_TOTALSEG: u16 = 29;
 
 #[test]
-fn a_masked_ct_level_registers_exactly_at_the_true_k() {
+fn a_masked_ct_level_registers_at_the_true_k() {
     let phantom = build_phantom(&PhantomOptions {
         levels: vec![Level::L3],
         voxel_mm: 1.0,
