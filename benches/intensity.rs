@@ -5,11 +5,11 @@
 //! evaluation counts of the registrations (per stage) are printed once.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use spinedrr::anatomy::{Level, PhantomOptions, build_phantom};
-use spinedrr::geometry::{CArm, Perturbation, RigidTransform};
-use spinedrr::registration::SplitMix64;
 use spinedrr::anatomy::ct::{SurfaceOptions, VoxelMask, label_surface};
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
+use spinedrr::anatomy::{Level, PhantomOptions, build_phantom};
+use spinedrr::geometry::{CArm, RigidTransform};
+use spinedrr::registration::SplitMix64;
 use spinedrr::registration::intensity::{
     IntensityOptions, IntensityProblem, IntensityView, MovingDrr, MovingScope, Objective,
     Similarity, binned_image, binned_view, fixed_image, level_alone, level_targets, mtre_mm,
@@ -61,9 +61,52 @@ fn ct_problem(carm: &CArm) -> IntensityProblem {
     }
 }
 
-/// Registers `problem` from a start at mTRE 10 mm and prints what it took.
+/// Registers `problem` from a start at mTRE 10 mm and prints what it took; returns the start.
 fn report(what: &str, problem: &IntensityProblem, opts: &IntensityOptions) -> RigidTransform {
     let truth = RigidTransform::IDENTITY;
+    let init = start_at_mtre(
+        &truth,
+        &problem.targets,
+        problem.centre(),
+        problem.rho_mm(),
+        10.0,
+        &mut SplitMix64::new(1),
+    );
+    let r = register_intensity(problem, &init, opts).unwrap();
+    eprintln!(
+        "{what} from 10 mm: {} evaluations ({} renders), {:.2} s, final mTRE {:.4} mm, stages {:?}",
+        r.evaluations,
+        r.renders,
+        r.seconds,
+        mtre_mm(&r.pose, &truth, &problem.targets),
+        r.stages
+            .iter()
+            .map(|s| (s.bin, s.stage, s.evaluations))
+            .collect::<Vec<_>>()
+    );
+    init
+}
+
+fn bench(c: &mut Criterion) {
+    let phantom = build_phantom(&PhantomOptions::default()).unwrap();
+    let fixed_r = phantom_renderer(&level_alone(&phantom, Level::L3).unwrap()).unwrap();
+    let carm = CArm::default_paper();
+    let truth = RigidTransform::IDENTITY;
+    let views: Vec<IntensityView> = ["ap", "lat"]
+        .iter()
+        .map(|n| {
+            let v = carm.view(n).unwrap().clone();
+            IntensityView {
+                fixed: fixed_image(&fixed_r, &v, &truth, None).unwrap(),
+                view: v,
+            }
+        })
+        .collect();
+    let problem = IntensityProblem {
+        moving: phantom_moving(&phantom, Level::L3, MovingScope::Level).unwrap(),
+        views,
+        targets: level_targets(&phantom, Level::L3).unwrap(),
+    };
     let opts = IntensityOptions::default();
     let init = report("AP+LAT L3 (meshes)", &problem, &opts);
     let ct = ct_problem(&carm);
@@ -104,9 +147,10 @@ fn report(what: &str, problem: &IntensityProblem, opts: &IntensityOptions) -> Ri
             problem.rho_mm(),
         )
         .unwrap();
-        g.bench_function(format!("one AP+LAT evaluation at bin {bin} ({ss}×{ss} rays per pixel)"), |b| {
-            b.iter(|| obj.evaluate(&[0.1, 0.0, 0.0, 0.0, 0.2, 0.0], None).unwrap())
-        });
+        g.bench_function(
+            format!("one AP+LAT evaluation at bin {bin} ({ss}×{ss} rays per pixel)"),
+            |b| b.iter(|| obj.evaluate(&[0.1, 0.0, 0.0, 0.0, 0.2, 0.0], None).unwrap()),
+        );
     }
     g.finish();
 }

@@ -85,14 +85,22 @@ fn intensity_study_tables_agree_with_the_library_and_resume_byte_identically() {
     // At the true K: noise-free landmarks registered from the truth stay there, and AP+LAT intensity
     // registration from ≤ 8 mm ends near the truth.
     for r in t.intensity.iter().filter(|r| r.df_px == 0.0) {
-        assert!(r.landmark_mtre_mm < 1e-6, "landmark at K true: {}", r.landmark_mtre_mm);
+        assert!(
+            r.landmark_mtre_mm < 1e-6,
+            "landmark at K true: {}",
+            r.landmark_mtre_mm
+        );
     }
     for r in t
         .intensity
         .iter()
         .filter(|r| r.df_px == 0.0 && r.views == "ap+lat")
     {
-        assert!(r.final_mtre_mm < 0.5, "AP+LAT at K true ended at {} mm", r.final_mtre_mm);
+        assert!(
+            r.final_mtre_mm < 0.5,
+            "AP+LAT at K true ended at {} mm",
+            r.final_mtre_mm
+        );
         assert!(r.optimum_mtre_mm < 0.5, "{}", r.optimum_mtre_mm);
     }
     // A focal offset biases every registration: the landmark one by a lot in a single view (depth).
@@ -149,7 +157,10 @@ fn refused_with(section: &str, needle: &str) {
         err.contains(needle),
         "{section:?}: the error does not name {needle}: {err}"
     );
-    assert!(!out.exists(), "{section:?}: output written before validation");
+    assert!(
+        !out.exists(),
+        "{section:?}: output written before validation"
+    );
 }
 
 #[test]

@@ -2,7 +2,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::config::{CalibrationCell, Experiment, IntensityCell, RegistrationMethod, SEGMENT_TARGET, StudyConfig};
+use super::config::{
+    CalibrationCell, Experiment, IntensityCell, RegistrationMethod, SEGMENT_TARGET, StudyConfig,
+};
 use super::schema::{Family, UnitRows};
 use crate::Result;
 use crate::geometry::Perturbation;

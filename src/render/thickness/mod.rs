@@ -192,7 +192,11 @@ impl ThicknessRenderer {
     /// Renders the line integral alone from `view` into `out`, reusing its buffer (resized to the view,
     /// zeroed, no allocation when it is already large enough): the path of loops that render the same
     /// scene many times (intensity registration).
-    pub fn render_line_integral_into(&self, view: &View, out: &mut ImageF32) -> Result<RenderStats> {
+    pub fn render_line_integral_into(
+        &self,
+        view: &View,
+        out: &mut ImageF32,
+    ) -> Result<RenderStats> {
         view.intrinsics.validate()?;
         let (w, h) = (view.intrinsics.width, view.intrinsics.height);
         out.width = w;

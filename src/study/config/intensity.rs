@@ -185,10 +185,14 @@ impl IntensitySection {
     pub fn validate(&self, carm: &CArm, study_views: &[String]) -> Result<()> {
         let key = |k: &str| format!("intensity_registration.{k}");
         if self.targets.is_empty() {
-            return Err(Error::invalid(key("targets"), "must list at least one level"));
+            return Err(Error::invalid(
+                key("targets"),
+                "must list at least one level",
+            ));
         }
         for (i, t) in self.targets.iter().enumerate() {
-            let levels = parse_levels(t).map_err(|e| Error::invalid(key("targets"), e.to_string()))?;
+            let levels =
+                parse_levels(t).map_err(|e| Error::invalid(key("targets"), e.to_string()))?;
             if levels.len() != 1 {
                 return Err(Error::invalid(
                     key("targets"),
@@ -196,11 +200,17 @@ impl IntensitySection {
                 ));
             }
             if self.targets[..i].contains(t) {
-                return Err(Error::invalid(key("targets"), format!("'{t}' is listed twice")));
+                return Err(Error::invalid(
+                    key("targets"),
+                    format!("'{t}' is listed twice"),
+                ));
             }
         }
         if self.views.is_empty() {
-            return Err(Error::invalid(key("views"), "must list at least one view set"));
+            return Err(Error::invalid(
+                key("views"),
+                "must list at least one view set",
+            ));
         }
         for (i, set) in self.views.iter().enumerate() {
             let names = Self::view_names(set);
@@ -215,16 +225,25 @@ impl IntensitySection {
                     ));
                 }
                 if names[..j].contains(n) {
-                    return Err(Error::invalid(key("views"), format!("'{set}' repeats '{n}'")));
+                    return Err(Error::invalid(
+                        key("views"),
+                        format!("'{set}' repeats '{n}'"),
+                    ));
                 }
             }
             if self.views[..i].contains(set) {
-                return Err(Error::invalid(key("views"), format!("'{set}' is listed twice")));
+                return Err(Error::invalid(
+                    key("views"),
+                    format!("'{set}' is listed twice"),
+                ));
             }
         }
         self.similarity()?;
         if self.levels.is_empty() {
-            return Err(Error::invalid(key("levels"), "must list at least one binning factor"));
+            return Err(Error::invalid(
+                key("levels"),
+                "must list at least one binning factor",
+            ));
         }
         if self.levels.iter().any(|&b| b == 0 || b > 64)
             || self.levels.windows(2).any(|w| w[1] >= w[0])
@@ -240,7 +259,10 @@ impl IntensitySection {
         if !(self.photons.is_finite() && self.photons >= 0.0) {
             return Err(Error::invalid(
                 key("photons"),
-                format!("must be ≥ 0 photons per pixel (0 = noise-free), got {}", self.photons),
+                format!(
+                    "must be ≥ 0 photons per pixel (0 = noise-free), got {}",
+                    self.photons
+                ),
             ));
         }
         if !(self.blur_px.is_finite() && self.blur_px >= 0.0) {
@@ -269,7 +291,10 @@ impl IntensitySection {
         if self.starts_per_bin == 0 || self.starts_per_bin > MAX_STARTS_PER_BIN {
             return Err(Error::invalid(
                 key("starts_per_bin"),
-                format!("must be 1…{MAX_STARTS_PER_BIN}, got {}", self.starts_per_bin),
+                format!(
+                    "must be 1…{MAX_STARTS_PER_BIN}, got {}",
+                    self.starts_per_bin
+                ),
             ));
         }
         for (k, list) in [("df_px", &self.df_px), ("piercing_px", &self.piercing_px)] {
@@ -291,7 +316,10 @@ impl IntensitySection {
                 c.perturbation().apply(&v.intrinsics).map_err(|e| {
                     Error::invalid(
                         key("df_px"),
-                        format!("Δf {} with piercing {} in view '{n}': {e}", c.df_px, c.piercing_px),
+                        format!(
+                            "Δf {} with piercing {} in view '{n}': {e}",
+                            c.df_px, c.piercing_px
+                        ),
                     )
                 })?;
             }

@@ -358,7 +358,9 @@ impl StudyConfig {
     /// 3 trials, intensity registration of the last view set at Δf {0, 300}, one start in 0–5 mm — a
     /// smoke test of a config before its full run.
     pub fn with_quick_grid(self) -> Self {
-        let intensity_registration = self.intensity_registration.quick(self.geometry.binning.max(2) / self.geometry.binning.max(1));
+        let intensity_registration = self
+            .intensity_registration
+            .quick(self.geometry.binning.max(2) / self.geometry.binning.max(1));
         StudyConfig {
             intensity_registration,
             geometry: GeometrySection {

@@ -64,9 +64,9 @@ pub fn prepare(cfg: &StudyConfig, timings: &Timings) -> Result<Vec<IntensityTarg
     let finest = s.levels.last().copied().unwrap_or(1).max(1);
     let mut out = Vec::new();
     for name in &s.targets {
-        let level = *parse_levels(name)?.first().ok_or_else(|| {
-            Error::invalid("intensity_registration.targets", format!("'{name}'"))
-        })?;
+        let level = *parse_levels(name)?
+            .first()
+            .ok_or_else(|| Error::invalid("intensity_registration.targets", format!("'{name}'")))?;
         let own;
         let phantom: &Phantom = match &whole {
             Some(w) => w,
@@ -108,7 +108,10 @@ pub fn prepare(cfg: &StudyConfig, timings: &Timings) -> Result<Vec<IntensityTarg
 fn fixed_image(ctx: &Context, t: &IntensityTarget, view: &View) -> Result<ImageF32> {
     let s = &ctx.cfg.intensity_registration;
     let li = match &t.fixed {
-        Some(r) => r.render(view, &ThicknessOptions::image_only())?.line_integral,
+        Some(r) => {
+            r.render(view, &ThicknessOptions::image_only())?
+                .line_integral
+        }
         None => MovingDrr::Mesh(t.moving.share()?).render_at(view, &TRUTH)?,
     };
     if s.photons <= 0.0 {
@@ -169,7 +172,9 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
         .intensity
         .iter()
         .find(|t| t.name == cell.target)
-        .ok_or_else(|| Error::Internal(format!("intensity target '{}' not prepared", cell.target)))?;
+        .ok_or_else(|| {
+            Error::Internal(format!("intensity target '{}' not prepared", cell.target))
+        })?;
     let truth_views = IntensitySection::view_names(&cell.views)
         .into_iter()
         .map(|n| ctx.carm.view(n).cloned())

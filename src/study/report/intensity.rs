@@ -38,7 +38,8 @@ pub fn section(
     let fixed = match s.fixed {
         FixedScope::Level => "the level alone".to_string(),
         FixedScope::Anatomy => {
-            "the whole phantom (L1–L5, discs, soft tissue), the moving DRR the level alone".to_string()
+            "the whole phantom (L1–L5, discs, soft tissue), the moving DRR the level alone"
+                .to_string()
         }
     };
     let noise = if s.photons > 0.0 {
@@ -79,7 +80,10 @@ observed, started at the truth), its mTRE over the same target points.\n",
 }
 
 fn list(v: &[f64]) -> String {
-    v.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(", ")
+    v.iter()
+        .map(|x| x.to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn summary_table(md: &mut String, rows: &[IntensitySummaryRow]) {

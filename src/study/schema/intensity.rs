@@ -182,7 +182,11 @@ fn reached_rate<'a>(rows: impl Iterator<Item = &'a &'a IntensityRow>) -> f64 {
         n += 1;
         k += usize::from(r.reached_optimum);
     }
-    if n == 0 { f64::NAN } else { k as f64 / n as f64 }
+    if n == 0 {
+        f64::NAN
+    } else {
+        k as f64 / n as f64
+    }
 }
 
 /// The per-bin table.
@@ -203,7 +207,8 @@ pub fn bins(rows: &[IntensityRow]) -> Vec<IntensityBinRow> {
                 success_rate: b.success_rate,
                 final_mtre_success_mean_mm: b.mean_final_mtre_success_mm,
                 reached_optimum_rate: reached_rate(
-                    c.iter().filter(|r| r.bin_lo_mm == b.lo_mm && r.bin_hi_mm == b.hi_mm),
+                    c.iter()
+                        .filter(|r| r.bin_lo_mm == b.lo_mm && r.bin_hi_mm == b.hi_mm),
                 ),
             });
         }

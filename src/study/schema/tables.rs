@@ -6,9 +6,9 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use super::{
-    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, IntensityBinRow, IntensityRow,
-    IntensitySummaryRow, LandmarkRow, ProjectionRow,
-    RegistrationRow, RegistrationSummaryRow, StructureRow, UnitRows,
+    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, IntensityBinRow,
+    IntensityRow, IntensitySummaryRow, LandmarkRow, ProjectionRow, RegistrationRow,
+    RegistrationSummaryRow, StructureRow, UnitRows,
 };
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
