@@ -67,10 +67,11 @@ fn principal_2d(p: &[DVec2]) -> DVec2 {
     DVec2::new(angle.cos(), angle.sin())
 }
 
-/// The pedicle's axis angle from the sagittal plane (degrees, positive when the axis converges
-/// anteriorly) and its width: the axial section through the pedicle's height centre cuts its wall in two
-/// parallel lines; each line is fitted (principal direction of its middle 40 %, away from the fillets) and the angle is their
-/// mean direction's, the width their distance.
+/// The pedicle's transverse angle as Panjabi 1992 (PDIt) and Zindrick 1987 define it — the angle between
+/// the pedicle's axis and the sagittal plane, in the transverse plane (degrees, positive when the axis
+/// converges anteriorly) — and its isthmus width: axial sections through the pedicle's middle (its
+/// height centre and every 1 mm to 3 mm above and below) each cut its wall in two lines; the angle and width are the
+/// sections' means (one section alone carries the mesh's ~1° facet noise).
 fn pedicle_angle_width(m: &TriMesh, s: Structure) -> (f64, f64) {
     let (mut area, mut zc) = (0.0, 0.0);
     for i in 0..m.triangles.len() {
@@ -81,7 +82,22 @@ fn pedicle_angle_width(m: &TriMesh, s: Structure) -> (f64, f64) {
             zc += w * (a.z + b.z + c.z) / 3.0;
         }
     }
-    let pts = section_z(m, &[s], zc / area);
+    let sections: Vec<(f64, f64)> = [-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0]
+        .iter()
+        .map(|dz| section_angle_width(m, s, zc / area + dz))
+        .collect();
+    let n = sections.len() as f64;
+    (
+        sections.iter().map(|a| a.0).sum::<f64>() / n,
+        sections.iter().map(|a| a.1).sum::<f64>() / n,
+    )
+}
+
+/// One axial section of the pedicle at height `z`: each of its two wall lines is fitted (principal
+/// direction of its middle 40 %, away from the fillets); the angle is their mean direction's, the width
+/// their distance.
+fn section_angle_width(m: &TriMesh, s: Structure, z: f64) -> (f64, f64) {
+    let pts = section_z(m, &[s], z);
     assert!(pts.len() > 20, "{s:?}: {} section points", pts.len());
     let c = pts.iter().sum::<DVec2>() / pts.len() as f64;
     let mut dir = DVec2::Y;
@@ -209,40 +225,62 @@ fn measure(m: &TriMesh) -> Measured {
 fn morphometry_measured_on_the_mesh_matches_the_cited_table() {
     let p = phantom();
     let table = MorphometryTable::default();
-    let (mut failures, mut angle_failures) = (Vec::new(), Vec::new());
+    let mut failures = Vec::new();
     for (i, v) in p.vertebrae.iter().enumerate() {
         let got = measure(&local_mesh(p, i));
         let want = table.level(v.level);
         eprintln!("{}: {got:.1?}", v.level);
-        let mut check = |name: &str, got: f64, want: f64| {
-            if (got / want - 1.0).abs() > 0.10 {
+        let mut check_or_within = |name: &str, got: f64, want: f64, floor: f64| {
+            if (got / want - 1.0).abs() > 0.10 && (got - want).abs() > floor {
                 failures.push(format!(
                     "{} {name}: measured {got:.2}, table {want}",
                     v.level
                 ));
             }
         };
-        check("endplate_width", got.endplate_width, want.endplate_width);
-        check("endplate_depth", got.endplate_depth, want.endplate_depth);
-        check("body_height", got.body_height, want.body_height);
+        check_or_within(
+            "endplate_width",
+            got.endplate_width,
+            want.endplate_width,
+            0.0,
+        );
+        check_or_within(
+            "endplate_depth",
+            got.endplate_depth,
+            want.endplate_depth,
+            0.0,
+        );
+        check_or_within("body_height", got.body_height, want.body_height, 0.0);
         for k in 0..2 {
-            check("pedicle_width", got.pedicle_width[k], want.pedicle_width);
-            // The pedicle's angle as measured here (walls of its 6–9 mm exposed length, fillets into
-            // the body and the lamina trimmed) reads 4–6° above the table's at L1–L4 (within 10 % at
-            // L5): the fillets still bend both walls the same way. Not yet within the 10 % criterion;
-            // checked for the published trend below and for lying within 7° above the table.
-            let d = got.pedicle_deg[k] - want.pedicle_transverse_deg;
-            if !(-0.1 * want.pedicle_transverse_deg..=7.0).contains(&d) {
-                angle_failures.push(format!(
-                    "{} pedicle_transverse_deg: measured {:.1}, table {}",
-                    v.level, got.pedicle_deg[k], want.pedicle_transverse_deg
-                ));
-            }
+            check_or_within(
+                "pedicle_width",
+                got.pedicle_width[k],
+                want.pedicle_width,
+                0.0,
+            );
+            // Within 10 %, or — at L1/L2, where 10 % is 1.1–1.2° — within 1.2°: the mesh's
+            // resolution for an angle (the two pedicles of the mirror-symmetric SDF read up to 0.6°
+            // apart).
+            check_or_within(
+                "pedicle_transverse_deg",
+                got.pedicle_deg[k],
+                want.pedicle_transverse_deg,
+                1.2,
+            );
         }
-        check("spinous_length", got.spinous_length, want.spinous_length);
-        check("transverse_span", got.transverse_span, want.transverse_span);
+        check_or_within(
+            "spinous_length",
+            got.spinous_length,
+            want.spinous_length,
+            0.0,
+        );
+        check_or_within(
+            "transverse_span",
+            got.transverse_span,
+            want.transverse_span,
+            0.0,
+        );
     }
-    failures.extend(angle_failures);
     assert!(failures.is_empty(), "{failures:#?}");
     // The published trends, measured: endplates widen and pedicles turn medially toward L5.
     let m: Vec<Measured> = (0..5).map(|i| measure(&local_mesh(p, i))).collect();
@@ -332,9 +370,13 @@ fn phantom_silhouettes_overlap_real_vertebrae() {
              real L1 vs L2 {reference:.3}",
             centred.dice, sized.dice, sized.scale
         );
+        // The issue's aim: above 0.85 (real adjacent levels of one patient: ~0.88 centred, ~0.92
+        // compared this way). Aligned because the patient's vertebrae are tilted up to ~20° in the
+        // scanner while the phantom stands in its anatomical frame; size-matched because the table
+        // holds population means, not this patient's size — what is compared is the shape.
         assert!(
-            sized.mean() > 0.9 * reference,
-            "{level}: mean Dice {:.3} vs {reference:.3} between real L1 and L2",
+            sized.mean() > 0.85,
+            "{level}: mean Dice {:.3} (real L1 vs L2: {reference:.3})",
             sized.mean()
         );
     }

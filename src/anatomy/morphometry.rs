@@ -53,6 +53,9 @@ pub struct ShapeParams {
     pub spinous_slope_deg: f64,
     pub transverse_thickness_mm: f64,
     pub transverse_tilt_deg: f64,
+    /// The transverse process's root axis behind the pedicle's posterior end (mm; the process arises
+    /// from the pedicle–lamina junction, not from the pedicle's lateral wall).
+    pub transverse_root_mm: f64,
     pub facet_width_mm: f64,
     pub facet_height_mm: f64,
     pub articular_thickness_mm: f64,
@@ -234,6 +237,7 @@ impl MorphometryTable {
             12.0,
         )?;
         within(f("transverse_tilt_deg"), s.transverse_tilt_deg, 0.0, 40.0)?;
+        within(f("transverse_root_mm"), s.transverse_root_mm, -5.0, 10.0)?;
         within(f("facet_width_mm"), s.facet_width_mm, 6.0, 25.0)?;
         within(f("facet_height_mm"), s.facet_height_mm, 6.0, 25.0)?;
         within(

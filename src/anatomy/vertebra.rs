@@ -195,7 +195,7 @@ impl VertebraShape {
             let tilt = s.transverse_tilt_deg.to_radians();
             let tp0 = DVec3::new(
                 side * (isthmus.x + m.pedicle_width / 2.0 - 2.0),
-                end.y + 1.0,
+                end.y - s.transverse_root_mm,
                 zp,
             );
             let reach = m.transverse_span / 2.0 - tp0.x.abs();
