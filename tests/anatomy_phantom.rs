@@ -25,10 +25,13 @@ const LIPSCHITZ: f64 = 4.0;
 
 /// Volume of `{f < 0}` by adaptive point counting: a cube whose centre is farther from the surface than
 /// its half-diagonal times a Lipschitz bound is wholly in or out; others are split down to `min_cell` and
-/// counted by their centre. Independent of the mesher (no interpolation, no triangles).
+/// counted by their centre. Independent of the mesher (no interpolation, no triangles). The grid is
+/// offset by an irrational-looking fraction of a cell so that no flat face of the phantom (they sit at
+/// round coordinates) lies on a plane of cell centres, where counting by centre is biased.
 fn sdf_volume(f: &(dyn Fn(DVec3) -> f64 + Sync), lo: DVec3, hi: DVec3) -> f64 {
     const TOP: f64 = 4.0;
-    const MIN_CELL: f64 = 0.125;
+    const MIN_CELL: f64 = 0.25;
+    const JITTER: DVec3 = DVec3::new(0.0371, 0.0593, 0.0217);
     fn cell(f: &(dyn Fn(DVec3) -> f64 + Sync), c: DVec3, s: f64) -> f64 {
         let d = f(c);
         let reach = s * 0.87 * LIPSCHITZ;
@@ -62,7 +65,7 @@ fn sdf_volume(f: &(dyn Fn(DVec3) -> f64 + Sync), lo: DVec3, hi: DVec3) -> f64 {
                 ((i / nx) % ny) as f64,
                 (i / (nx * ny)) as f64,
             );
-            cell(f, lo + (idx + 0.5) * TOP, TOP)
+            cell(f, lo + JITTER + (idx + 0.5) * TOP, TOP)
         })
         .sum()
 }
@@ -192,53 +195,12 @@ fn landmarks_relate_to_the_sdf_as_expected() {
 }
 
 #[test]
-fn body_morphometry_is_in_published_ranges() {
+fn endplate_labels_sit_on_the_body_faces() {
+    // The body's sizes are measured against the cited morphometry table, level by level, in
+    // tests/phantom_morphometry.rs.
     let p = phantom();
     for v in &p.vertebrae {
         let inv = v.local_to_world.inverse();
-        let body = [
-            Structure::Body,
-            Structure::SuperiorEndplate,
-            Structure::InferiorEndplate,
-        ];
-        let pts: Vec<DVec3> = (0..v.cortical.triangles.len())
-            .filter(|&i| body.contains(&v.cortical.label(i)))
-            .flat_map(|i| v.cortical.corners(i))
-            .map(|x| inv.apply(x))
-            .collect();
-        // Measured like calipers on the mid-planes: width across the mid-coronal band (|y| < 3),
-        // depth across the mid-sagittal band (|x| < 3), height along the central axis (|x|, |y| < 3).
-        let extent = |keep: &dyn Fn(DVec3) -> bool, axis: usize| {
-            let c: Vec<f64> = pts.iter().filter(|p| keep(**p)).map(|p| p[axis]).collect();
-            c.iter().cloned().fold(f64::MIN, f64::max) - c.iter().cloned().fold(f64::MAX, f64::min)
-        };
-        let size = DVec3::new(
-            extent(&|p| p.y.abs() < 3.0, 0),
-            extent(&|p| p.x.abs() < 3.0, 1),
-            extent(&|p| p.x.abs() < 3.0 && p.y.abs() < 3.0, 2),
-        );
-        eprintln!(
-            "{}: body {:.1} × {:.1} × {:.1} mm",
-            v.level, size.x, size.y, size.z
-        );
-        assert!(
-            (40.0..=50.0).contains(&size.x),
-            "{} width {}",
-            v.level,
-            size.x
-        );
-        assert!(
-            (30.0..=38.0).contains(&size.y),
-            "{} depth {}",
-            v.level,
-            size.y
-        );
-        assert!(
-            (24.0..=28.0).contains(&size.z),
-            "{} height {}",
-            v.level,
-            size.z
-        );
         // Endplate labels exist on both faces and sit at the top/bottom of the body.
         for (s, sign) in [
             (Structure::SuperiorEndplate, 1.0),
@@ -248,20 +210,19 @@ fn body_morphometry_is_in_published_ranges() {
                 .filter(|&i| v.cortical.label(i) == s)
                 .map(|i| inv.apply(v.cortical.corners(i)[0]).z * sign)
                 .collect();
+            // Within two rim radii and the concavity of the rim plane (the labelling rule), 0.5 mm slack.
+            let sh = &v.shape.params;
+            let face = v.shape.morphometry.body_height / 2.0
+                - 2.0 * sh.body_rim_mm
+                - sh.endplate_concavity_mm
+                - 0.5;
             assert!(
-                z.len() > 100 && z.iter().all(|&z| z > 8.0),
+                z.len() > 100 && z.iter().all(|&z| z > face),
                 "{} {s:?}",
                 v.level
             );
         }
     }
-    // Widths grow caudally (L1 → L5).
-    let w: Vec<f64> = p
-        .vertebrae
-        .iter()
-        .map(|v| v.shape.morphometry.endplate_width)
-        .collect();
-    assert!(w.windows(2).all(|p| p[1] > p[0]));
 }
 
 #[test]

@@ -21,7 +21,8 @@ use rayon::prelude::*;
 use super::decimate::{collapse_short_edges, project_to_zero};
 use super::isosurface::{ScalarGrid, check_grid_size, extract_isosurface, remove_small_components};
 use super::landmarks::Landmarks;
-use super::sdf::{Frame, Placed, Shape, ellipse_distance};
+use super::morphometry::MorphometryTable;
+use super::sdf::{Frame, Placed, Shape, kidney_distance};
 use super::vertebra::{Level, VertebraShape};
 use super::{Structure, TriMesh};
 use crate::geometry::RigidTransform;
@@ -44,6 +45,8 @@ pub struct PhantomOptions {
     /// After extraction, simplify toward this edge length (mm): collapse edges shorter than 4/5 of it with vertices projected back onto the
     /// SDF ([`super::decimate`]); 0 keeps the raw marching-tetrahedra mesh.
     pub simplify_edge_mm: f64,
+    /// Every dimension of the vertebrae (default: the embedded `assets/morphometry/lumbar.toml`).
+    pub morphometry: MorphometryTable,
 }
 
 impl Default for PhantomOptions {
@@ -57,6 +60,7 @@ impl Default for PhantomOptions {
             disc_mm: 10.0,
             lordosis_deg: 4.0,
             simplify_edge_mm: 1.0,
+            morphometry: MorphometryTable::default(),
         }
     }
 }
@@ -92,12 +96,14 @@ impl VertebraModel {
     }
 }
 
-/// An intervertebral disc: the elliptic prism between two endplate planes, rim rounded.
+/// An intervertebral disc: the prism over the endplates' kidney section between two endplate rim
+/// planes, rim rounded.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DiscShape {
     frame: Frame,
     a: f64,
     b: f64,
+    posterior: f64,
     lower: (DVec3, DVec3),
     upper: (DVec3, DVec3),
 }
@@ -109,7 +115,7 @@ impl DiscShape {
     pub fn sdf(&self, p: DVec3) -> f64 {
         let q = self.frame.to_local(p);
         let r = DISC_RIM_MM;
-        let d2 = ellipse_distance(DVec2::new(q.x, q.y), self.a - r, self.b - r);
+        let d2 = kidney_distance(DVec2::new(q.x, q.y), self.a - r, self.b - r, self.posterior);
         let dz = (-(p - self.lower.0).dot(self.lower.1)).max((p - self.upper.0).dot(self.upper.1));
         let v = DVec2::new(d2, dz + r);
         v.max(DVec2::ZERO).length() + v.max_element().min(0.0) - r
@@ -156,12 +162,16 @@ impl Phantom {
 }
 
 /// Poses of every level from the first to the last requested (see the placement rule).
-fn level_poses(levels: &[Level], disc_mm: f64, lordosis_deg: f64) -> Vec<(Level, RigidTransform)> {
+fn level_poses(levels: &[Level], opts: &PhantomOptions) -> Vec<(Level, RigidTransform)> {
+    let (disc_mm, lordosis_deg) = (opts.disc_mm, opts.lordosis_deg);
     let (first, last) = (levels[0].index(), levels[levels.len() - 1].index());
     let mid = levels[(levels.len() - 1) / 2].index();
     let tilt =
         |i: usize| DMat3::from_rotation_x((lordosis_deg * (mid as f64 - i as f64)).to_radians());
-    let half_h = |i: usize| VertebraShape::new(Level::ALL[i]).morphometry.body_height / 2.0;
+    // Endplate centres (inside the concave endplates' rims) are `disc_mm` apart.
+    let table = &opts.morphometry;
+    let half_h =
+        |i: usize| table.level(Level::ALL[i]).body_height / 2.0 - table.shape.endplate_concavity_mm;
     let mut centres = [DVec3::ZERO; 5];
     for i in (first..mid).rev() {
         let (rl, ru) = (tilt(i + 1), tilt(i));
@@ -273,6 +283,7 @@ fn disc_between(
         frame,
         a: m.0.endplate_width.min(m.1.endplate_width) / 2.0 - 1.0,
         b: m.0.endplate_depth.min(m.1.endplate_depth) / 2.0 - 1.0,
+        posterior: su.params.posterior_concavity_mm,
         lower: bottom,
         upper: top,
     }
@@ -307,11 +318,11 @@ pub fn build_phantom(opts: &PhantomOptions) -> Result<Phantom> {
     let mut levels = opts.levels.clone();
     levels.sort();
     levels.dedup();
-    let poses = level_poses(&levels, opts.disc_mm, opts.lordosis_deg);
+    let poses = level_poses(&levels, opts);
     let vertebrae = poses
         .par_iter()
         .filter(|(l, _)| levels.contains(l))
-        .map(|(l, p)| mesh_vertebra(VertebraShape::new(*l), *p, opts))
+        .map(|(l, p)| mesh_vertebra(VertebraShape::new(*l, &opts.morphometry), *p, opts))
         .collect::<Result<Vec<_>>>()?;
     let mut disc_shapes = Vec::new();
     let mut discs = Vec::new();

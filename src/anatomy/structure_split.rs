@@ -10,20 +10,25 @@
 //! **Body.** The vertebral body is everything anterior of its posterior wall. The wall is measured on the
 //! surface: lines along the anterior axis through the lower half of the body (where no pedicle joins it)
 //! give the wall's position `y_w(x)` across the body's width, following the posterior concavity of a
-//! kidney-shaped endplate; a point is body where `y ≥ y_w(x) − 1 mm` (the midline's wall where the lower
-//! body does not reach `x`). Body triangles facing up (down) within 4 mm of the superior (inferior) endplate height are
-//! the superior (inferior) endplate.
+//! kidney-shaped endplate; a point is body where `y ≥ y_w(x) − 1 mm`; beyond the lower body's lateral
+//! reach (an endplate rim wider than the waist, or a pedicle bulging past the body's side) the wall of
+//! the outermost chord on that side applies. Body triangles facing up (down) within 4 mm of the superior
+//! (inferior) endplate height are the superior (inferior) endplate.
 //!
 //! **Posterior elements.** Each part of the neural arch is a segment (its axis) in the frame, placed
-//! from landmarks and the surface: a pedicle runs from the posterior wall through its landmark to as far
-//! behind it again (the landmark is the pedicle's middle); each lamina runs from its pedicle's end to the
-//! laminar junction (the first solid behind the canal on the mid-sagittal line, found by probing); the
-//! spinous process from the junction to `spinous_tip`; a transverse process from the pedicle–lamina
-//! junction to the most lateral surface point on its side; a superior articular process from the pedicle's
-//! end to the highest point of the arch on its side, an inferior one from the middle of the lamina to the
-//! lowest point of the arch on its side (off the midline, where the spinous process is). A posterior
-//! triangle takes the structure of the nearest axis. Nothing here assumes a primitive shape, so the
-//! split follows the anatomy as the landmarks and the surface place it.
+//! from landmarks and the surface. A pedicle's axis passes through its landmark, converging anteriorly
+//! as its medial wall does (the wall's slope measured 2 mm either side of the landmark), from the
+//! posterior wall to where the canal's lateral wall turns medially into the lamina (at least as far
+//! behind the landmark as the wall is before it); it does not rise above the superior endplate. Each
+//! lamina runs from its pedicle's end to the laminar junction (the first solid behind the canal on the
+//! mid-sagittal line, found by probing), a ribbon in the plane the canal's posterior border slopes in
+//! there (laminae slope down and back); the spinous process from the junction to `spinous_tip`; a
+//! transverse process from the pedicle–lamina junction to the most lateral surface point on its side; a
+//! superior articular process from the top of the pedicle's end to the highest point of the arch on its
+//! side, an inferior one from the lamina's lower border to the lowest point of the arch on its side (off
+//! the midline, where the spinous process is). A posterior triangle takes the structure of the nearest
+//! axis. Nothing here assumes a primitive shape, so the split follows the anatomy as the landmarks and
+//! the surface place it.
 
 use glam::DVec3;
 
@@ -33,11 +38,15 @@ use super::{Structure, TriMesh};
 use crate::{Error, Result};
 
 /// Margin by which a point behind the measured posterior wall still counts as body (mm).
-const WALL_MARGIN_MM: f64 = 1.0;
+const WALL_MARGIN_MM: f64 = 1.5;
 /// Height band above/below which body faces are endplates (mm from the endplate landmark).
 const ENDPLATE_BAND_MM: f64 = 4.0;
 /// Cosine of the largest tilt of an endplate face from the superior axis.
 const ENDPLATE_COS: f64 = 0.7;
+/// Steepest convergence of a pedicle's axis measured from its medial wall (mm lateral per mm posterior).
+const MAX_PEDICLE_SLOPE: f64 = 0.8;
+/// Farthest a pedicle reaches behind its landmark (mm).
+const MAX_PEDICLE_HALF_LENGTH_MM: f64 = 15.0;
 /// Lateral reach of the posterior-wall probes (mm from the midline).
 const WALL_PROBE_HALF_WIDTH_MM: f64 = 45.0;
 
@@ -168,10 +177,24 @@ impl Wall {
         self.y.get(i as usize).copied().flatten()
     }
 
-    /// True when local point `l` is in the body: anterior of the wall at its `x`, or of the wall at the
-    /// midline where the lower body does not reach (an endplate rim wider than the waist).
+    /// The wall at `x`, or beyond the lower body's lateral reach (an endplate rim wider than the
+    /// waist) at its outermost measured chord on that side.
+    fn at_or_beyond(&self, x: f64) -> f64 {
+        if let Some(y) = self.at(x) {
+            return y;
+        }
+        let centre = (-self.x0).round() as usize;
+        let side: Box<dyn Iterator<Item = &Option<f64>>> = if x < 0.0 {
+            Box::new(self.y[..centre].iter())
+        } else {
+            Box::new(self.y[centre..].iter().rev())
+        };
+        side.flatten().next().copied().unwrap_or(self.midline)
+    }
+
+    /// True when local point `l` is in the body: anterior of the wall at its `x`.
     fn contains(&self, l: DVec3) -> bool {
-        l.y >= self.at(l.x).unwrap_or(self.midline) - WALL_MARGIN_MM
+        l.y >= self.at_or_beyond(l.x) - WALL_MARGIN_MM
     }
 }
 
@@ -188,7 +211,11 @@ struct Axis {
     a: DVec3,
     b: DVec3,
     half_height: f64,
+    /// The ribbon's sweep direction (unit; the superior axis, or a lamina's sloping plane).
+    up: DVec3,
     radius: f64,
+    /// The cross-section's radius along `up` over `radius` (≤ 1: a part wider than tall, an elliptic bar).
+    flat: f64,
 }
 
 impl Axis {
@@ -199,7 +226,10 @@ impl Axis {
         let len = ab.length().max(1e-9);
         let t = (p - self.a).dot(ab) / (len * len);
         let d = p - (self.a + t * ab);
-        let radial = DVec3::new(d.x, d.y, (d.z.abs() - self.half_height).max(0.0)).length();
+        let h = d.dot(self.up);
+        let radial = (d - h * self.up
+            + (h.abs() - self.half_height).max(0.0) / self.flat * self.up)
+            .length();
         let (r, e) = (radial - self.radius, (t - 0.5).abs() * len - 0.5 * len);
         glam::DVec2::new(r.max(0.0), e.max(0.0)).length() + r.max(e).min(0.0)
     }
@@ -239,6 +269,33 @@ fn laminar_junction(
     ))
 }
 
+/// The direction in which the lamina's plane rises (unit, in the sagittal plane): from the canal's
+/// posterior border (the anterior face of the arch on the mid-sagittal line) a quarter of the arch's
+/// height above and below the junction; the superior axis where a probe misses.
+fn lamina_plane(
+    mesh: &TriMesh,
+    f: &LandmarkFrame,
+    wall_y: f64,
+    junction: DVec3,
+    height: f64,
+) -> DVec3 {
+    let border = |z: f64| {
+        let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
+        line_intervals(mesh, q, f.anterior)
+            .into_iter()
+            .rev()
+            .find(|&(_, t1)| t1 < wall_y - 3.0)
+            .map(|(_, t1)| t1)
+    };
+    let dz = 0.25 * height;
+    match (border(junction.z + dz), border(junction.z - dz)) {
+        (Some(a), Some(b)) if (a - b).abs() < 2.0 * dz => {
+            DVec3::new(0.0, a - b, 2.0 * dz).normalize()
+        }
+        _ => DVec3::Z,
+    }
+}
+
 /// Chords of the solid through points of the local frame.
 struct Probe<'a> {
     mesh: &'a TriMesh,
@@ -272,7 +329,19 @@ impl Probe<'_> {
     /// (`height`, or the vertical chord there) less that radius. A steep axis (an articular
     /// process) is a plain bar.
     fn bar(&self, structure: Structure, a: DVec3, b: DVec3, height: Option<f64>) -> Axis {
-        let m = 0.5 * (a + b);
+        self.bar_at(structure, a, b, height, 0.5)
+    }
+
+    /// [`Probe::bar`] measured at fraction `at` of the way from `a` to `b`.
+    fn bar_at(
+        &self,
+        structure: Structure,
+        a: DVec3,
+        b: DVec3,
+        height: Option<f64>,
+        at: f64,
+    ) -> Axis {
+        let m = a.lerp(b, at);
         let dir = b - a;
         let flat = DVec3::new(dir.x, dir.y, 0.0);
         let steep = flat.length() < dir.z.abs();
@@ -292,7 +361,9 @@ impl Probe<'_> {
             a,
             b,
             half_height,
+            up: DVec3::Z,
             radius,
+            flat: 1.0,
         }
     }
 }
@@ -310,26 +381,55 @@ pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
     let z_ped = 0.5 * (ped_l.z + ped_r.z);
     let (junction, arch_height) = laminar_junction(mesh, &f, wall.midline, z_ped, inf.z)?;
     let probe = Probe { mesh, f: &f };
+    let lamina_up = lamina_plane(mesh, &f, wall.midline, junction, arch_height);
     let mut axes = vec![probe.bar(Structure::Spinous, junction, tip, None)];
     for (side, ped, s) in [
         (-1.0, ped_l, Structure::PedicleLeft),
         (1.0, ped_r, Structure::PedicleRight),
     ] {
-        let start = DVec3::new(ped.x, wall.at(ped.x).unwrap_or(wall.midline), ped.z);
-        let end = DVec3::new(ped.x, 2.0 * ped.y - wall.midline, ped.z);
         // A pedicle's half-width is its reach to the canal (laterally it runs into the transverse
         // process); taller than wide, it is a ribbon.
         let w = probe.reach(ped, -side * DVec3::X);
+        // Its axis converges anteriorly as its medial wall does: the wall's lateral shift per mm
+        // posterior, measured 2 mm either side of the landmark.
+        let k = ((probe.reach(ped + 2.0 * DVec3::Y, -side * DVec3::X)
+            - probe.reach(ped - 2.0 * DVec3::Y, -side * DVec3::X))
+            / 4.0)
+            .clamp(0.0, MAX_PEDICLE_SLOPE);
+        let on_axis = |y: f64| DVec3::new(ped.x - side * k * (y - ped.y), y, ped.z);
+        let start = on_axis(wall.at(ped.x).unwrap_or(wall.midline));
+        // The pedicle ends where the canal's lateral wall turns medially into the lamina: the reach
+        // from its axis to the canal grows past twice the isthmus's.
+        let mut y_end = ped.y;
+        while y_end > ped.y - MAX_PEDICLE_HALF_LENGTH_MM {
+            let r = probe.reach(on_axis(y_end - 0.5), -side * DVec3::X);
+            if r <= 0.0 || r > 2.0 * w {
+                break;
+            }
+            y_end -= 0.5;
+        }
+        let end = on_axis(y_end.min(2.0 * ped.y - wall.midline));
+        // It joins the upper body below the superior endplate (above that its landmark's vertical
+        // chord runs into the superior articular process); wider than tall, it is an elliptic bar.
+        let v = (0.5 * probe.chord(ped, DVec3::Z))
+            .min(sup.z - ped.z)
+            .max(0.5);
         axes.push(Axis {
             structure: s,
             a: start,
             b: end,
-            half_height: (0.5 * probe.chord(ped, DVec3::Z) - w).max(0.0),
+            half_height: (v - w).max(0.0),
+            up: DVec3::Z,
             radius: w,
+            flat: (v / w).min(1.0),
         });
-        // The lamina's height is the arch's at the junction: lower on the lamina the inferior articular
-        // processes continue it downward.
-        axes.push(probe.bar(Structure::Lamina, end, junction, Some(arch_height)));
+        // The lamina's height is the arch's at the junction, its plane sloping as the canal's
+        // posterior border does there: lower on the lamina the inferior articular processes continue
+        // it downward.
+        let lamina_start = DVec3::new(end.x, end.y, junction.z);
+        let mut lamina = probe.bar(Structure::Lamina, lamina_start, junction, Some(arch_height));
+        lamina.up = lamina_up;
+        axes.push(lamina);
         let posterior = |v: &&DVec3| v.y < wall.midline - 2.0;
         let off_midline = |v: &&DVec3| side * v.x > 0.35 * ped.x.abs();
         // The extreme of the arch on this side along `key`: the centroid of the surface within 1 mm of
@@ -346,10 +446,16 @@ pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
             pick(&|v| side * v.x).ok_or_else(|| no_body("no posterior element on a side"))?;
         let highest = pick(&|v| v.z).unwrap_or(end);
         let lowest = pick(&|v| -v.z).unwrap_or(end);
-        let root = DVec3::new(ped.x, 0.5 * (ped.y + end.y), ped.z);
-        axes.push(probe.bar(Structure::Transverse, root, lateral, None));
-        axes.push(probe.bar(Structure::Articular, end, highest, None));
-        axes.push(probe.bar(Structure::Articular, 0.5 * (end + junction), lowest, None));
+        // The transverse process arises at the pedicle–lamina junction.
+        let root = end;
+        // Measured in its lateral part, clear of the articular processes above its root.
+        axes.push(probe.bar_at(Structure::Transverse, root, lateral, None, 0.7));
+        // The superior articular process rises from the top of the pedicle's end; the inferior one
+        // hangs from the lamina's lower border.
+        let top = end + 0.25 * probe.chord(ped, DVec3::Z) * DVec3::Z;
+        axes.push(probe.bar(Structure::Articular, top, highest, None));
+        let below = 0.5 * (lamina_start + junction) - lamina.half_height * lamina.up;
+        axes.push(probe.bar(Structure::Articular, below, lowest, None));
     }
     let normals = smoothed_normals(mesh);
     let labels = (0..mesh.triangles.len())

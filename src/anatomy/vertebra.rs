@@ -2,264 +2,334 @@
 //! origin at the centre of the vertebral body, RAS+ axes (x = patient right, y = anterior, z = superior),
 //! so the body is anterior and the spinous process points to −y.
 //!
-//! Dimensions follow the typical adult lumbar morphometry reported by Panjabi et al. (Spine 1992,
-//! "Human lumbar vertebrae: quantitative three-dimensional anatomy"), Zindrick et al. (Spine 1987,
-//! pedicle morphology) and Zhou et al. (Eur Spine J 2000): upper endplate width ≈ 40–50 mm and depth
-//! ≈ 30–38 mm, both growing caudally; body height ≈ 24–28 mm; pedicle width ≈ 7–18 mm (narrow at L1,
-//! widest at L5) and height ≈ 13–16 mm; spinal canal ≈ 21–25 mm wide and ≈ 16–19 mm deep; spinous
-//! process ≈ 20–30 mm long from the lamina; transverse-process span ≈ 70–90 mm (longest at L3).
+//! Every dimension comes from a [`MorphometryTable`] (default: `assets/morphometry/lumbar.toml`, whose
+//! comments cite Panjabi et al. 1992, Zindrick et al. 1987, Zhou et al. 2000 and Panjabi et al. 1993
+//! for each value). The parts:
+//! * **body**: a prism over a kidney-shaped endplate (posterior wall concave), its lateral and anterior
+//!   walls narrowing at mid-height (the waist), endplates concave inside a raised rim;
+//! * **pedicles**: elliptic cylinders (isthmus width × height), their axes converging anteriorly at the
+//!   level's transverse angle, medial walls at the interpedicular (canal) width, joining the upper body;
+//! * **laminae**: plates from each pedicle's posterior end to the midline at the canal's depth, sloping
+//!   down and back (inferior edge posterior);
+//! * **spinous process**: a tapering plate from the spinolaminar junction, angled posteriorly and
+//!   inferiorly, ending in a thickened ellipsoidal tip at the level's spinous length;
+//! * **transverse processes**: tapering bars from the pedicle–lamina junction to the level's tip-to-tip
+//!   span, swept slightly back (stout at L5);
+//! * **articular processes**: superior and inferior plates whose facet planes turn from near-sagittal
+//!   (L1) toward coronal (L5) at the table's facet angles; a level's inferior processes sit medial and
+//!   posterior of the next level's superior ones, across a joint space, so adjacent levels articulate
+//!   without touching.
+//!
+//! Parts are joined by a polynomial smooth minimum (fillets of about a quarter of `shape.blend_mm`).
 
 use std::collections::BTreeMap;
-use std::fmt;
 
-use glam::DVec3;
+use glam::{DMat3, DVec2, DVec3};
 
 use super::Structure;
 use super::landmarks::Landmarks;
+pub use super::level::{Level, parse_levels};
+use super::morphometry::{Morphometry, MorphometryTable, ShapeParams};
 use super::sdf::{Frame, Placed, Shape, smooth_min};
-use crate::{Error, Result};
-
-/// A lumbar level.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Level {
-    L1,
-    L2,
-    L3,
-    L4,
-    L5,
-}
-
-impl Level {
-    pub const ALL: [Level; 5] = [Level::L1, Level::L2, Level::L3, Level::L4, Level::L5];
-
-    /// 0 for L1 … 4 for L5 (cranial to caudal).
-    pub fn index(self) -> usize {
-        self as usize
-    }
-
-    pub fn name(self) -> &'static str {
-        ["L1", "L2", "L3", "L4", "L5"][self.index()]
-    }
-
-    /// Parses `L1` … `L5` (case-insensitive).
-    pub fn parse(s: &str) -> Result<Level> {
-        let t = s.trim();
-        Level::ALL
-            .into_iter()
-            .find(|l| l.name().eq_ignore_ascii_case(t))
-            .ok_or_else(|| {
-                Error::invalid("levels", format!("{t:?} is not one of L1, L2, L3, L4, L5"))
-            })
-    }
-}
-
-impl fmt::Display for Level {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// Parses a level list: a range `L1-L5`, a single level `L3`, or a comma list `L1,L3` (ranges allowed
-/// inside the list). Returns the distinct levels, cranial to caudal.
-pub fn parse_levels(spec: &str) -> Result<Vec<Level>> {
-    let mut out = Vec::new();
-    for part in spec.split(',') {
-        let part = part.trim();
-        if part.is_empty() {
-            return Err(Error::invalid("levels", format!("empty item in {spec:?}")));
-        }
-        if let Some((a, b)) = part.split_once('-') {
-            let (a, b) = (Level::parse(a)?, Level::parse(b)?);
-            if a > b {
-                return Err(Error::invalid(
-                    "levels",
-                    format!("range {part:?} runs caudal to cranial"),
-                ));
-            }
-            out.extend(Level::ALL[a.index()..=b.index()].iter().copied());
-        } else {
-            out.push(Level::parse(part)?);
-        }
-    }
-    out.sort();
-    out.dedup();
-    Ok(out)
-}
-
-/// Morphometry of one level (millimetres).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Morphometry {
-    pub endplate_width: f64,
-    pub endplate_depth: f64,
-    pub body_height: f64,
-    pub pedicle_width: f64,
-    pub pedicle_height: f64,
-    pub canal_width: f64,
-    pub canal_depth: f64,
-    pub spinous_length: f64,
-    pub transverse_span: f64,
-}
-
-impl Morphometry {
-    /// Typical adult values per level (see the module documentation for the sources of the ranges).
-    pub fn of(level: Level) -> Morphometry {
-        // endplate w, d, body h, pedicle w, h, canal w, d, spinous length, transverse span
-        const T: [[f64; 9]; 5] = [
-            [41.0, 31.0, 25.0, 7.5, 15.5, 22.0, 17.0, 26.0, 72.0],
-            [43.0, 32.5, 25.5, 8.5, 15.0, 22.5, 17.0, 27.0, 80.0],
-            [45.0, 34.0, 26.0, 10.0, 14.5, 23.0, 17.0, 28.0, 88.0],
-            [47.0, 35.0, 26.5, 12.0, 14.0, 23.5, 17.5, 26.0, 84.0],
-            [49.0, 35.5, 26.0, 15.0, 13.5, 25.0, 18.0, 22.0, 86.0],
-        ];
-        let t = T[level.index()];
-        Morphometry {
-            endplate_width: t[0],
-            endplate_depth: t[1],
-            body_height: t[2],
-            pedicle_width: t[3],
-            pedicle_height: t[4],
-            canal_width: t[5],
-            canal_depth: t[6],
-            spinous_length: t[7],
-            transverse_span: t[8],
-        }
-    }
-}
-
-/// Fillet size of the smooth union between parts (mm).
-const BLEND_MM: f64 = 2.0;
-/// Rounding radius of the body rim (mm).
-const BODY_RIM_MM: f64 = 2.0;
-/// Length of the pedicle from the posterior body wall to the lamina (mm).
-const PEDICLE_LENGTH_MM: f64 = 9.0;
 
 /// A vertebra's implicit shape in its local frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VertebraShape {
     pub level: Level,
     pub morphometry: Morphometry,
+    pub params: ShapeParams,
     parts: Vec<(Structure, Placed)>,
     landmarks: BTreeMap<String, DVec3>,
 }
 
+/// Where a level's superior facet joint sits (local x for the right side, y): above the medial part of
+/// the pedicle, just behind its posterior end.
+fn joint_centre(m: &Morphometry, s: &ShapeParams) -> DVec2 {
+    DVec2::new(
+        m.canal_width / 2.0 + 3.0,
+        -m.endplate_depth / 2.0 - s.pedicle_length_mm - 2.0,
+    )
+}
+
+/// The facet plane's outward normal (from the superior toward the inferior articular process: medial
+/// and posterior) and its horizontal in-plane direction, for `side` = ±1 (right = +1) at `deg` from the
+/// sagittal plane.
+fn facet_axes(side: f64, deg: f64) -> (DVec3, DVec3) {
+    let (s, c) = deg.to_radians().sin_cos();
+    (
+        DVec3::new(-side * c, -s, 0.0),
+        DVec3::new(-side * s, c, 0.0),
+    )
+}
+
+/// A plate centred at `centre`, `half` along (`u`, `n`, `u × n`), edges rounded by `radius` (at most
+/// the smallest half-size).
+fn plate(centre: DVec3, u: DVec3, n: DVec3, half: DVec3, radius: f64) -> Placed {
+    Placed {
+        frame: Frame {
+            origin: centre,
+            axes: DMat3::from_cols(u, n, u.cross(n)),
+        },
+        shape: Shape::RoundedBox {
+            half,
+            radius: radius.min(half.min_element()),
+        },
+    }
+}
+
+/// A tapered bar from `start` to `end` (end faces centred on them), half-sizes across and along `up`
+/// going from `h0` to `h1`, edges rounded by `radius` (at most the smallest half-size).
+fn bar(start: DVec3, end: DVec3, up: DVec3, h0: DVec2, h1: DVec2, radius: f64) -> Placed {
+    let radius = radius.min(h0.min_element()).min(h1.min_element());
+    Placed {
+        frame: Frame::along(start, end, up),
+        shape: Shape::TaperedBox {
+            half_len: (end - start).length() / 2.0,
+            start: h0,
+            end: h1,
+            radius,
+        },
+    }
+}
+
+/// The point where `f` crosses zero on the segment `inside + t·dir`, `t ∈ [0, reach]` (bisection;
+/// `f(inside) < 0 < f(inside + reach·dir)`).
+fn surface_along(f: impl Fn(DVec3) -> f64, inside: DVec3, dir: DVec3, reach: f64) -> DVec3 {
+    let (mut lo, mut hi) = (0.0, reach);
+    debug_assert!(f(inside) < 0.0 && f(inside + dir * reach) > 0.0);
+    for _ in 0..60 {
+        let mid = (lo + hi) / 2.0;
+        if f(inside + dir * mid) < 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    inside + dir * ((lo + hi) / 2.0)
+}
+
 impl VertebraShape {
-    pub fn new(level: Level) -> VertebraShape {
-        let m = Morphometry::of(level);
-        let (b, h) = (m.endplate_depth / 2.0, m.body_height / 2.0);
-        let zp = h - m.pedicle_height / 2.0 - 1.5; // pedicles join the upper half of the body
-        let xp = m.canal_width / 2.0 + m.pedicle_width / 2.0;
-        let y_ped_end = -b - PEDICLE_LENGTH_MM;
-        let y_lamina = -b - m.canal_depth - 3.0; // lamina mid-plane at the midline
-        let zl = zp - 3.0;
+    /// The shape of `level` with the dimensions of `table`.
+    pub fn new(level: Level, table: &MorphometryTable) -> VertebraShape {
+        let m = *table.level(level);
+        let s = table.shape;
+        // The next level's superior facets meet this level's inferior ones (L5: its own geometry).
+        let below = Level::ALL
+            .get(level.index() + 1)
+            .map_or(m, |l| *table.level(*l));
+        let (d, h) = (m.endplate_depth / 2.0, m.body_height / 2.0);
         let mut parts = vec![(
             Structure::Body,
             Placed {
                 frame: Frame::at(DVec3::ZERO),
-                shape: Shape::EllipticCylinder {
+                shape: Shape::Body {
                     a: m.endplate_width / 2.0,
-                    b,
+                    b: d,
                     half_h: h,
-                    radius: BODY_RIM_MM,
+                    radius: s.body_rim_mm,
+                    posterior: s.posterior_concavity_mm,
+                    waist: s.waist,
+                    concavity: s.endplate_concavity_mm,
                 },
             },
         )];
-        let spin0 = DVec3::new(0.0, y_lamina + 1.0, zl - 2.0);
-        let tip = DVec3::new(0.0, y_lamina + 1.0 - m.spinous_length, zl - 6.0);
-        parts.push((
-            Structure::Spinous,
-            segment_box(spin0, tip, 3.0, 10.0, DVec3::Z),
-        ));
-        for side in [-1.0, 1.0] {
+        let theta = m.pedicle_transverse_deg.to_radians();
+        let zp = h - m.pedicle_height / 2.0 - 1.0; // pedicles join the upper half of the body
+        let lp = s.pedicle_length_mm;
+        let isthmus = DVec2::new(m.canal_width / 2.0 + m.pedicle_width / 2.0, -d - lp / 2.0);
+        // The laminae meet at the midline behind the canal; the spinolaminar junction is the canal's
+        // posterior border there.
+        // The laminae's upper border 4.5 mm below the upper rim leaves room for the inferior articular
+        // processes of the level above.
+        let z_lamina = h - 4.5 - s.lamina_height_mm / 2.0;
+        let slope = s.lamina_slope_deg.to_radians();
+        let lamina_up = DVec3::new(0.0, slope.sin(), slope.cos());
+        let round = s.process_rounding_mm;
+        let mut pedicle_centres = [DVec3::ZERO; 2];
+        for (k, side) in [-1.0_f64, 1.0].into_iter().enumerate() {
             let pedicle = if side < 0.0 {
                 Structure::PedicleLeft
             } else {
                 Structure::PedicleRight
             };
-            let (y0, y1) = (-b + 6.0, y_ped_end);
+            // Axis through the isthmus, running posterolaterally at θ from the sagittal plane.
+            let dir = DVec3::new(side * theta.sin(), -theta.cos(), 0.0);
+            let c = DVec3::new(side * isthmus.x, isthmus.y, zp);
+            let (t0, t1) = (
+                (-lp / 2.0 - 5.0) / theta.cos(),
+                (lp / 2.0 + 4.0) / theta.cos(),
+            );
             parts.push((
                 pedicle,
                 Placed {
-                    // Cylinder axis (local z) along −y; local x = world x, local y = world z.
                     frame: Frame {
-                        origin: DVec3::new(side * xp, (y0 + y1) / 2.0, zp),
-                        axes: glam::DMat3::from_cols(DVec3::X, DVec3::Z, -DVec3::Y),
+                        origin: c + dir * ((t0 + t1) / 2.0),
+                        axes: DMat3::from_cols(DVec3::Z.cross(dir), DVec3::Z, dir),
                     },
                     shape: Shape::EllipticCylinder {
                         a: m.pedicle_width / 2.0,
                         b: m.pedicle_height / 2.0,
-                        half_h: (y0 - y1) / 2.0,
+                        half_h: (t1 - t0) / 2.0,
                         radius: 1.5,
                     },
                 },
             ));
-            let lam0 = DVec3::new(side * xp, y_ped_end - 1.0, zl);
-            let lam1 = DVec3::new(0.0, y_lamina, zl);
+            let t_mark = (d + isthmus.y + m.canal_depth / 4.0) / theta.cos();
+            pedicle_centres[k] = c + dir * t_mark;
+            // Lamina: from the pedicle's posterior end to just past the midline.
+            let end = c + dir * (lp / 2.0 / theta.cos());
+            // The oblique bar's anterior face at the midline (its half-thickness over the cosine of its
+            // angle to the coronal plane, plus ~1 mm that the fillet between the two laminae fills) lies on
+            // the canal's posterior border.
+            let lam0 = DVec3::new(end.x, end.y, z_lamina);
+            let run = DVec2::new(end.x.abs(), end.y + d + m.canal_depth);
+            let cos_psi = run.x / (run + DVec2::new(0.0, s.lamina_thickness_mm / 2.0)).length();
+            let y_lamina = -d - m.canal_depth - s.lamina_thickness_mm / 2.0 / cos_psi - 1.0;
+            let lam1 = DVec3::new(-side * 2.0, y_lamina, z_lamina);
+            let lam_half = DVec2::new(s.lamina_thickness_mm / 2.0, s.lamina_height_mm / 2.0);
             parts.push((
                 Structure::Lamina,
-                segment_box(lam0, lam1, 3.0, 9.0, DVec3::Z),
+                bar(lam0, lam1, lamina_up, lam_half, lam_half, round),
             ));
-            let tp0 = DVec3::new(side * xp, -b - 0.7 * PEDICLE_LENGTH_MM, zp);
-            let tp1 = DVec3::new(side * m.transverse_span / 2.0, tp0.y - 6.0, zp + 1.0);
+            // Transverse process: from the pedicle–lamina junction out to half the span.
+            let tilt = s.transverse_tilt_deg.to_radians();
+            let tp0 = DVec3::new(
+                side * (isthmus.x + m.pedicle_width / 2.0 - 2.0),
+                end.y - s.transverse_root_mm,
+                zp,
+            );
+            let reach = m.transverse_span / 2.0 - tp0.x.abs();
+            let tp1 = DVec3::new(
+                side * m.transverse_span / 2.0,
+                tp0.y - reach * tilt.tan(),
+                zp + 1.0,
+            );
+            let th = DVec2::new(s.transverse_thickness_mm / 2.0, m.transverse_height / 2.0);
             parts.push((
                 Structure::Transverse,
-                segment_box(tp0, tp1, 3.0, 5.0, DVec3::Z),
+                bar(tp0, tp1, DVec3::Z, th, th * DVec2::new(0.75, 0.6), round),
             ));
-            let sup = DVec3::new(side * (xp + 2.0), y_ped_end - 3.0, h + 3.0);
-            parts.push((
-                Structure::Articular,
-                upright_box(sup, DVec3::new(3.5, 5.0, 7.0)),
-            ));
-            let inf = DVec3::new(side * (xp - 6.0), -b - m.canal_depth - 1.0, -h - 1.0);
-            parts.push((
-                Structure::Articular,
-                upright_box(inf, DVec3::new(3.5, 5.0, 8.0)),
-            ));
+            // Superior articular process: lateral/anterior of this level's superior joint.
+            let half = DVec3::new(
+                s.facet_width_mm / 2.0,
+                s.articular_thickness_mm / 2.0,
+                s.facet_height_mm / 2.0,
+            );
+            let off = s.facet_gap_mm / 2.0 + s.articular_thickness_mm / 2.0;
+            let j = joint_centre(&m, &s);
+            let (n, u) = facet_axes(side, m.superior_facet_deg);
+            let sup = DVec3::new(side * j.x, j.y, h + 1.0) - n * off;
+            parts.push((Structure::Articular, plate(sup, u, n, half, round)));
+            // Inferior articular process: medial/posterior of the next level's superior joint.
+            let j = joint_centre(&below, &s);
+            let (n, u) = facet_axes(side, m.inferior_facet_deg);
+            let inf = DVec3::new(side * j.x, j.y, -h - 1.0) + n * off;
+            parts.push((Structure::Articular, plate(inf, u, n, half, round)));
         }
-        let r = BODY_RIM_MM;
-        let (cy, cz) = (
-            b - r + r * std::f64::consts::FRAC_1_SQRT_2,
-            h - r + r * std::f64::consts::FRAC_1_SQRT_2,
+        // Spinous process: from the spinolaminar junction, posterior and inferior, to a thickened tip.
+        let alpha = s.spinous_slope_deg.to_radians();
+        let sdir = DVec3::new(0.0, -alpha.cos(), -alpha.sin());
+        let junction = DVec3::new(0.0, -d - m.canal_depth, z_lamina - 1.0);
+        let tip = junction + sdir * m.spinous_length;
+        let tip_r = DVec3::new(
+            4.0,
+            s.spinous_tip_thickness_mm / 2.0,
+            s.spinous_tip_height_mm / 2.0,
         );
-        let landmarks: BTreeMap<String, DVec3> = [
+        let tip_centre = tip - sdir * tip_r.x;
+        let spinous = bar(
+            junction,
+            tip_centre,
+            DVec3::Z,
+            DVec2::new(s.spinous_thickness_mm / 2.0, s.spinous_height_mm / 2.0),
+            DVec2::new(
+                s.spinous_thickness_mm / 2.0 * 0.85,
+                s.spinous_tip_height_mm / 2.0 * 0.85,
+            ),
+            round,
+        );
+        let tip_frame = Frame {
+            origin: tip_centre,
+            axes: spinous.frame.axes,
+        };
+        parts.push((Structure::Spinous, spinous));
+        parts.push((
+            Structure::Spinous,
+            Placed {
+                frame: tip_frame,
+                shape: Shape::Ellipsoid { radii: tip_r },
+            },
+        ));
+        let mut shape = VertebraShape {
+            level,
+            morphometry: m,
+            params: s,
+            parts,
+            landmarks: BTreeMap::new(),
+        };
+        // The spinous tip is the process's most posterior point: the tip ellipsoid's support point in −y.
+        let axes = tip_frame.axes;
+        let u = axes.transpose() * -DVec3::Y;
+        let support = tip_centre + axes * (tip_r * tip_r * u / (tip_r * u).length());
+        let toward_tip = (support - tip_centre).normalize();
+        shape.landmarks = shape.place_landmarks(pedicle_centres, tip_centre, toward_tip);
+        shape
+    }
+
+    /// The named landmarks, on or inside the SDF as their names say (surface points found by bisection).
+    fn place_landmarks(
+        &self,
+        pedicles: [DVec3; 2],
+        tip_centre: DVec3,
+        toward_tip: DVec3,
+    ) -> BTreeMap<String, DVec3> {
+        let m = &self.morphometry;
+        let (d, h) = (m.endplate_depth / 2.0, m.body_height / 2.0);
+        let r = self.params.body_rim_mm;
+        let f = |p: DVec3| self.sdf(p);
+        let top = h - self.params.endplate_concavity_mm;
+        let corner = |sy: f64, sz: f64| {
+            let c = DVec3::new(0.0, sy * (d - r), sz * (h - r));
+            surface_along(f, c, DVec3::new(0.0, sy, sz).normalize(), 3.0 * r)
+        };
+        [
             ("center", DVec3::ZERO),
-            ("superior_endplate", DVec3::new(0.0, 0.0, h)),
-            ("inferior_endplate", DVec3::new(0.0, 0.0, -h)),
             (
-                "left_pedicle",
-                DVec3::new(-xp, -b - PEDICLE_LENGTH_MM / 2.0, zp),
+                "superior_endplate",
+                surface_along(f, DVec3::new(0.0, 0.0, top - 3.0), DVec3::Z, 6.0),
             ),
             (
-                "right_pedicle",
-                DVec3::new(xp, -b - PEDICLE_LENGTH_MM / 2.0, zp),
+                "inferior_endplate",
+                surface_along(f, DVec3::new(0.0, 0.0, 3.0 - top), -DVec3::Z, 6.0),
             ),
-            ("spinous_tip", tip),
-            ("corner_anterior_superior", DVec3::new(0.0, cy, cz)),
-            ("corner_anterior_inferior", DVec3::new(0.0, cy, -cz)),
-            ("corner_posterior_superior", DVec3::new(0.0, -cy, cz)),
-            ("corner_posterior_inferior", DVec3::new(0.0, -cy, -cz)),
+            ("left_pedicle", pedicles[0]),
+            ("right_pedicle", pedicles[1]),
+            (
+                "spinous_tip",
+                surface_along(f, tip_centre, toward_tip, 12.0),
+            ),
+            ("corner_anterior_superior", corner(1.0, 1.0)),
+            ("corner_anterior_inferior", corner(1.0, -1.0)),
+            ("corner_posterior_superior", corner(-1.0, 1.0)),
+            ("corner_posterior_inferior", corner(-1.0, -1.0)),
         ]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
-        .collect();
-        VertebraShape {
-            level,
-            morphometry: m,
-            parts,
-            landmarks,
-        }
+        .collect()
     }
 
     /// Signed distance (bound) of the outer (cortical) surface at a local point.
     pub fn sdf(&self, p: DVec3) -> f64 {
+        let k = self.params.blend_mm;
         self.parts
             .iter()
             .map(|(_, s)| s.sdf(p))
-            .fold(f64::INFINITY, |acc, d| smooth_min(acc, d, BLEND_MM))
+            .fold(f64::INFINITY, |acc, d| smooth_min(acc, d, k))
     }
 
     /// The structure of the nearest primitive; body points on the top/bottom faces (outward normal
-    /// `n_local` with `|n_z| > 0.7`, within two rim radii of the endplate plane) are the
-    /// superior/inferior endplates.
+    /// `n_local` with `|n_z| > 0.7`, within two rim radii of the endplate rim plane, the concavity
+    /// included) are the superior/inferior endplates.
     pub fn structure_at(&self, p: DVec3, n_local: DVec3) -> Structure {
         let mut best = (f64::INFINITY, Structure::Unlabelled);
         for (s, prim) in &self.parts {
@@ -268,7 +338,9 @@ impl VertebraShape {
                 best = (d, *s);
             }
         }
-        let near_face = self.morphometry.body_height / 2.0 - 2.0 * BODY_RIM_MM;
+        let near_face = self.morphometry.body_height / 2.0
+            - 2.0 * self.params.body_rim_mm
+            - self.params.endplate_concavity_mm;
         match best.1 {
             Structure::Body if n_local.z > 0.7 && p.z > near_face => Structure::SuperiorEndplate,
             Structure::Body if n_local.z < -0.7 && p.z < -near_face => Structure::InferiorEndplate,
@@ -302,24 +374,5 @@ impl VertebraShape {
                 .map(|(k, &v)| (k.clone(), to_world(v)))
                 .collect(),
         }
-    }
-}
-
-/// A rounded box from `start` to `end` (its end faces centred on them), `half_thick` across (local y)
-/// and `half_height` along `up` (local z).
-fn segment_box(start: DVec3, end: DVec3, half_thick: f64, half_height: f64, up: DVec3) -> Placed {
-    Placed {
-        frame: Frame::along(start, end, up),
-        shape: Shape::RoundedBox {
-            half: DVec3::new((end - start).length() / 2.0, half_thick, half_height),
-            radius: 1.5,
-        },
-    }
-}
-
-fn upright_box(centre: DVec3, half: DVec3) -> Placed {
-    Placed {
-        frame: Frame::at(centre),
-        shape: Shape::RoundedBox { half, radius: 1.5 },
     }
 }

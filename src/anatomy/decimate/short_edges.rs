@@ -9,7 +9,8 @@
 //!   opposite `ab` (the collapse would pinch the surface),
 //! * `a` or `b` has only three neighbours (a tetrahedron would flatten),
 //! * an edge longer than `4/3` of the target would appear,
-//! * any surviving triangle around `a` or `b` would flip or turn by more than ~70° or degenerate.
+//! * any surviving triangle around `a` or `b` would flip or turn by more than ~70° or degenerate,
+//! * or one would fold over a neighbour (normals more than 90° apart across an edge).
 //!
 //! Triangles keep their order and labels; orientation is untouched because vertices are only renamed.
 
@@ -37,6 +38,40 @@ impl State {
             }
         };
         (p(t[1]) - p(t[0])).cross(p(t[2]) - p(t[0]))
+    }
+
+    /// Whether collapsing `b` into `a` at `target` would fold a surviving triangle of `around` over a
+    /// neighbour: their normals more than 90° apart across a shared edge. A flap folded onto its
+    /// neighbour keeps the mesh closed but makes a ray cross the surface three times where it should
+    /// cross it once (the renderer cannot pair such crossings).
+    fn folds(&self, a: u32, b: u32, target: DVec3, around: &[u32]) -> bool {
+        let renamed = |t: u32| self.topo.tris[t as usize].map(|v| if v == b { a } else { v });
+        let normal = |tri: [u32; 3]| self.normal(tri, (a, target)).normalize_or_zero();
+        for &t in around {
+            let tri = renamed(t);
+            let n1 = normal(tri);
+            for k in 0..3 {
+                let (p, q) = (tri[k], tri[(k + 1) % 3]);
+                let across: Vec<u32> = if p == a || q == a {
+                    let other = if p == a { q } else { p };
+                    around
+                        .iter()
+                        .copied()
+                        .filter(|&s| s != t && renamed(s).contains(&other))
+                        .collect()
+                } else {
+                    self.topo
+                        .edge_triangles(p, q)
+                        .into_iter()
+                        .filter(|&s| s != t)
+                        .collect()
+                };
+                if across.into_iter().any(|s| normal(renamed(s)).dot(n1) < 0.0) {
+                    return true;
+                }
+            }
+        }
+        false
     }
 
     /// Tries to collapse `b` into `a` at `target` (no new edge longer than `cap`); returns whether it
@@ -91,6 +126,9 @@ impl State {
             if l1 <= 1e-9 * (1.0 + l0) || n0.dot(n1) < 0.35 * l0 * l1 {
                 return false;
             }
+        }
+        if self.folds(a, b, target, &around) {
+            return false;
         }
         for &t in &shared {
             self.topo.tri_alive[t as usize] = false;
