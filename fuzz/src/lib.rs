@@ -258,13 +258,19 @@ fn dataset_folder() -> &'static Path {
 
 /// A study's cohort section (`[[anatomy.dataset]]`): the study parsed and checked, then each dataset's
 /// cases discovered in a folder holding one case of every layout (the input's own `folder` is replaced
-/// by it; a pattern with `..` is skipped, it would list folders outside).
+/// by it; a pattern with `..` is skipped, it would list folders outside). A checked dataset never takes
+/// its CT for its label map.
 pub fn cohort_dataset(data: &[u8]) {
     let Some(t) = text(data) else { return };
     let Ok(cfg) = StudyConfig::from_toml_str(t, "fuzz-input") else {
         return;
     };
     for d in &cfg.anatomy.dataset {
+        assert!(
+            d.ct.is_none() || d.ct != d.seg,
+            "dataset {:?} accepted with one pattern for CT and labels",
+            d.name
+        );
         if [&d.ct, &d.seg].iter().any(|p| p.as_ref().is_some_and(|p| p.contains(".."))) {
             continue;
         }
