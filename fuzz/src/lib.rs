@@ -271,7 +271,10 @@ pub fn cohort_dataset(data: &[u8]) {
             "dataset {:?} accepted with one pattern for CT and labels",
             d.name
         );
-        if [&d.ct, &d.seg].iter().any(|p| p.as_ref().is_some_and(|p| p.contains(".."))) {
+        if [&d.ct, &d.seg]
+            .iter()
+            .any(|p| p.as_ref().is_some_and(|p| p.contains("..")))
+        {
             continue;
         }
         let mut d = d.clone();
