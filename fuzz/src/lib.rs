@@ -7,11 +7,17 @@ use std::io::Write;
 use std::path::Path;
 
 use spinedrr::anatomy::MeshFormat;
-use spinedrr::anatomy::ct::{read_ct_from, read_labels_from};
+use spinedrr::anatomy::ct::{LabelMap, read_ct_from, read_labels_from};
+use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::landmarks::landmarks_from_json;
+use spinedrr::anatomy::markups::{
+    ImageGrid, LandmarkContext, VerseUnits, parse_landmarks_with, parse_slicer, parse_verse,
+};
 use spinedrr::anatomy::parse_mesh;
+use spinedrr::calibration::CalibrationPhantom;
 use spinedrr::geometry::{CArm, Intrinsics, Perturbation};
 use spinedrr::registration::LoadedProblem;
+use spinedrr::registration::intensity::LoadedIntensityProblem;
 use spinedrr::study::StudyConfig;
 
 /// A fuzz target: it takes any bytes and must return (not panic, not hang).
@@ -31,6 +37,10 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("problem_json", problem_json),
     ("landmarks_json", landmarks_json),
     ("perturb", perturb),
+    ("markups", markups),
+    ("calib_phantom", calib_phantom),
+    ("intensity_problem", intensity_problem),
+    ("cohort_dataset", cohort_dataset),
 ];
 
 fn origin() -> &'static Path {
@@ -139,5 +149,136 @@ pub fn perturb(data: &[u8]) {
     assert_eq!(back.ok(), Some(p), "spec {t:?} printed as {p}");
     if let Ok(k) = Intrinsics::from_detector(1350.0, [0.3, 0.3], 1024, 1024) {
         let _ = p.apply(&k);
+    }
+}
+
+/// A 32 × 32 × 32 label map (1 mm voxels, x and y flipped as a LPS-stored CT) holding the VerSe labels of
+/// L1–L5 (20–24) in five slabs along z: the image a VerSe centroid file is read beside.
+fn verse_seg() -> &'static LabelMap {
+    static SEG: std::sync::OnceLock<LabelMap> = std::sync::OnceLock::new();
+    SEG.get_or_init(|| {
+        let n = 32;
+        let values = (0..n * n * n)
+            .map(|i| 20 + ((i / (n * n)) * 5 / n) as u16)
+            .collect();
+        let affine = glam::DMat4::from_cols_array(&[
+            -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 15.5, 15.5, -15.5, 1.0,
+        ]);
+        LabelMap::new([n; 3], values, affine)
+            .unwrap_or_else(|e| panic!("the fuzz label map is valid: {e}"))
+    })
+}
+
+/// The landmark reader that picks the format from the content (`parse_landmarks_with`, as `study`,
+/// `phantom`, `compare` and `auto` call it): as a `.json` and as a `.mrk.json`, without an image and beside
+/// a label map in both VerSe units; then each format's own parser (`parse_slicer`, `parse_verse`), which
+/// the CLI reaches past the detector's checks.
+pub fn markups(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    let seg = verse_seg();
+    for units in [VerseUnits::Voxels, VerseUnits::Millimetres] {
+        let ctx = LandmarkContext {
+            seg: Some((seg, LabelConvention::Verse)),
+            verse_units: units,
+        };
+        let _ = parse_landmarks_with(t, Path::new("fuzz-input.json"), &ctx);
+        let _ = parse_verse(t, origin(), &ImageGrid::of(seg), units);
+    }
+    let none = LandmarkContext::default();
+    let _ = parse_landmarks_with(t, Path::new("fuzz-input.mrk.json"), &none);
+    let _ = parse_slicer(t, origin());
+}
+
+/// The calibration phantom JSON (`calibrate --phantom FILE`, a study's `phantoms = ["FILE"]`).
+pub fn calib_phantom(data: &[u8]) {
+    if let Some(t) = text(data) {
+        let _ = CalibrationPhantom::from_json_str(t, "fuzz-input");
+    }
+}
+
+/// The intensity registration problem (`register --intensity --problem P.json`). Its reader takes a
+/// path and opens the files the problem names, so the input is written to `P.json` in an empty folder
+/// of its own, and inputs that could name a file outside it (any `/` or `\\`, hence no escaped one
+/// either) are skipped: every fixed image, mesh or CT it names is missing, and the reader must say so.
+/// Problems with no view are skipped too: they reach the anatomy, whose phantom takes a second to
+/// build (the CLI test of `register --intensity` covers that path).
+pub fn intensity_problem(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    if t.contains('/') || t.contains('\\') {
+        return;
+    }
+    if let Ok(v) = serde_json::from_str::<serde_json::Value>(t)
+        && v.get("views")
+            .and_then(|w| w.as_array())
+            .is_some_and(|w| w.is_empty())
+    {
+        return;
+    }
+    static DIR: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+    let dir = DIR.get_or_init(|| {
+        let d = std::env::temp_dir().join(format!("spinedrr-fuzz-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap_or_else(|e| panic!("{}: {e}", d.display()));
+        d
+    });
+    let path = dir.join("P.json");
+    if std::fs::write(&path, data).is_ok() {
+        let _ = LoadedIntensityProblem::read(&path);
+    }
+}
+
+/// A folder holding one case of each dataset layout (empty files: `discover` lists, it does not read).
+fn dataset_folder() -> &'static Path {
+    static DIR: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let d = std::env::temp_dir().join(format!("spinedrr-fuzz-ds-{}", std::process::id()));
+        for f in [
+            "rawdata/sub-01/sub-01_ct.nii.gz",
+            "derivatives/sub-01/sub-01_seg-vert_msk.nii.gz",
+            "sub-02/sub-02_ct.nii.gz",
+            "sub-02/sub-02_seg-vert_msk.nii.gz",
+            "s0001/ct.nii.gz",
+            "s0001/segmentations.nii.gz",
+            "s0002/ct.nii.gz",
+            "s0002/segmentations/vertebrae_L1.nii.gz",
+            "c1/image.nii.gz",
+            "c1/labels.nii.gz",
+            "case-7_ct.nii.gz",
+            "case-7_seg.nii.gz",
+        ] {
+            let p = d.join(f);
+            let made = p
+                .parent()
+                .map_or(Ok(()), std::fs::create_dir_all)
+                .and_then(|()| std::fs::write(&p, b""));
+            made.unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        }
+        d
+    })
+}
+
+/// A study's cohort section (`[[anatomy.dataset]]`): the study parsed and checked, then each dataset's
+/// cases discovered in a folder holding one case of every layout (the input's own `folder` is replaced
+/// by it; a pattern with `..` is skipped, it would list folders outside). A checked dataset never takes
+/// its CT for its label map.
+pub fn cohort_dataset(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    let Ok(cfg) = StudyConfig::from_toml_str(t, "fuzz-input") else {
+        return;
+    };
+    for d in &cfg.anatomy.dataset {
+        assert!(
+            d.ct.is_none() || d.ct != d.seg,
+            "dataset {:?} accepted with one pattern for CT and labels",
+            d.name
+        );
+        if [&d.ct, &d.seg]
+            .iter()
+            .any(|p| p.as_ref().is_some_and(|p| p.contains("..")))
+        {
+            continue;
+        }
+        let mut d = d.clone();
+        d.folder = dataset_folder().to_path_buf();
+        let _ = d.discover();
     }
 }

@@ -79,12 +79,13 @@ impl Level {
             "coccyx" | "cocygis" => return Some(Level::Coccyx),
             _ => {}
         }
-        let (kind, num) = t.split_at(1.min(t.len()));
-        let n: u8 = num.parse().ok()?;
+        // The first character, not byte: a name may start with any letter (`ê1` is no level, no panic).
+        let kind = t.chars().next()?;
+        let n: u8 = t[kind.len_utf8()..].parse().ok()?;
         match kind {
-            "c" if (1..=7).contains(&n) => Some(Level::C(n)),
-            "t" if (1..=13).contains(&n) => Some(Level::T(n)),
-            "l" if (1..=6).contains(&n) => Some(Level::L(n)),
+            'c' if (1..=7).contains(&n) => Some(Level::C(n)),
+            't' if (1..=13).contains(&n) => Some(Level::T(n)),
+            'l' if (1..=6).contains(&n) => Some(Level::L(n)),
             _ => None,
         }
     }

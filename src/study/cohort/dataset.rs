@@ -171,6 +171,17 @@ impl DatasetConfig {
                 _ => {}
             }
         }
+        if let (Some(ct), Some(seg)) = (&self.ct, &self.seg)
+            && ct == seg
+        {
+            return Err(Error::invalid(
+                key("seg"),
+                format!(
+                    "dataset '{}': {seg:?} is the CT pattern too; the label map must be another file",
+                    self.name
+                ),
+            ));
+        }
         if !glob && self.labels.is_some() {
             return Err(Error::invalid(
                 key("labels"),
