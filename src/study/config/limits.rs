@@ -24,6 +24,9 @@ pub struct WorkEstimate {
     pub registration_units: u64,
     /// Registration trials: cells × trials.
     pub registration_trials: u64,
+    /// Calibration units (phantoms × σ × trial chunks) and intensity-registration units (targets ×
+    /// view sets × Δf × piercing × initial-mTRE bins).
+    pub other_units: u64,
 }
 
 impl WorkEstimate {
@@ -31,6 +34,7 @@ impl WorkEstimate {
     pub fn units(&self) -> u64 {
         self.projection_units
             .saturating_add(self.registration_units)
+            .saturating_add(self.other_units)
     }
 }
 
@@ -74,7 +78,26 @@ impl StudyConfig {
         } else {
             (0, 0)
         };
+        let c = &self.calibration;
+        let calibration_units = if self.runs(Experiment::Calibration) {
+            n(c.phantoms.len())
+                .saturating_mul(n(c.noise_px.len()))
+                .saturating_mul(n(c.trials.div_ceil(c.trials_per_unit.max(1))))
+        } else {
+            0
+        };
+        let i = &self.intensity_registration;
+        let intensity_units = if self.runs(Experiment::IntensityRegistration) {
+            n(i.targets.len())
+                .saturating_mul(n(i.views.len()))
+                .saturating_mul(n(i.df_px.len()))
+                .saturating_mul(n(i.piercing_px.len()))
+                .saturating_mul(n(i.init_mtre_mm.len().saturating_sub(1)))
+        } else {
+            0
+        };
         WorkEstimate {
+            other_units: calibration_units.saturating_add(intensity_units),
             projection_units,
             registration_cells: cells,
             registration_units: cells.saturating_mul(chunks),
@@ -138,7 +161,16 @@ mod tests {
         skewed.perturbations.skew_px = vec![1.0, 2.0];
         skewed.perturbations.pixel_scale = vec![1.01];
         skewed.perturbations.piercing_px = vec![0.0, 5.0, 10.0, 20.0];
-        for mut cfg in [StudyConfig::default(), StudyConfig::quick(), skewed] {
+        let mut calibration = StudyConfig::quick();
+        calibration.experiments.push(Experiment::Calibration);
+        calibration.calibration.trials = 7;
+        calibration.calibration.trials_per_unit = 3;
+        for mut cfg in [
+            StudyConfig::default(),
+            StudyConfig::quick(),
+            skewed,
+            calibration,
+        ] {
             cfg.registration.trials = 7;
             cfg.registration.trials_per_unit = 3;
             assert_eq!(
