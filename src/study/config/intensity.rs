@@ -57,7 +57,7 @@ impl Default for IntensitySection {
     fn default() -> Self {
         IntensitySection {
             targets: vec!["L3".into()],
-            views: vec!["ap".into(), "lat".into(), "ap+lat".into()],
+            views: vec!["ap+lat".into()],
             similarity: "ncc".into(),
             levels: vec![16, 8],
             global: true,
@@ -65,7 +65,7 @@ impl Default for IntensitySection {
             photons: 0.0,
             blur_px: 0.0,
             init_mtre_mm: vec![0.0, 5.0, 10.0],
-            starts_per_bin: 2,
+            starts_per_bin: 1,
             df_px: vec![0.0, 300.0],
             piercing_px: vec![0.0, 30.0],
         }
