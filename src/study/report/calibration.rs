@@ -4,6 +4,7 @@
 use std::fmt::Write as _;
 
 use super::layout;
+use super::layout::num;
 use crate::analysis::percentile;
 use crate::study::config::{Protocol, StudyConfig};
 use crate::study::figures::{FigureEntry, Section, distinct};
@@ -18,14 +19,6 @@ fn mean(v: &[f64]) -> f64 {
 
 fn sd(v: &[f64]) -> f64 {
     mean_sd(v).1
-}
-
-fn num(v: f64, digits: usize) -> String {
-    if v.is_finite() {
-        format!("{v:.digits$}")
-    } else {
-        "n/a".into()
-    }
 }
 
 /// Writes the section (nothing when the experiment did not run).

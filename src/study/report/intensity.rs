@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 
 use super::layout;
+use super::layout::num;
 use crate::registration::intensity::{CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
 use crate::study::config::{FixedScope, StudyConfig};
 use crate::study::figures::{FigureEntry, Section, distinct};
@@ -12,14 +13,6 @@ use crate::study::schema::{IntensitySummaryRow, StudyTables};
 
 /// The section heading.
 pub const HEADING: &str = "Intensity-based registration: DRR against radiograph";
-
-fn num(v: f64, digits: usize) -> String {
-    if v.is_finite() {
-        format!("{v:.digits$}")
-    } else {
-        "n/a".into()
-    }
-}
 
 /// Writes the section (nothing when the experiment did not run).
 pub fn section(

@@ -9,6 +9,15 @@ use std::path::Path;
 use crate::study::figures::{FigureEntry, Section};
 use crate::{Error, Result};
 
+/// `v` with `digits` decimals, or `n/a` when it is not finite (a table cell of the report).
+pub fn num(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "n/a".into()
+    }
+}
+
 /// The anchor of a heading: lower case, letters and digits kept, runs of anything else one `-`
 /// (GitHub's rule for ASCII headings; `report.html` gives each `h2` this id).
 pub fn slug(heading: &str) -> String {
