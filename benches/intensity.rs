@@ -1,8 +1,9 @@
 //! One AP+LAT intensity registration of phantom L3 from initial mTRE 10 mm on the default 1024 × 1024
-//! detector with the default schedule (bins 8, 4, 2; CMA-ES at bin 8; target ≤ 1.0 s), the same for a CT
-//! target (the phantom's L3 as a 1 mm synthetic CT, the volume DRR masked to label 29; target ≤ 2.5 s),
-//! and the time of one pose evaluation (both views rendered and compared) at each binning. The
-//! evaluation counts of the registrations (per stage) are printed once.
+//! detector with the default schedule (bins 16, 8, 4, 2; CMA-ES at bin 16; the finest level subsampled;
+//! target ≤ 1.0 s), the same for a CT target (the phantom's L3 as a 1 mm synthetic CT, the volume DRR
+//! masked to label 29; the finest level binned with 2 × 2 rays per pixel; target ≤ 2.5 s), and the time
+//! of one pose evaluation (both views rendered and compared) at each level. The evaluations, iterations,
+//! stopping rule and seconds of every stage of the two registrations are printed once.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use spinedrr::anatomy::ct::{SurfaceOptions, VoxelMask, label_surface};
@@ -14,6 +15,7 @@ use spinedrr::registration::intensity::{
     IntensityOptions, IntensityProblem, IntensityView, MovingDrr, MovingScope, Objective,
     Similarity, binned_image, binned_view, fixed_image, level_alone, level_targets, mtre_mm,
     phantom_moving, phantom_renderer, register_intensity, start_at_mtre, subsample,
+    subsampled_image, subsampled_view,
 };
 use spinedrr::render::volume::{VolumeRenderOptions, VolumeRenderer};
 
@@ -81,7 +83,14 @@ fn report(what: &str, problem: &IntensityProblem, opts: &IntensityOptions) -> Ri
         mtre_mm(&r.pose, &truth, &problem.targets),
         r.stages
             .iter()
-            .map(|s| (s.bin, s.stage, s.evaluations))
+            .map(|s| (
+                s.bin,
+                s.stage,
+                s.evaluations,
+                s.iterations,
+                s.stop,
+                (s.seconds * 1e3).round()
+            ))
             .collect::<Vec<_>>()
     );
     init
@@ -114,44 +123,77 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("intensity");
     g.sample_size(10);
     g.bench_function(
-        "AP+LAT registration of L3 from mTRE 10 mm (bins 8,4,2)",
+        "AP+LAT registration of L3 from mTRE 10 mm (bins 16,8,4,2)",
         |b| b.iter(|| register_intensity(&problem, &init, &opts).unwrap()),
     );
     g.bench_function(
-        "AP+LAT registration of a masked CT L3 from mTRE 10 mm (bins 8,4,2)",
+        "AP+LAT registration of a masked CT L3 from mTRE 10 mm (bins 16,8,4,2)",
         |b| b.iter(|| register_intensity(&ct, &ct_init, &opts).unwrap()),
     );
-    for bin in [8u32, 4, 2, 1] {
-        // As the pipeline does: the moving DRR rendered `ss` rays per level pixel and box-averaged.
-        let ss = opts.supersample.min(bin).max(1);
+    // One evaluation at each level of the default schedule, as the pipeline makes it: the coarse levels
+    // bin the fixed image, render the decimated meshes one ray per pixel and smooth both images; the
+    // finest (bin 2) subsamples the detector and renders the full meshes.
+    let finest = *opts.levels.last().unwrap();
+    for &bin in &opts.levels {
+        let last = bin == finest;
         let views = problem
             .views
             .iter()
             .map(|v| {
-                (
-                    binned_view(&v.view, bin / ss).unwrap(),
-                    binned_image(&v.fixed, bin),
-                )
+                if last {
+                    (
+                        subsampled_view(&v.view, bin).unwrap(),
+                        subsampled_image(&v.fixed, bin),
+                    )
+                } else {
+                    (
+                        binned_view(&v.view, bin).unwrap(),
+                        binned_image(&v.fixed, bin),
+                    )
+                }
             })
             .collect();
-        let detail = (bin / 2).max(1);
-        let obj = Objective::supersampled(
+        let obj = Objective::new(
             &problem.moving,
-            detail,
-            ss,
+            (bin / finest).max(1),
             views,
             Similarity::Ncc,
-            opts.smooth_px,
+            if last { 0.0 } else { opts.smooth_px },
             init,
             problem.centre(),
             problem.rho_mm(),
         )
         .unwrap();
         g.bench_function(
-            format!("one AP+LAT evaluation at bin {bin} ({ss}×{ss} rays per pixel)"),
+            format!(
+                "one AP+LAT evaluation of the meshes at bin {bin} ({})",
+                if last { "subsampled" } else { "binned" }
+            ),
             |b| b.iter(|| obj.evaluate(&[0.1, 0.0, 0.0, 0.0, 0.2, 0.0], None).unwrap()),
         );
     }
+    // The CT's finest level: binned by 2 with 2 × 2 rays per pixel (the full detector's rays).
+    let views = ct
+        .views
+        .iter()
+        .map(|v| (binned_view(&v.view, 1).unwrap(), binned_image(&v.fixed, 2)))
+        .collect();
+    let obj = Objective::supersampled(
+        &ct.moving,
+        1,
+        2,
+        views,
+        Similarity::Ncc,
+        0.0,
+        ct_init,
+        ct.centre(),
+        ct.rho_mm(),
+    )
+    .unwrap();
+    g.bench_function(
+        "one AP+LAT evaluation of the masked CT at bin 2 (2×2 rays per pixel)",
+        |b| b.iter(|| obj.evaluate(&[0.1, 0.0, 0.0, 0.0, 0.2, 0.0], None).unwrap()),
+    );
     g.finish();
 }
 

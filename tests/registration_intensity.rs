@@ -87,6 +87,8 @@ fn problem(
     }
 }
 
+/// The default options with bins 4, 2, 1 of this 256² detector: the default schedule's bins 16, 8, 4 of
+/// the full detector, the finest level sampling the fixed image's own rays (the default subsamples it).
 fn options() -> IntensityOptions {
     IntensityOptions {
         levels: vec![4, 2, 1],
@@ -128,12 +130,10 @@ fn rate(v: &[f64], below: f64) -> f64 {
 fn exact_at_the_true_k_from_starts_up_to_10_mm() {
     let p = problem(&["ap", "lat"], &Perturbation::NONE, false, None);
     let m = final_mtres(&p, &options(), 40, 10.0, 11);
-    // Every start succeeds (van de Kraats: < 2 mm) and at least 90 % end at ≤ 0.05 mm. The issue asks
-    // 95 % at ≤ 0.05 mm; 37 of these 40 reach ~1e-4 mm and 3 stall in one spurious minimum at 0.20 mm
-    // (see the notes), so this asserts what holds and the notes say what does not.
+    // Every start succeeds (van de Kraats: < 2 mm) and at least 95 % end at ≤ 0.05 mm.
     assert!(rate(&m, 2.0) >= 1.0, "success {}: {m:?}", rate(&m, 2.0));
     assert!(
-        rate(&m, 0.05 + 1e-12) >= 0.9,
+        rate(&m, 0.05 + 1e-12) >= 0.95,
         "≤ 0.05 mm: {} of starts: {m:?}",
         rate(&m, 0.05 + 1e-12)
     );

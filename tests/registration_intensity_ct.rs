@@ -1,7 +1,7 @@
 //! Intensity-based registration of a CT target: the phantom's L3 as a synthetic CT (1 mm voxels,
 //! TotalSegmentator label 29), the moving DRR the CT volume DRR (Siddon) masked to the level's label,
 //! the target points the label's surface. Noise-free fixed images of the masked level rendered at the
-//! true pose with the true K; AP+LAT on the default C-arm binned by 8 (128² px). From seeded starts of
+//! true pose with the true K; AP+LAT on the default C-arm binned by 2 (512² px). From seeded starts of
 //! initial mTRE ≤ 10 mm the registration must end at the truth.
 
 use glam::DVec3;
@@ -51,7 +51,7 @@ fn a_masked_ct_level_registers_at_the_true_k() {
     let views = ["ap", "lat"]
         .iter()
         .map(|n| {
-            let v = binned_view(carm.view(n).unwrap(), 8).unwrap();
+            let v = binned_view(carm.view(n).unwrap(), 2).unwrap();
             IntensityView {
                 fixed: renderer.render(&v),
                 view: v,
@@ -63,8 +63,10 @@ fn a_masked_ct_level_registers_at_the_true_k() {
         views,
         targets,
     };
+    // Bins 8, 4, 2 of this 512² detector (the default schedule.s 16, 8, 4 of the full one, one level
+    // shorter); for a volume the finest level bins, with 2 × 2 rays per pixel by default.
     let opts = IntensityOptions {
-        levels: vec![4, 2, 1],
+        levels: vec![8, 4, 2],
         ..IntensityOptions::default()
     };
     let mut rng = SplitMix64::new(5);
@@ -91,12 +93,17 @@ fn a_masked_ct_level_registers_at_the_true_k() {
             mtre_mm(&r.pose, &TRUTH, &problem.targets)
         })
         .collect();
-    // Every start succeeds (van de Kraats: final mTRE < 2 mm) and the successes end, on average, within
-    // the 0.5 mm. (The issue's ≤ 0.05 mm for ≥ 95 % of starts is not met for the CT target: the
-    // Siddon DRR of 1 mm voxels is piecewise linear in the pose with a kink at every voxel boundary a
-    // ray crosses, and LM stalls at 0.1–0.3 mm in most starts; see the notes.)
+    // Every start succeeds (van de Kraats: final mTRE < 2 mm) and at least 95 % of them end within
+    // 0.05 mm. (Eight starts, not the 40: one CT registration takes ~19 s on 2 cores; the notes
+    // give the 40-start measurement.) One ray per pixel on the finest level — the full detector, or a
+    // subsampled one — stalls 0.1–0.3 mm short in most starts: the Siddon DRR of 1 mm voxels has a
+    // kink wherever a ray crosses a voxel boundary. The default bins the finest level with 2 × 2 rays.
     let ok: Vec<f64> = finals.iter().copied().filter(|&m| m < 2.0).collect();
     assert_eq!(ok.len(), finals.len(), "failed starts: {finals:?}");
-    let mean = ok.iter().sum::<f64>() / ok.len() as f64;
-    assert!(mean <= 0.5, "mean final mTRE {mean} mm: {finals:?}");
+    let exact = finals.iter().filter(|&&m| m <= 0.05).count();
+    assert!(
+        exact as f64 >= 0.95 * finals.len() as f64,
+        "{exact} of {} starts within 0.05 mm: {finals:?}",
+        finals.len()
+    );
 }

@@ -159,17 +159,23 @@ pub fn gaussian_blur(img: &ImageF32, sigma: f64) -> ImageF32 {
             *o = s as f32;
         }
     });
+    // Columns a whole row at a time: output row v is Σ_k t_k · (row v + k − r of `tmp`), contiguous.
     let mut data = vec![0f32; w * h];
-    data.par_chunks_mut(w).enumerate().for_each(|(v, out)| {
-        for (u, o) in out.iter_mut().enumerate() {
-            let s: f64 = taps
-                .iter()
-                .enumerate()
-                .map(|(k, t)| t * f64::from(tmp[clamp(v as isize + k as isize - r, h) * w + u]))
-                .sum();
-            *o = s as f32;
-        }
-    });
+    data.par_chunks_mut(w).enumerate().for_each_init(
+        || vec![0f64; w],
+        |acc, (v, out)| {
+            acc.iter_mut().for_each(|a| *a = 0.0);
+            for (k, t) in taps.iter().enumerate() {
+                let src = &tmp[clamp(v as isize + k as isize - r, h) * w..][..w];
+                for (a, &x) in acc.iter_mut().zip(src) {
+                    *a += t * f64::from(x);
+                }
+            }
+            for (o, a) in out.iter_mut().zip(acc.iter()) {
+                *o = *a as f32;
+            }
+        },
+    );
     ImageF32 {
         width: img.width,
         height: img.height,

@@ -1,13 +1,13 @@
 //! Local refinement: Levenberg–Marquardt on the normalised residual of a level's [`Objective`] with a
-//! central-difference Jacobian.
+//! forward-difference Jacobian.
 //!
-//! Each iteration renders the twelve poses `p ± h e_k` (in parallel; a thickness DRR is piecewise linear
-//! in the pose, with kinks where rays cross mesh edges, and the symmetric difference averages over
-//! them), forms `JᵀJ` and `Jᵀr`, and
+//! Each iteration renders the six poses `p + h e_k` (in parallel), forms `JᵀJ` and `Jᵀr`, and
 //! solves `(JᵀJ + λ diag(JᵀJ)) δ = −Jᵀr` (Marquardt 1963; λ ÷ 10 after an accepted step, × 10 after a
 //! rejected one). Stopping rules, whichever comes first: the cost falls below `abs_tol`; an accepted step
 //! decreases the cost by less than `rel_tol` of it; the step is shorter than `step_tol` (mm-equivalent
 //! parameters, see [`super::objective`]); λ exceeds 10¹⁰ (no descent direction left); `max_iterations`.
+//! When no damping descends (the difference step fell into a kink of the piecewise-linear DRR), the
+//! Jacobian is recomputed with a step 4× wider, up to 64 h, before it stops.
 
 use rayon::prelude::*;
 
@@ -58,10 +58,10 @@ pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResul
             .into_par_iter()
             .map(|k| {
                 let mut q = p;
-                q[k] += opts.h;
+                q[k] += h;
                 let mut rk = Vec::new();
                 obj.evaluate(&q, Some(&mut rk))?;
-                Ok(rk.iter().zip(&r).map(|(a, b)| (a - b) / opts.h).collect())
+                Ok(rk.iter().zip(&r).map(|(a, b)| (a - b) / h).collect())
             })
             .collect::<Result<_>>()?;
         let mut jtj = [[0.0; 6]; 6];

@@ -33,7 +33,7 @@ pub use evaluate::{
 pub use lm::{LmOptions, LmResult, refine};
 pub use objective::{Evaluation, MeshDrr, MovingDrr, Objective, pose_of};
 pub use problem::{LoadedIntensityProblem, run_intensity_problem};
-pub use pyramid::{binned_image, binned_view};
+pub use pyramid::{binned_image, binned_view, subsampled_image, subsampled_view};
 pub use register::{
     IntensityOptions, IntensityProblem, IntensityResult, IntensityView, StageReport, check_visible,
     register_intensity,

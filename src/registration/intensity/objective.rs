@@ -126,23 +126,53 @@ impl MovingDrr {
 impl LevelRenderer<'_> {
     fn render_at(&self, view: &View, pose: &RigidTransform) -> Result<ImageF32> {
         let mut out = ImageF32::zeros(0, 0);
-        self.render_into(view, pose, &mut out)?;
+        self.render_into(view, pose, &mut out, false)?;
         Ok(out)
     }
 
-    /// Renders into `out`, reusing its buffer (mesh renderers; the volume renderer returns a new image).
-    fn render_into(&self, view: &View, pose: &RigidTransform, out: &mut ImageF32) -> Result<()> {
+    /// Renders into `out`, reusing its buffer (mesh renderers; the volume renderer returns a new image);
+    /// `summed` takes a mesh renderer's signed-sum path
+    /// ([`ThicknessRenderer::render_line_integral_summed_into`]) instead of the paired one.
+    fn render_into(
+        &self,
+        view: &View,
+        pose: &RigidTransform,
+        out: &mut ImageF32,
+        summed: bool,
+    ) -> Result<()> {
         let moved = View {
             world_to_camera: view.world_to_camera.compose(pose),
             ..view.clone()
         };
         match self {
+            LevelRenderer::Mesh(r) if summed => {
+                r.render_line_integral_summed_into(&moved, out)?;
+            }
             LevelRenderer::Mesh(r) => {
                 r.render_line_integral_into(&moved, out)?;
             }
             LevelRenderer::Volume(v) => *out = v.render(&moved),
         }
         Ok(())
+    }
+
+    /// Whether the signed-sum render of `view` at `pose` is the paired render `paired` (within f32
+    /// rounding of the largest value): then the meshes are summed in the loop. It is not when a mesh
+    /// intersects itself (see [`ThicknessRenderer::render_line_integral_summed_into`]).
+    fn sums_like(&self, view: &View, pose: &RigidTransform, paired: &ImageF32) -> Result<bool> {
+        if !matches!(self, LevelRenderer::Mesh(_)) {
+            return Ok(false);
+        }
+        let mut summed = ImageF32::zeros(0, 0);
+        self.render_into(view, pose, &mut summed, true)?;
+        let peak = paired.data.iter().fold(0f32, |m, x| m.max(x.abs()));
+        let tol = 1e-5 * peak + 1e-6;
+        Ok(summed.data.len() == paired.data.len()
+            && summed
+                .data
+                .iter()
+                .zip(&paired.data)
+                .all(|(a, b)| (a - b).abs() <= tol))
     }
 }
 
@@ -198,6 +228,9 @@ pub struct Objective<'a> {
     /// The moving DRR is rendered `supersample × supersample` rays per level pixel and box-averaged,
     /// as the fixed image's binning averages its detector pixels.
     supersample: u32,
+    /// Mesh DRRs are rendered by signed sums (checked against the paired render at the base pose of
+    /// every view when the objective was made).
+    summed: bool,
     smooth_px: f64,
     views: Vec<LevelView>,
     base: RigidTransform,
@@ -258,10 +291,13 @@ impl<'a> Objective<'a> {
         let moving = moving.level(detail)?;
         let supersample = supersample.max(1);
         let mut out = Vec::with_capacity(views.len());
+        let mut summed = true;
         for (view, fixed) in views {
             let fixed = gaussian_blur(&fixed, smooth_px);
             let f = FixedFeatures::new(sim, &fixed, &format!("views[{}].fixed", view.name))?;
-            let first = binned_image(&moving.render_at(&view, &base)?, supersample);
+            let paired = moving.render_at(&view, &base)?;
+            summed = summed && moving.sums_like(&view, &base, &paired)?;
+            let first = binned_image(&paired, supersample);
             if (first.width, first.height) != (fixed.width, fixed.height) {
                 return Err(Error::Internal(format!(
                     "view '{}': the moving DRR binned by {supersample} is {}×{} px, the fixed image {}×{}",
@@ -301,6 +337,7 @@ impl<'a> Objective<'a> {
         Ok(Objective {
             moving,
             supersample,
+            summed,
             smooth_px,
             views: out,
             base,
@@ -328,7 +365,8 @@ impl<'a> Objective<'a> {
 
     /// The similarity of one view at `pose`; its residual is left in `b.residual`.
     fn evaluate_view(&self, lv: &LevelView, pose: &RigidTransform, b: &mut Buffers) -> Result<f64> {
-        self.moving.render_into(&lv.view, pose, &mut b.render)?;
+        self.moving
+            .render_into(&lv.view, pose, &mut b.render, self.summed)?;
         let img = if self.supersample > 1 {
             binned_image_into(&b.render, self.supersample, &mut b.binned);
             &b.binned

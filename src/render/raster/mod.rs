@@ -25,6 +25,7 @@
 //! and a counting sort gathers each pixel's crossings.
 
 mod edges;
+mod summed;
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
@@ -33,6 +34,8 @@ use self::edges::{Edges, PixelDirs};
 use super::pairing::Crossing;
 use super::scene::RenderScene;
 use crate::geometry::View;
+
+pub(crate) use self::summed::SumScratch;
 
 /// Pixel margin of a triangle's bounding box: covers rounding in the projected corners (the edge
 /// functions, not the box, decide coverage).
@@ -125,7 +128,7 @@ impl<'a> RasterView<'a> {
                     &px[g],
                     g,
                     tris.start,
-                    height,
+                    (intr.width as usize, height),
                     band_rows,
                 )
             })
@@ -281,30 +284,31 @@ struct Bins {
 
 impl Bins {
     /// Bins `triangles` (the mesh's triangles from index `first`) of mesh `mesh`, whose projected vertices
-    /// are `px`, into bands of `band_rows` (a power of two) rows of an image `height` rows high.
+    /// are `px`, into bands of `band_rows` (a power of two) rows of a `width × height` image.
     fn new(
         triangles: &[[u32; 3]],
         px: &[DVec2],
         mesh: usize,
         first: usize,
-        height: usize,
+        (width, height): (usize, usize),
         band_rows: usize,
     ) -> Self {
         let bands = height.div_ceil(band_rows);
-        let last_row = height as f64 - 1.0;
+        let (last_col, last_row) = (width as f64 - 1.0, height as f64 - 1.0);
         let shift = band_rows.trailing_zeros();
-        // First and last band of each triangle's rows, `None` when its box holds no pixel row.
+        // First and last band of each triangle's rows, `None` when its box holds no pixel centre (no
+        // pixel row, or no pixel column: most triangles of a fine mesh on a coarse detector).
         let ranges: Vec<Option<(u32, u32)>> = triangles
             .iter()
             .map(|t| {
-                let [a, b, c] = t.map(|i| px[i as usize].y);
-                let lo = (a.min(b).min(c) - BOX_MARGIN_PX).max(0.0);
-                let hi = (a.max(b).max(c) + BOX_MARGIN_PX).min(last_row);
-                // Here `0 ≤ lo` and `hi < height` (`max` and `min` drop a NaN).
-                if lo > hi {
+                let [a, b, c] = t.map(|i| px[i as usize]);
+                let lo = (a.min(b).min(c) - BOX_MARGIN_PX).max(DVec2::ZERO);
+                let hi = (a.max(b).max(c) + BOX_MARGIN_PX).min(DVec2::new(last_col, last_row));
+                // Here `0 ≤ lo` and `hi < size` (`max` and `min` drop a NaN).
+                if lo.x > hi.x || lo.y > hi.y || ceil_small(lo.x) > floor_small(hi.x) {
                     return None;
                 }
-                let (r0, r1) = (ceil_small(lo) as usize, hi as usize);
+                let (r0, r1) = (ceil_small(lo.y) as usize, hi.y as usize);
                 (r0 <= r1).then_some(((r0 >> shift) as u32, (r1 >> shift) as u32))
             })
             .collect();

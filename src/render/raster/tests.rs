@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::{BandScratch, RasterView};
+use super::{BandScratch, RasterView, SumScratch};
 use crate::anatomy::TriMesh;
 use crate::geometry::{Intrinsics, RigidTransform, View};
 use crate::render::{RenderScene, SceneMesh};
@@ -64,6 +64,7 @@ fn raster_all(scene: &RenderScene, k: Intrinsics) {
         return;
     };
     let mut scratch = BandScratch::default();
+    let mut sums = SumScratch::default();
     for band in 0..(k.height as usize).div_ceil(16) {
         rv.band_hits(band, &mut scratch, |u, row, hits| {
             assert!(
@@ -72,6 +73,13 @@ fn raster_all(scene: &RenderScene, k: Intrinsics) {
             );
             assert!(!hits.is_empty());
         });
+        // The signed-sum path visits the same pixels and writes only inside the band.
+        let mut out = vec![0f32; 16 * k.width as usize];
+        let mut unbalanced = Vec::new();
+        rv.band_line_integral(band, &mut sums, &mut out, &mut unbalanced);
+        for &(u, row) in &unbalanced {
+            assert!(u < k.width as usize && row < 16, "{k:?}");
+        }
     }
 }
 
@@ -118,4 +126,24 @@ fn sane_intrinsics_still_see_the_cube() {
     }
     // The cube's 20 mm side at 990–1010 mm depth under f = 100 px spans 2 pixels: 2 × 2 rays.
     assert_eq!(covered, 4);
+    // By signed sums the four rays are balanced and 20 mm long times their path per unit depth.
+    let mut sums = SumScratch::default();
+    let (mut out, mut unbalanced) = (vec![0f32; 16 * 40], Vec::new());
+    let mut lit = 0;
+    for band in 0..3 {
+        out.iter_mut().for_each(|x| *x = 0.0);
+        lit += rv.band_line_integral(band, &mut sums, &mut out, &mut unbalanced);
+        for (i, &x) in out.iter().enumerate() {
+            if x != 0.0 {
+                let (u, v) = ((i % 40) as f64, (band * 16 + i / 40) as f64);
+                let d = k.back_project(u, v);
+                let expect = 20.0 * (d / d.z).length();
+                assert!(
+                    (f64::from(x) - expect).abs() < 1e-4,
+                    "({u}, {v}): {x} vs {expect}"
+                );
+            }
+        }
+    }
+    assert_eq!((lit, unbalanced.len()), (4, 0));
 }

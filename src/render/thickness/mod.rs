@@ -26,7 +26,7 @@ pub use self::output::{Masks, RenderStats, ThicknessDetails, ThicknessDrr, Thick
 use self::rays::{Scratch, integrate_lane, trace_single};
 use self::tiles::{Camera, TILE, TilePlan};
 use super::pairing::{RayIntegral, integrate_crossings};
-use super::raster::{BandScratch, RasterView};
+use super::raster::{BandScratch, RasterView, SumScratch};
 use super::scene::RenderScene;
 use super::tracer::HitTracer;
 use crate::Result;
@@ -70,6 +70,9 @@ const RASTER_BAND_ROWS: usize = 16;
 thread_local! {
     /// Per-thread buffers of the raster bands.
     static RASTER_SCRATCH: std::cell::RefCell<BandScratch> = std::cell::RefCell::default();
+    /// Per-thread buffers of summed raster bands and their unbalanced pixels.
+    static SUM_SCRATCH: std::cell::RefCell<(SumScratch, Vec<(usize, usize)>)> =
+        std::cell::RefCell::default();
 }
 
 /// One band of rows of every output, written by one worker; outputs not asked for are `None`.
@@ -211,6 +214,82 @@ impl ThicknessRenderer {
             &mut [],
             &mut [],
         )
+    }
+
+    /// [`Self::render_line_integral_into`] by signed sums of the rasterised crossings instead of paired
+    /// ones (see `raster::summed`): several times faster, and the same image wherever a ray's crossings
+    /// alternate entry and exit, which they do in closed meshes that do not intersect themselves. Rays
+    /// that lost or doubled a crossing at a vertex are traced and paired as in the paired render. A
+    /// scene with an open mesh, a renderer that traces, or a view that cannot be projected falls back to
+    /// the paired render. A self-intersecting mesh is summed where it overlaps itself (counted twice):
+    /// callers that cannot rule that out compare one summed render with a paired one first.
+    pub fn render_line_integral_summed_into(
+        &self,
+        view: &View,
+        out: &mut ImageF32,
+    ) -> Result<RenderStats> {
+        let raster = match &self.gather {
+            Gather::Raster { .. } if self.scene.open_meshes.is_empty() => {
+                RasterView::new(&self.scene, view, RASTER_BAND_ROWS)
+            }
+            _ => None,
+        };
+        let Some(raster) = raster else {
+            return self.render_line_integral_into(view, out);
+        };
+        let start = Instant::now();
+        view.intrinsics.validate()?;
+        let (w, h) = (view.intrinsics.width, view.intrinsics.height);
+        out.width = w;
+        out.height = h;
+        out.data.clear();
+        out.data.resize(w as usize * h as usize, 0.0);
+        let cam = Camera::new(view);
+        let rows = raster.band_rows();
+        let w = w as usize;
+        let stats = out
+            .data
+            .par_chunks_mut(w * rows)
+            .enumerate()
+            .map(|(b, li)| {
+                SUM_SCRATCH.with_borrow_mut(|(scratch, unbalanced)| {
+                    unbalanced.clear();
+                    let covered = raster.band_line_integral(b, scratch, li, unbalanced);
+                    let mut stats = RenderStats {
+                        rays_traced: covered + unbalanced.len() as u64,
+                        rays_culled: li.len() as u64 - covered - unbalanced.len() as u64,
+                        ..RenderStats::default()
+                    };
+                    for &(u, r) in unbalanced.iter() {
+                        let pixel = (u as f64, (b * rows + r) as f64);
+                        let mut ray = trace_single(
+                            self.ray_tracer(),
+                            &self.scene,
+                            cam.source,
+                            cam.dir(pixel.0, pixel.1),
+                            &mut Scratch::new(),
+                        );
+                        if !ray.valid {
+                            ray = repair::repair(
+                                self.ray_tracer(),
+                                &self.scene,
+                                &cam,
+                                pixel,
+                                ray,
+                                &mut stats,
+                            );
+                        }
+                        stats.hits += u64::from(ray.hits);
+                        li[r * w + u] = ray.line_integral as f32;
+                    }
+                    stats
+                })
+            })
+            .reduce(RenderStats::default, RenderStats::add);
+        Ok(RenderStats {
+            render_ms: start.elapsed().as_secs_f64() * 1e3,
+            ..stats
+        })
     }
 
     /// Renders into zeroed buffers of the view's size (`depth`, `obj`, `st` empty unless `opts` asks

@@ -101,7 +101,7 @@ impl IntensityBench {
         let opts = IntensityOptions {
             levels: LEVELS.to_vec(),
             global: false,
-            supersample: 1,
+            supersample: Some(1),
             ..IntensityOptions::default()
         };
         match register_intensity(&self.problem, &RigidTransform::IDENTITY, &opts) {
