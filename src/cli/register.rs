@@ -11,7 +11,7 @@ use spinedrr::registration::{LoadedProblem, RegisterOutcome, RegisterRequest, ru
 pub struct Args {
     /// Intensity-based registration: --problem is an intensity problem ({"anatomy", "moving"?,
     /// "views": [{"name", "fixed": "ap.tiff", "K" (assumed), "world_to_camera"}], "init", "truth"?,
-    /// "similarity"?: ncc | gc | gncc | lncc[:P], "levels"?: [8, 4, 2], "global"?, "seed"?}; see the
+    /// "similarity"?: ncc | gc | gncc | lncc[:P], "levels"?: [16, 8, 4, 2], "global"?, "seed"?}; see the
     /// README). R.json then holds R, t, similarity, evaluations, seconds, converged (+ rot_err_deg,
     /// trans_err_mm, mtre_mm with a truth).
     #[arg(long, conflicts_with_all = ["views", "noise_px", "init_rot_deg", "init_trans_mm"])]

@@ -3,7 +3,7 @@
 //!
 //! `P.json`: `{"anatomy": A, "moving"?: "level" | "anatomy", "views": [{"name", "fixed": "ap.tiff", "K":
 //! [[…]] (assumed), "world_to_camera": [[…]], "width"?, "height"?}, …], "init": {"R", "t"}, "truth"?:
-//! {"R", "t"}, "similarity"?: "ncc" | "gc" | "gncc" | "lncc[:P]", "levels"?: [8, 4, 2], "global"?: true,
+//! {"R", "t"}, "similarity"?: "ncc" | "gc" | "gncc" | "lncc[:P]", "levels"?: [16, 8, 4, 2], "global"?: true,
 //! "seed"?: 0}` with the anatomy `A` one of `{"phantom": "L3", "soft_tissue"?: false}`, `{"meshes":
 //! [{"file", "mu_per_mm"}, …]}` (the first mesh is the vertebra: its vertices are the targets) or
 //! `{"ct", "seg", "label", "labels"?}` (`label` a level name or id in the `labels` convention,
