@@ -44,6 +44,8 @@ pub enum Mark {
     Band { lo: f64, hi: f64 },
     /// A dashed horizontal line at y.
     Level { y: f64, colour: usize },
+    /// Nothing drawn: the y axis spans at least `lo..hi` (a rate's 0–100 %).
+    Extent { lo: f64, hi: f64 },
 }
 
 pub(super) fn plot_err(e: impl std::fmt::Display) -> Error {
@@ -79,6 +81,11 @@ pub(super) const SINGLE: ChartStyle = ChartStyle {
 };
 
 /// The padded (x, y) ranges of the finite points (and of their error bars).
+/// Dot radius (px) of series `i` of `n`: 4 for the last, 1 px more per later series, at most 8.
+fn radius(i: usize, n: usize) -> i32 {
+    4 + n.saturating_sub(i + 1).min(4) as i32
+}
+
 fn ranges(series: &[Series], marks: &[Mark]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for s in series {
@@ -106,7 +113,7 @@ fn ranges(series: &[Series], marks: &[Mark]) -> (std::ops::Range<f64>, std::ops:
                 (x0, x1) = (x0.min(x), x1.max(x));
                 (y, y)
             }
-            Mark::Band { lo, hi } => (lo, hi),
+            Mark::Band { lo, hi } | Mark::Extent { lo, hi } => (lo, hi),
             Mark::Level { y, .. } => (y, y),
         };
         (y0, y1) = (y0.min(lo), y1.max(hi));
@@ -285,7 +292,11 @@ pub(super) fn draw_lines<DB: DrawingBackend>(
                 PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
             });
         chart
-            .draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled())))
+            // Earlier series get larger dots, so a line drawn over an equal one leaves it visible.
+            .draw_series(
+                pts.iter()
+                    .map(|&p| Circle::new(p, radius(i, series.len()), colour.filled())),
+            )
             .map_err(plot_err)?;
         let whiskers = s
             .points
@@ -315,7 +326,7 @@ pub(super) fn draw_lines<DB: DrawingBackend>(
                 });
                 chart.draw_series(dashes).map_err(plot_err)?;
             }
-            Mark::Band { .. } => {}
+            Mark::Band { .. } | Mark::Extent { .. } => {}
         }
     }
     if let Some(size) = style.legend {

@@ -91,13 +91,27 @@ pub struct PanelChart<'a> {
 }
 
 impl PanelChart<'_> {
+    /// Figure width (px): 600 per column, at least [`MIN_PANEL_CHART_WIDTH_PX`] so that a one-panel
+    /// figure still holds its title and a legend row of three entries.
+    fn width(&self) -> usize {
+        (600 * self.grid().1).max(MIN_PANEL_CHART_WIDTH_PX)
+    }
+
     fn grid(&self) -> (usize, usize) {
         let cols = self.cols.clamp(1, self.panels.len().max(1));
         (self.panels.len().div_ceil(cols).max(1), cols)
     }
 
-    /// Legend entries per row and rows of the legend strip (entries ~330 px wide).
+    /// Legend entries per row and rows of the legend strip: an entry is the swatch and its longest
+    /// label (~11 px per character at the legend's 22 px font), at least 330 px.
     fn legend_layout(&self) -> (usize, usize) {
+        let longest = self
+            .panels
+            .iter()
+            .flat_map(|p| p.series.iter().map(|s| s.label.chars().count()))
+            .chain(self.legend_extra.iter().map(|(l, _)| l.chars().count()))
+            .max()
+            .unwrap_or(0);
         let n = self
             .panels
             .iter()
@@ -105,16 +119,23 @@ impl PanelChart<'_> {
             .max()
             .unwrap_or(0)
             + self.legend_extra.len();
-        let per_row = ((600 * self.grid().1) / 330).clamp(1, n.max(1));
+        let entry = (50 + 11 * longest).max(330);
+        let per_row = (self.width() / entry).clamp(1, n.max(1));
         (per_row, n.div_ceil(per_row).max(1))
     }
 }
 
+/// Least width of a [`PanelChart`] (px).
+const MIN_PANEL_CHART_WIDTH_PX: usize = 1000;
+
 impl Figure for PanelChart<'_> {
     fn size(&self) -> (u32, u32) {
-        let (rows, cols) = self.grid();
+        let rows = self.grid().0;
         let legend_rows = self.legend_layout().1 as u32;
-        (600 * cols as u32, 80 + 30 * legend_rows + 500 * rows as u32)
+        (
+            self.width() as u32,
+            80 + 30 * legend_rows + 500 * rows as u32,
+        )
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<Vec<Raster>> {

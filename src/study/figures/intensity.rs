@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use super::composed::Conditions;
-use super::{FigureEntry, Panel, Section, Series, distinct, panel_chart};
+use super::{FigureEntry, Mark, Panel, Section, Series, distinct, panel_chart};
 use crate::Result;
 use crate::study::schema::{IntensityBinRow, IntensitySummaryRow, StudyTables};
 
@@ -85,7 +85,8 @@ fn success_panel(rows: &[&IntensityBinRow], views: &str, reached: bool) -> Panel
             format!("{}: final mTRE < 2 mm", views.to_uppercase())
         },
         series,
-        marks: Vec::new(),
+        // Rates on their whole scale: all-100 % panels otherwise span 95–105 %.
+        marks: vec![Mark::Extent { lo: 0.0, hi: 100.0 }],
     }
 }
 
