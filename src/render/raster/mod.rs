@@ -154,23 +154,20 @@ impl<'a> RasterView<'a> {
         self.dirs.camera_dir(u, v).length()
     }
 
-    /// Calls `visit(u, row in band, crossings)` for every pixel of band `band` (rows `band · band_rows ..`)
-    /// whose ray crosses at least one triangle, in row-major order. A crossing's `t` is the camera-frame
-    /// depth of the point where the ray crosses the triangle's plane (mm), grouped by mesh (not sorted by
-    /// depth). `scratch` is reused between bands.
-    pub(crate) fn band_hits(
+    /// Calls `visit(mesh, triangle, (u0, u1, v0, v1), edges)` for every triangle binned to band `band`
+    /// whose pixel box, clamped to the band, holds a pixel centre and whose plane does not contain the
+    /// source: the one walk over a band's triangles that [`Self::band_hits`] and
+    /// [`Self::band_line_integral`] share.
+    #[inline]
+    fn band_triangles(
         &self,
         band: usize,
-        scratch: &mut BandScratch,
-        mut visit: impl FnMut(usize, usize, &mut [Crossing]),
+        mut visit: impl FnMut(usize, u32, (usize, usize, usize, usize), Edges),
     ) {
         let w = self.intr.width as usize;
         let h = self.intr.height as usize;
         let row0 = band * self.band_rows;
         let row1 = (row0 + self.band_rows).min(h) - 1;
-        let frags = &mut scratch.fragments;
-        let len = &mut 0usize;
-        let (mut umin, mut umax) = (usize::MAX, 0);
         // Pixel centres a triangle of the band may cover.
         let box_lo = DVec2::new(0.0, row0 as f64);
         let box_hi = DVec2::new((w - 1) as f64, row1 as f64);
@@ -193,41 +190,66 @@ impl<'a> RasterView<'a> {
                 if u0 > u1 || v0 > v1 {
                     continue;
                 }
-                let (u0, u1, v0, v1) = (u0 as usize, u1 as usize, v0 as usize, v1 as usize);
                 let Some(edges) = Edges::new(tri.map(|i| cam[i as usize]), &self.dirs) else {
                     continue;
                 };
-                // Every bounding-box pixel is written and the length advances by its coverage (no
-                // branch: for a small triangle, whether a box pixel is covered is a coin toss).
-                let before = *len;
-                let need = before + (v1 - v0 + 1) * (u1 - u0 + 1);
-                if frags.len() < need {
-                    frags.resize(need.next_power_of_two(), EMPTY_FRAGMENT);
-                }
-                for v in v0..v1 + 1 {
-                    let row = edges.row(v as f64);
-                    let r = (v - row0) as u32;
-                    for u in (u0 as u32)..(u1 as u32 + 1) {
-                        let uf = f64::from(u);
-                        frags[*len] = Fragment {
-                            u,
-                            row: r,
-                            crossing: Crossing {
-                                t: row.depth(uf),
-                                prim: t,
-                                geom: g as u16,
-                                entry: edges.entry,
-                            },
-                        };
-                        *len += usize::from(row.covers(uf));
-                    }
-                }
-                if *len > before {
-                    umin = umin.min(u0);
-                    umax = umax.max(u1);
-                }
+                visit(
+                    g,
+                    t,
+                    (u0 as usize, u1 as usize, v0 as usize, v1 as usize),
+                    edges,
+                );
             }
         }
+    }
+
+    /// Calls `visit(u, row in band, crossings)` for every pixel of band `band` (rows `band · band_rows ..`)
+    /// whose ray crosses at least one triangle, in row-major order. A crossing's `t` is the camera-frame
+    /// depth of the point where the ray crosses the triangle's plane (mm), grouped by mesh (not sorted by
+    /// depth). `scratch` is reused between bands.
+    pub(crate) fn band_hits(
+        &self,
+        band: usize,
+        scratch: &mut BandScratch,
+        mut visit: impl FnMut(usize, usize, &mut [Crossing]),
+    ) {
+        let h = self.intr.height as usize;
+        let row0 = band * self.band_rows;
+        let row1 = (row0 + self.band_rows).min(h) - 1;
+        let frags = &mut scratch.fragments;
+        let len = &mut 0usize;
+        let (mut umin, mut umax) = (usize::MAX, 0);
+        self.band_triangles(band, |g, t, (u0, u1, v0, v1), edges| {
+            // Every bounding-box pixel is written and the length advances by its coverage (no
+            // branch: for a small triangle, whether a box pixel is covered is a coin toss).
+            let before = *len;
+            let need = before + (v1 - v0 + 1) * (u1 - u0 + 1);
+            if frags.len() < need {
+                frags.resize(need.next_power_of_two(), EMPTY_FRAGMENT);
+            }
+            for v in v0..v1 + 1 {
+                let row = edges.row(v as f64);
+                let r = (v - row0) as u32;
+                for u in (u0 as u32)..(u1 as u32 + 1) {
+                    let uf = f64::from(u);
+                    frags[*len] = Fragment {
+                        u,
+                        row: r,
+                        crossing: Crossing {
+                            t: row.depth(uf),
+                            prim: t,
+                            geom: g as u16,
+                            entry: edges.entry,
+                        },
+                    };
+                    *len += usize::from(row.covers(uf));
+                }
+            }
+            if *len > before {
+                umin = umin.min(u0);
+                umax = umax.max(u1);
+            }
+        });
         let frags = &frags[..*len];
         if frags.is_empty() {
             return;

@@ -15,10 +15,7 @@
 //! events on one ray). A self-intersecting mesh breaks the alternation: the caller checks a summed render
 //! against a paired one before relying on it.
 
-use glam::DVec2;
-
-use super::edges::Edges;
-use super::{BOX_MARGIN_PX, RasterView, ceil_small, floor_small};
+use super::RasterView;
 
 /// Per-thread buffers of [`RasterView::band_line_integral`].
 #[derive(Default)]
@@ -51,56 +48,31 @@ impl RasterView<'_> {
         balance.clear();
         balance.resize(cells, [0, 0]);
         let (mut umin, mut umax) = (usize::MAX, 0);
-        let box_lo = DVec2::new(0.0, row0 as f64);
-        let box_hi = DVec2::new((w - 1) as f64, row1 as f64);
-        for bins in &self.bins {
-            let g = bins.mesh as usize;
-            let (triangles, px, cam) = (
-                &self.scene.meshes[g].mesh.triangles,
-                &self.px[g],
-                &self.cam[g],
-            );
-            let mu = self.scene.meshes[g].mu_per_mm;
-            let band_tris = &bins.tris[bins.start[band] as usize..bins.start[band + 1] as usize];
-            for &t in band_tris {
-                let tri = triangles[t as usize];
-                let [a, b, c] = tri.map(|i| px[i as usize]);
-                let lo = (a.min(b).min(c) - BOX_MARGIN_PX).max(box_lo);
-                let hi = (a.max(b).max(c) + BOX_MARGIN_PX).min(box_hi);
-                let (u0, v0) = (ceil_small(lo.x), ceil_small(lo.y));
-                let (u1, v1) = (floor_small(hi.x), floor_small(hi.y));
-                if u0 > u1 || v0 > v1 {
-                    continue;
-                }
-                let (u0, u1, v0, v1) = (u0 as usize, u1 as usize, v0 as usize, v1 as usize);
-                let Some(edges) = Edges::new(tri.map(|i| cam[i as usize]), &self.dirs) else {
-                    continue;
-                };
-                // An exit adds its depth, an entry subtracts it.
-                let s: i32 = if edges.entry { -1 } else { 1 };
-                let weight = f64::from(s) * mu;
-                let tag = [s, s * g as i32];
-                umin = umin.min(u0);
-                umax = umax.max(u1);
-                for v in v0..v1 + 1 {
-                    let row = edges.row(v as f64);
-                    let base = (v - row0) * w;
-                    let (sums, bals) = (
-                        &mut sum[base + u0..base + u1 + 1],
-                        &mut balance[base + u0..base + u1 + 1],
-                    );
-                    // Every box pixel is updated by its coverage (0 or 1), without a branch.
-                    for (k, (acc, bal)) in sums.iter_mut().zip(bals.iter_mut()).enumerate() {
-                        let uf = (u0 + k) as f64;
-                        let on = row.covers(uf);
-                        *acc += f64::from(u8::from(on)) * weight * row.depth(uf);
-                        let m = i32::from(on);
-                        bal[0] += m * tag[0];
-                        bal[1] += m * tag[1];
-                    }
+        self.band_triangles(band, |g, _, (u0, u1, v0, v1), edges| {
+            // An exit adds its depth, an entry subtracts it.
+            let s: i32 = if edges.entry { -1 } else { 1 };
+            let weight = f64::from(s) * self.scene.meshes[g].mu_per_mm;
+            let tag = [s, s * g as i32];
+            umin = umin.min(u0);
+            umax = umax.max(u1);
+            for v in v0..v1 + 1 {
+                let row = edges.row(v as f64);
+                let base = (v - row0) * w;
+                let (sums, bals) = (
+                    &mut sum[base + u0..base + u1 + 1],
+                    &mut balance[base + u0..base + u1 + 1],
+                );
+                // Every box pixel is updated by its coverage (0 or 1), without a branch.
+                for (k, (acc, bal)) in sums.iter_mut().zip(bals.iter_mut()).enumerate() {
+                    let uf = (u0 + k) as f64;
+                    let on = row.covers(uf);
+                    *acc += f64::from(u8::from(on)) * weight * row.depth(uf);
+                    let m = i32::from(on);
+                    bal[0] += m * tag[0];
+                    bal[1] += m * tag[1];
                 }
             }
-        }
+        });
         if umin > umax {
             return 0;
         }

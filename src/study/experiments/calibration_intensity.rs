@@ -7,8 +7,8 @@
 //!
 //! Both images are rendered on the registration's finest grid (the study's detector binned to about
 //! [`FINEST_WIDTH_PX`] wide, K scaled with it), one ray per pixel centre, so that at the true K the
-//! fixed and the moving DRR are sampled alike and the optimum is exactly the true pose — without the
-//! supersampled moving DRR the library needs when it bins a full-resolution fixed image.
+//! fixed and the moving DRR are sampled alike and the optimum is exactly the true pose (the finest level
+//! is that grid itself, so the library neither bins nor subsamples it).
 
 use glam::DVec3;
 
