@@ -176,7 +176,7 @@ fn bench(c: &mut Criterion) {
     let views = ct
         .views
         .iter()
-        .map(|v| (binned_view(&v.view, 1).unwrap(), binned_image(&v.fixed, 2)))
+        .map(|v| (v.view.clone(), binned_image(&v.fixed, 2)))
         .collect();
     let obj = Objective::supersampled(
         &ct.moving,

@@ -86,6 +86,15 @@ fn volume_drr_of_the_synthetic_ct_matches_the_thickness_drr() {
     }
 }
 
+/// Largest per-pixel absolute difference of two images of one size.
+fn worst_difference(a: &ImageF32, b: &ImageF32) -> f32 {
+    a.data
+        .iter()
+        .zip(&b.data)
+        .map(|(p, q)| (p - q).abs())
+        .fold(0f32, f32::max)
+}
+
 #[test]
 fn embree_and_raster_match_the_reference_backend_on_the_phantom() {
     let phantom = build_phantom(&PhantomOptions {
@@ -114,13 +123,7 @@ fn embree_and_raster_match_the_reference_backend_on_the_phantom() {
         let v = view(&carm, name);
         let x = e.render(&v, &ThicknessOptions::default()).unwrap();
         let y = b.render(&v, &ThicknessOptions::default()).unwrap();
-        let worst = x
-            .line_integral
-            .data
-            .iter()
-            .zip(&y.line_integral.data)
-            .map(|(p, q)| (p - q).abs())
-            .fold(0f32, f32::max);
+        let worst = worst_difference(&x.line_integral, &y.line_integral);
         assert!(
             worst <= 1e-4,
             "{} {name}: worst per-pixel difference {worst} mm",
@@ -163,12 +166,7 @@ fn embree_and_raster_match_the_reference_backend_on_the_phantom() {
                 (summed.width, summed.height),
                 (y.line_integral.width, y.line_integral.height)
             );
-            let worst = summed
-                .data
-                .iter()
-                .zip(&y.line_integral.data)
-                .map(|(p, q)| (p - q).abs())
-                .fold(0f32, f32::max);
+            let worst = worst_difference(&summed, &y.line_integral);
             assert!(
                 worst <= 1e-4,
                 "summed raster {name}: worst difference {worst} mm"

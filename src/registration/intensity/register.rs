@@ -232,12 +232,13 @@ pub fn register_intensity(
     let mut pose = *init;
     let mut stages = Vec::new();
     let (mut evaluations, mut last) = (0u64, None);
+    let mesh = matches!(problem.moving, MovingDrr::Mesh(_));
+    let rays = opts.supersample.unwrap_or(if mesh { 1 } else { 2 });
+    let finest_bin = opts.levels[opts.levels.len() - 1].max(1);
     for (li, &b) in opts.levels.iter().enumerate() {
         let finest = li + 1 == opts.levels.len();
-        let mesh = matches!(problem.moving, MovingDrr::Mesh(_));
         let subsample = finest && b > 1 && opts.subsample_finest.unwrap_or(mesh);
         // The largest factor ≤ the supersampling that divides the binning, on a binned level.
-        let rays = opts.supersample.unwrap_or(if mesh { 1 } else { 2 });
         let ss = (1..=rays.max(1).min(b.max(1)))
             .rev()
             .find(|s| b % s == 0 && !subsample)
@@ -253,7 +254,6 @@ pub fn register_intensity(
                 })
             })
             .collect::<Result<Vec<_>>>()?;
-        let finest_bin = opts.levels[opts.levels.len() - 1].max(1);
         let obj = Objective::supersampled(
             &problem.moving,
             (b / finest_bin).max(1),

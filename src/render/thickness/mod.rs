@@ -36,6 +36,17 @@ use crate::io::ImageF32;
 /// Builds the tracer a rasterising renderer falls back to for single rays and unprojectable views.
 pub(crate) type FallbackTracer = fn(&RenderScene) -> Box<dyn HitTracer>;
 
+/// Checks `view`'s intrinsics and makes `out` a zeroed image of its size, reusing its buffer.
+fn zeroed_for(view: &View, out: &mut ImageF32) -> Result<()> {
+    view.intrinsics.validate()?;
+    let (w, h) = (view.intrinsics.width, view.intrinsics.height);
+    out.width = w;
+    out.height = h;
+    out.data.clear();
+    out.data.resize(w as usize * h as usize, 0.0);
+    Ok(())
+}
+
 /// A scene plus a backend, built once and rendered from any number of views.
 pub struct ThicknessRenderer {
     scene: RenderScene,
@@ -200,12 +211,7 @@ impl ThicknessRenderer {
         view: &View,
         out: &mut ImageF32,
     ) -> Result<RenderStats> {
-        view.intrinsics.validate()?;
-        let (w, h) = (view.intrinsics.width, view.intrinsics.height);
-        out.width = w;
-        out.height = h;
-        out.data.clear();
-        out.data.resize(w as usize * h as usize, 0.0);
+        zeroed_for(view, out)?;
         self.render_buffers(
             view,
             &ThicknessOptions::image_only(),
@@ -228,8 +234,10 @@ impl ThicknessRenderer {
         view: &View,
         out: &mut ImageF32,
     ) -> Result<RenderStats> {
+        let start = Instant::now();
         let raster = match &self.gather {
             Gather::Raster { .. } if self.scene.open_meshes.is_empty() => {
+                view.intrinsics.validate()?;
                 RasterView::new(&self.scene, view, RASTER_BAND_ROWS)
             }
             _ => None,
@@ -237,16 +245,10 @@ impl ThicknessRenderer {
         let Some(raster) = raster else {
             return self.render_line_integral_into(view, out);
         };
-        let start = Instant::now();
-        view.intrinsics.validate()?;
-        let (w, h) = (view.intrinsics.width, view.intrinsics.height);
-        out.width = w;
-        out.height = h;
-        out.data.clear();
-        out.data.resize(w as usize * h as usize, 0.0);
+        zeroed_for(view, out)?;
         let cam = Camera::new(view);
         let rows = raster.band_rows();
-        let w = w as usize;
+        let w = out.width as usize;
         let stats = out
             .data
             .par_chunks_mut(w * rows)
