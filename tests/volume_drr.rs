@@ -290,3 +290,54 @@ fn bad_options_are_errors() {
     assert!(VolumeRenderer::new(&ct, &siddon(), Some(&m)).is_err());
     assert!("mip".parse::<VolumeMethod>().is_err());
 }
+
+/// The render traces only the pixels inside the clip box's projected footprint: every pixel, inside or
+/// outside it, must still equal the line integral of its own ray, for a masked level that covers a small
+/// part of the detector, one cut by the detector's edge, and one entirely off the detector.
+#[test]
+fn footprint_culling_keeps_every_pixel() {
+    let dims = [30usize, 30, 40];
+    let a = DMat4::from_scale(DVec3::new(1.0, 1.0, 1.5));
+    let ct = blob(dims, a);
+    let mut seg = LabelMap::filled(dims, 0, a).unwrap();
+    for k in 22..30 {
+        for j in 10..18 {
+            for i in 8..16 {
+                let n = seg.linear(i, j, k);
+                seg.values[n] = 31;
+            }
+        }
+    }
+    let mask = VoxelMask::from_labels(&seg, &[31]).unwrap();
+    let r = VolumeRenderer::new(&ct, &siddon(), Some(&mask)).unwrap();
+    let mut out = spinedrr::io::ImageF32::zeros(3, 3);
+    let mut seen = [0usize; 3];
+    // Across the view direction of `small_view`: the level moves towards the detector's edge.
+    let c = ct.voxel_centre(12, 14, 26);
+    let across = DVec3::new(120.0, -370.0, 90.0).cross(DVec3::Z).normalize();
+    for (case, target) in [c, c + 50.0 * across, c + 300.0 * across]
+        .into_iter()
+        .enumerate()
+    {
+        let mut view = small_view(target, 96);
+        view.intrinsics.fx = 4.0 * 96.0;
+        view.intrinsics.fy = 4.0 * 96.0;
+        r.render_into(&view, &mut out);
+        assert_eq!((out.width, out.height), (96, 96));
+        for v in 0..96u32 {
+            for u in 0..96u32 {
+                let want = r.line_integral(&view.pixel_ray(u as f64, v as f64));
+                let got = f64::from(out.get(u, v));
+                assert!(
+                    (got - want).abs() <= 1e-5 * want.max(1e-3),
+                    "case {case} ({u},{v}): {got} vs {want}"
+                );
+                seen[case] += usize::from(want > 0.0);
+            }
+        }
+    }
+    // The level fills part of the first detector, less of the second, none of the third.
+    assert!(seen[0] > 50 && seen[0] < 96 * 96 / 4, "{seen:?}");
+    assert!(seen[1] > 0 && seen[1] < seen[0], "{seen:?}");
+    assert_eq!(seen[2], 0);
+}

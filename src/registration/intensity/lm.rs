@@ -1,13 +1,21 @@
 //! Local refinement: Levenberg–Marquardt on the normalised residual of a level's [`Objective`] with a
-//! forward-difference Jacobian.
+//! forward-difference Jacobian, kept up to date between differences by Broyden's rank-one updates.
 //!
-//! Each iteration renders the six poses `p + h e_k` (in parallel), forms `JᵀJ` and `Jᵀr`, and
-//! solves `(JᵀJ + λ diag(JᵀJ)) δ = −Jᵀr` (Marquardt 1963; λ ÷ 10 after an accepted step, × 10 after a
-//! rejected one). Stopping rules, whichever comes first: the cost falls below `abs_tol`; an accepted step
-//! decreases the cost by less than `rel_tol` of it; the step is shorter than `step_tol` (mm-equivalent
-//! parameters, see [`super::objective`]); λ exceeds 10¹⁰ (no descent direction left); `max_iterations`.
-//! When no damping descends (the difference step fell into a kink of the piecewise-linear DRR), the
-//! Jacobian is recomputed with a step 4× wider, up to 64 h, before it stops.
+//! The Jacobian is first formed by differences: the six poses `p + h e_k` rendered in parallel. Each
+//! trial step then solves `(JᵀJ + λ diag(JᵀJ)) δ = −Jᵀr` (Marquardt 1963), renders the one pose `p + δ`
+//! and corrects `J` along `δ` by the secant it measured (Broyden 1965: `J += (r(p+δ) − r(p) − Jδ) δᵀ /
+//! δᵀδ`, whether or not the step is accepted), so an iteration costs one render instead of seven —
+//! the secant version of LM of Madsen, Nielsen & Tingleff (2004, §3.4); after [`MAX_SECANTS`] updates it
+//! is formed by differences again. λ ÷ 10 after an accepted step.
+//! A rejected step with an updated Jacobian recomputes it by differences first (the secants may have
+//! drifted); a rejected step with a fresh one multiplies λ by 10. `broyden = false` recomputes the
+//! Jacobian by differences at every iteration (classical LM; seven renders per iteration).
+//!
+//! Stopping rules, whichever comes first: the cost falls below `abs_tol`; an accepted step decreases the
+//! cost by less than `rel_tol` of it, or is shorter than `step_tol` (mm-equivalent parameters, see
+//! [`super::objective`]); λ exceeds 10¹⁰ (no descent direction left); `max_iterations`. When no damping descends (the difference step fell into a kink
+//! of the piecewise-linear DRR), the Jacobian is recomputed with a step 4× wider, up to 64 h, before
+//! it stops.
 
 use rayon::prelude::*;
 
@@ -20,10 +28,14 @@ use crate::math::cholesky_solve;
 pub struct LmOptions {
     /// Forward-difference step (mm-equivalent).
     pub h: f64,
+    /// Most iterations: trial steps with Broyden updates (each renders one pose; a Jacobian by
+    /// differences renders six more), Jacobians by differences without.
     pub max_iterations: usize,
     pub rel_tol: f64,
     pub step_tol: f64,
     pub abs_tol: f64,
+    /// Update the Jacobian by Broyden's secants between differences (see the module docs).
+    pub broyden: bool,
 }
 
 /// Outcome of [`refine`].
@@ -31,11 +43,118 @@ pub struct LmOptions {
 pub struct LmResult {
     pub p: [f64; 6],
     pub eval: Evaluation,
+    /// Iterations taken (see [`LmOptions::max_iterations`]).
     pub iterations: usize,
     /// Stopped by a tolerance rather than the iteration cap.
     pub converged: bool,
     /// Which rule stopped it.
     pub stop: &'static str,
+}
+
+/// The Jacobian of the stacked residual, one row of six partial derivatives per residual.
+struct Jacobian {
+    rows: Vec<[f64; 6]>,
+    /// Secant updates since it was formed by differences.
+    updates: usize,
+}
+
+/// Secant updates after which the Jacobian is formed by differences again (Madsen et al. refresh it
+/// too: the secants only correct it along the steps taken, and on a flat valley floor those become
+/// short and nearly parallel; without the refresh the box-and-sphere problem of the CLI test crept to
+/// the iteration cap).
+const MAX_SECANTS: usize = 10;
+
+/// Rows per parallel chunk of the Jacobian's products.
+const CHUNK: usize = 4096;
+
+impl Jacobian {
+    /// Forward differences of step `h` at `p` (residual `r`): six renders in parallel.
+    fn by_differences(obj: &Objective, p: &[f64; 6], r: &[f64], h: f64) -> Result<Self> {
+        let cols: Vec<Vec<f64>> = (0..6)
+            .into_par_iter()
+            .map(|k| {
+                let mut q = *p;
+                q[k] += h;
+                let mut rk = Vec::new();
+                obj.evaluate(&q, Some(&mut rk))?;
+                Ok(rk)
+            })
+            .collect::<Result<_>>()?;
+        let mut rows = vec![[0.0; 6]; r.len()];
+        rows.par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                let i0 = c * CHUNK;
+                for (j, row) in chunk.iter_mut().enumerate() {
+                    let i = i0 + j;
+                    for k in 0..6 {
+                        row[k] = (cols[k][i] - r[i]) / h;
+                    }
+                }
+            });
+        Ok(Jacobian { rows, updates: 0 })
+    }
+
+    /// `JᵀJ` and `−Jᵀr`.
+    fn normal_equations(&self, r: &[f64]) -> ([[f64; 6]; 6], [f64; 6]) {
+        let acc = self
+            .rows
+            .par_chunks(CHUNK)
+            .zip(r.par_chunks(CHUNK))
+            .map(|(rows, r)| {
+                let mut a = [0.0f64; 27];
+                for (j, &x) in rows.iter().zip(r) {
+                    let mut n = 0;
+                    for p in 0..6 {
+                        for q in p..6 {
+                            a[n] += j[p] * j[q];
+                            n += 1;
+                        }
+                        a[21 + p] -= j[p] * x;
+                    }
+                }
+                a
+            })
+            .reduce(
+                || [0.0; 27],
+                |mut a, b| {
+                    for (x, y) in a.iter_mut().zip(b) {
+                        *x += y;
+                    }
+                    a
+                },
+            );
+        // `acc` holds the upper triangle row by row: entry (p, q ≥ p) at p·(11 − p)/2 + q.
+        let jtj = std::array::from_fn(|p| {
+            std::array::from_fn(|q| {
+                let (a, b) = (p.min(q), p.max(q));
+                acc[a * (11 - a) / 2 + b]
+            })
+        });
+        (jtj, std::array::from_fn(|p| acc[21 + p]))
+    }
+
+    /// Broyden's update along `delta`, which changed the residual from `r` to `rq`.
+    fn secant_update(&mut self, delta: &[f64; 6], r: &[f64], rq: &[f64]) {
+        let dd: f64 = delta.iter().map(|x| x * x).sum();
+        if dd <= 0.0 {
+            return;
+        }
+        let d = delta.map(|x| x / dd);
+        self.rows
+            .par_chunks_mut(CHUNK)
+            .zip(r.par_chunks(CHUNK).zip(rq.par_chunks(CHUNK)))
+            .for_each(|(rows, (r, rq))| {
+                for (j, (a, b)) in rows.iter_mut().zip(r.iter().zip(rq)) {
+                    let jd: f64 = (0..6).map(|k| j[k] * delta[k]).sum();
+                    let u = b - a - jd;
+                    for k in 0..6 {
+                        j[k] += u * d[k];
+                    }
+                }
+            });
+        self.updates += 1;
+    }
 }
 
 /// Runs Levenberg–Marquardt on `obj` from `p0`.
@@ -46,76 +165,83 @@ pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResul
     let mut lambda = 1e-3;
     let mut iterations = 0;
     let mut h = opts.h;
-    let stop = 'outer: loop {
+    let mut jac: Option<Jacobian> = None;
+    let stop = loop {
         if eval.cost <= opts.abs_tol {
             break "abs_tol";
         }
         if iterations >= opts.max_iterations {
             break "max_iterations";
         }
-        iterations += 1;
-        let cols: Vec<Vec<f64>> = (0..6)
-            .into_par_iter()
-            .map(|k| {
-                let mut q = p;
-                q[k] += h;
-                let mut rk = Vec::new();
-                obj.evaluate(&q, Some(&mut rk))?;
-                Ok(rk.iter().zip(&r).map(|(a, b)| (a - b) / h).collect())
-            })
-            .collect::<Result<_>>()?;
-        let mut jtj = [[0.0; 6]; 6];
-        let mut jtr = [0.0; 6];
-        for a in 0..6 {
-            jtr[a] = -cols[a].iter().zip(&r).map(|(j, x)| j * x).sum::<f64>();
-            for b in a..6 {
-                let v: f64 = cols[a].iter().zip(&cols[b]).map(|(x, y)| x * y).sum();
-                jtj[a][b] = v;
-                jtj[b][a] = v;
-            }
-        }
-        // Damping loop: `Some(stop)` ends the refinement, `None` recomputes the Jacobian.
-        let stuck = loop {
-            let mut m = jtj;
-            for (k, row) in m.iter_mut().enumerate() {
-                row[k] += lambda * jtj[k][k].max(1e-12);
-            }
-            let Some(delta) = cholesky_solve(&m, &jtr) else {
-                lambda *= 10.0;
-                if lambda > 1e10 {
-                    break true;
+        let j = match jac.take() {
+            Some(j) if j.updates == 0 || (opts.broyden && j.updates < MAX_SECANTS) => j,
+            _ => {
+                if !opts.broyden {
+                    iterations += 1;
                 }
-                continue;
-            };
-            let q: [f64; 6] = std::array::from_fn(|k| p[k] + delta[k]);
-            let step_len = delta.iter().map(|x| x * x).sum::<f64>().sqrt();
-            let mut rq = Vec::new();
-            let eq = obj.evaluate(&q, Some(&mut rq))?;
-            if eq.cost.is_finite() && eq.cost < eval.cost {
-                let rel = (eval.cost - eq.cost) / eval.cost;
-                (p, r, eval) = (q, rq, eq);
-                lambda = (lambda / 10.0).max(1e-9);
-                h = opts.h;
-                if step_len < opts.step_tol {
-                    break 'outer "step_tol";
-                }
-                if rel < opts.rel_tol {
-                    break 'outer "rel_tol";
-                }
-                break false;
-            }
-            lambda *= 10.0;
-            if step_len < opts.step_tol || lambda > 1e10 {
-                break true;
+                Jacobian::by_differences(obj, &p, &r, h)?
             }
         };
-        if stuck {
+        let (jtj, jtr) = j.normal_equations(&r);
+        let mut m = jtj;
+        for (k, row) in m.iter_mut().enumerate() {
+            row[k] += lambda * jtj[k][k].max(1e-12);
+        }
+        let Some(delta) = cholesky_solve(&m, &jtr) else {
+            lambda *= 10.0;
+            if lambda > 1e10 {
+                break "lambda";
+            }
+            jac = Some(j);
+            continue;
+        };
+        if opts.broyden {
+            iterations += 1;
+        }
+        let q: [f64; 6] = std::array::from_fn(|k| p[k] + delta[k]);
+        let step_len = delta.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let mut rq = Vec::new();
+        let eq = obj.evaluate(&q, Some(&mut rq))?;
+        let was_fresh = j.updates == 0;
+        let mut j = j;
+        if opts.broyden && eq.cost.is_finite() {
+            j.secant_update(&delta, &r, &rq);
+        }
+        if eq.cost.is_finite() && eq.cost < eval.cost {
+            let rel = (eval.cost - eq.cost) / eval.cost;
+            (p, r, eval) = (q, rq, eq);
+            lambda = (lambda / 10.0).max(1e-9);
+            h = opts.h;
+            let rule = if step_len < opts.step_tol {
+                Some("step_tol")
+            } else if rel < opts.rel_tol {
+                Some("rel_tol")
+            } else {
+                None
+            };
+            if let Some(rule) = rule {
+                break rule;
+            }
+            jac = opts.broyden.then_some(j);
+            continue;
+        }
+        if !was_fresh {
+            // The secants may have drifted: differences again before damping harder.
+            jac = None;
+            continue;
+        }
+        lambda *= 10.0;
+        if step_len < opts.step_tol || lambda > 1e10 {
+            // No damping descends on a fresh Jacobian: widen the difference step.
             if h >= 64.0 * opts.h {
                 break if lambda > 1e10 { "lambda" } else { "step_tol" };
             }
             h *= 4.0;
             lambda = 1e-3;
+            jac = None;
+            continue;
         }
+        jac = Some(Jacobian { updates: 0, ..j });
     };
     Ok(LmResult {
         p,

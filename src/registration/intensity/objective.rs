@@ -151,7 +151,7 @@ impl LevelRenderer<'_> {
             LevelRenderer::Mesh(r) => {
                 r.render_line_integral_into(&moved, out)?;
             }
-            LevelRenderer::Volume(v) => *out = v.render(&moved),
+            LevelRenderer::Volume(v) => v.render_into(&moved, out),
         }
         Ok(())
     }

@@ -7,7 +7,7 @@ use std::time::Instant;
 use glam::DVec3;
 
 use super::cmaes::{CmaesOptions, minimize};
-use super::lm::{LmOptions, LmResult, refine};
+use super::lm::{LmOptions, refine};
 use super::objective::{MovingDrr, Objective};
 use super::pyramid::{binned_image, binned_view, subsampled_image, subsampled_view};
 use super::similarity::Similarity;
@@ -87,6 +87,9 @@ impl IntensityProblem {
 /// [`register_intensity`]).
 pub const COARSE_REL_TOL: f64 = 1e-5;
 
+/// Most Jacobians a coarse level's refinement forms, after the coarsest (see [`register_intensity`]).
+pub const COARSE_MAX_ITERATIONS: usize = 6;
+
 /// Settings of [`register_intensity`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct IntensityOptions {
@@ -120,7 +123,8 @@ pub struct IntensityOptions {
     /// subsampled level, or the full detector) stalls 0.1–0.3 mm from the truth, while the average of
     /// 2 × 2 rays is smooth enough to reach it.
     pub subsample_finest: Option<bool>,
-    /// Refinement settings; the finite-difference step is `lm.h · b` at binning `b`.
+    /// Refinement settings; the finite-difference step is `lm.h · b` at binning `b`; `lm.broyden`
+    /// applies to the finest level (coarse levels always difference, see [`register_intensity`]).
     pub lm: LmOptions,
 }
 
@@ -147,6 +151,7 @@ impl Default for IntensityOptions {
                 rel_tol: 1e-7,
                 step_tol: 2e-4,
                 abs_tol: 1e-14,
+                broyden: true,
             },
         }
     }
@@ -156,7 +161,7 @@ impl Default for IntensityOptions {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct StageReport {
     pub bin: u32,
-    /// `cmaes`, `lm` or `polish` (the finest level's second and third refinement).
+    /// `cmaes` or `lm`.
     pub stage: &'static str,
     pub evaluations: u64,
     pub iterations: usize,
@@ -282,8 +287,12 @@ pub fn register_intensity(
         }
         let before = obj.evaluations();
         // A coarse level only has to hand the next one a start inside its basin: its refinement stops
-        // at a step of a tenth of the finest step tolerance per binned pixel and a relative decrease
-        // of COARSE_REL_TOL.
+        // at a step of ten times the finest step tolerance per binned pixel, a relative decrease of
+        // COARSE_REL_TOL or, after the coarsest level (which may have to travel from a far start),
+        // COARSE_MAX_ITERATIONS Jacobians. Coarse levels form every Jacobian by differences (their
+        // smoothed costs converge in a few full iterations; secant updates took more evaluations,
+        // measured on phantom L3 and its CT); the finest level, where a render costs most, updates it
+        // by Broyden's secants.
         let lm = if finest {
             LmOptions {
                 h: opts.lm.h * f64::from(b),
@@ -294,10 +303,16 @@ pub fn register_intensity(
                 h: opts.lm.h * f64::from(b),
                 rel_tol: opts.lm.rel_tol.max(COARSE_REL_TOL),
                 step_tol: opts.lm.step_tol * 10.0 * f64::from(b),
+                broyden: false,
+                max_iterations: if li == 0 {
+                    opts.lm.max_iterations
+                } else {
+                    opts.lm.max_iterations.min(COARSE_MAX_ITERATIONS)
+                },
                 ..opts.lm
             }
         };
-        let mut r = refine(&obj, p0, &lm)?;
+        let r = refine(&obj, p0, &lm)?;
         stages.push(StageReport {
             bin: b,
             stage: "lm",
@@ -307,39 +322,6 @@ pub fn register_intensity(
             similarity: r.eval.similarity,
             seconds: lap(&mut clock),
         });
-        if finest {
-            // Polish: the finest level's DRR is piecewise linear in the pose (kinks where rays cross
-            // mesh edges), and a central difference of one step can point into a kink's shallow
-            // pocket a fraction of a pixel from the optimum. Once more with a step 8× wider (the
-            // difference averages over the kinks), then with the fine step again; each kept only if
-            // it lowers the cost.
-            for mult in [8.0, 1.0] {
-                let before = obj.evaluations();
-                let q = refine(
-                    &obj,
-                    r.p,
-                    &LmOptions {
-                        h: lm.h * mult,
-                        ..lm
-                    },
-                )?;
-                stages.push(StageReport {
-                    bin: b,
-                    stage: "polish",
-                    evaluations: obj.evaluations() - before,
-                    iterations: q.iterations,
-                    stop: q.stop,
-                    similarity: q.eval.similarity,
-                    seconds: lap(&mut clock),
-                });
-                if q.eval.cost < r.eval.cost {
-                    r = LmResult {
-                        converged: q.converged || r.converged,
-                        ..q
-                    };
-                }
-            }
-        }
         pose = obj.pose(&r.p);
         evaluations += obj.evaluations();
         last = Some(r);

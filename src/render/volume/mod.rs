@@ -20,7 +20,7 @@ pub mod trilinear;
 use std::fmt;
 use std::str::FromStr;
 
-use glam::{DMat4, DVec3};
+use glam::{DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -242,20 +242,83 @@ impl VolumeRenderer {
     /// The DRR of `view`: pixel (u, v) holds the line integral along the ray through its centre.
     /// Rows are rendered in parallel (rayon).
     pub fn render(&self, view: &View) -> ImageF32 {
+        let mut img = ImageF32::zeros(0, 0);
+        self.render_into(view, &mut img);
+        img
+    }
+
+    /// [`VolumeRenderer::render`] into `out`, reusing its buffer. Only the pixels inside the clip box's
+    /// projected footprint trace rays (the others miss the box and stay 0), which is what makes a masked
+    /// level cheap: its box covers a small part of the detector.
+    pub fn render_into(&self, view: &View, out: &mut ImageF32) {
         let (w, h) = (view.intrinsics.width, view.intrinsics.height);
-        let mut img = ImageF32::zeros(w, h);
+        out.width = w;
+        out.height = h;
+        out.data.clear();
+        out.data.resize(w as usize * h as usize, 0.0);
+        let Some((u0, u1, v0, v1)) = self.footprint(view) else {
+            return;
+        };
         let m = view.pixel_to_world_dir();
         let origin = view.source_world();
-        img.data
+        out.data
             .par_chunks_mut(w as usize)
             .enumerate()
+            .skip(v0)
+            .take(v1 + 1 - v0)
             .for_each(|(v, row)| {
-                for (u, px) in row.iter_mut().enumerate() {
+                for (u, px) in row.iter_mut().enumerate().take(u1 + 1).skip(u0) {
                     let dir = (m * DVec3::new(u as f64, v as f64, 1.0)).normalize();
                     *px = self.line_integral(&Ray { origin, dir }) as f32;
                 }
             });
-        img
+    }
+
+    /// The inclusive pixel range `(u0, u1, v0, v1)` whose rays can meet the clip box: the bounding box of
+    /// its eight projected corners widened by a pixel (the projection of a box in front of the source is
+    /// the convex hull of its projected corners), the whole detector when a corner is not in front of
+    /// the source, `None` when it lies off the detector.
+    fn footprint(&self, view: &View) -> Option<(usize, usize, usize, usize)> {
+        let (w, h) = (
+            view.intrinsics.width as usize,
+            view.intrinsics.height as usize,
+        );
+        if w == 0 || h == 0 {
+            return None;
+        }
+        let whole = Some((0, w - 1, 0, h - 1));
+        let index_to_world = self.world_to_index.inverse();
+        let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+        for corner in 0..8 {
+            let i = DVec3::from_array(std::array::from_fn(|a| {
+                if corner >> a & 1 == 0 {
+                    self.lo[a] as f64 - 0.5
+                } else {
+                    self.hi[a] as f64 + 0.5
+                }
+            }));
+            let x = index_to_world.transform_point3(i);
+            if view.depth(x).is_nan() || view.depth(x) <= 1e-6 {
+                return whole;
+            }
+            let px = view.project(x);
+            if !px.is_finite() {
+                return whole;
+            }
+            lo = lo.min(px);
+            hi = hi.max(px);
+        }
+        let (lo, hi) = ((lo - 1.0).ceil(), (hi + 1.0).floor());
+        if hi.x < 0.0 || hi.y < 0.0 || lo.x > (w - 1) as f64 || lo.y > (h - 1) as f64 {
+            return None;
+        }
+        let clamp = |x: f64, n: usize| x.clamp(0.0, (n - 1) as f64) as usize;
+        Some((
+            clamp(lo.x, w),
+            clamp(hi.x, w),
+            clamp(lo.y, h),
+            clamp(hi.y, h),
+        ))
     }
 }
 
