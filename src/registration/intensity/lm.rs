@@ -1,21 +1,22 @@
 //! Local refinement: Levenberg–Marquardt on the normalised residual of a level's [`Objective`] with a
 //! forward-difference Jacobian, kept up to date between differences by Broyden's rank-one updates.
 //!
-//! The Jacobian is first formed by differences: the six poses `p + h e_k` rendered in parallel. Each
-//! trial step then solves `(JᵀJ + λ diag(JᵀJ)) δ = −Jᵀr` (Marquardt 1963), renders the one pose `p + δ`
-//! and corrects `J` along `δ` by the secant it measured (Broyden 1965: `J += (r(p+δ) − r(p) − Jδ) δᵀ /
-//! δᵀδ`, whether or not the step is accepted), so an iteration costs one render instead of seven —
-//! the secant version of LM of Madsen, Nielsen & Tingleff (2004, §3.4); after [`MAX_SECANTS`] updates it
-//! is formed by differences again. λ ÷ 10 after an accepted step.
-//! A rejected step with an updated Jacobian recomputes it by differences first (the secants may have
-//! drifted); a rejected step with a fresh one multiplies λ by 10. `broyden = false` recomputes the
-//! Jacobian by differences at every iteration (classical LM; seven renders per iteration).
+//! An iteration forms the Jacobian by differences (the six poses `p + h e_k`, rendered in parallel).
+//! Each trial step solves `(JᵀJ + λ diag(JᵀJ)) δ = −Jᵀr` (Marquardt 1963) and renders the one pose
+//! `p + δ`; λ ÷ 10 after an accepted step, × 10 after a rejected one. With `broyden` the Jacobian is then
+//! corrected along `δ` by the secant it measured (Broyden 1965: `J += (r(p+δ) − r(p) − Jδ) δᵀ / δᵀδ`,
+//! accepted or not) and the iteration goes on from the new pose with it — one render per step instead of
+//! seven, the secant version of LM of Madsen, Nielsen & Tingleff (2004, §3.4) — until [`MAX_SECANTS`]
+//! updates, a rejected step, or a stopping rule end it; without, every accepted step ends the iteration
+//! (classical LM).
 //!
 //! Stopping rules, whichever comes first: the cost falls below `abs_tol`; an accepted step decreases the
 //! cost by less than `rel_tol` of it, or is shorter than `step_tol` (mm-equivalent parameters, see
-//! [`super::objective`]); λ exceeds 10¹⁰ (no descent direction left); `max_iterations`. When no damping descends (the difference step fell into a kink
-//! of the piecewise-linear DRR), the Jacobian is recomputed with a step 4× wider, up to 64 h, before
-//! it stops.
+//! [`super::objective`]) — a step on secant updates that meets one of these is checked on a fresh
+//! Jacobian first, as short steps along stale secants are no sign of an optimum; λ exceeds 10¹⁰ (no
+//! descent direction left); `max_iterations` Jacobians. When no damping descends (the difference step
+//! fell into a kink of the piecewise-linear DRR), the Jacobian is recomputed with a step 4× wider, up to
+//! 64 h, before it stops.
 
 use rayon::prelude::*;
 
@@ -28,8 +29,8 @@ use crate::math::cholesky_solve;
 pub struct LmOptions {
     /// Forward-difference step (mm-equivalent).
     pub h: f64,
-    /// Most iterations: trial steps with Broyden updates (each renders one pose; a Jacobian by
-    /// differences renders six more), Jacobians by differences without.
+    /// Most iterations: Jacobians formed by differences (six renders each), with the trial steps
+    /// (one render each) taken on each of them and, with Broyden updates, on its secant updates.
     pub max_iterations: usize,
     pub rel_tol: f64,
     pub step_tol: f64,
@@ -95,9 +96,10 @@ impl Jacobian {
         Ok(Jacobian { rows, updates: 0 })
     }
 
-    /// `JᵀJ` and `−Jᵀr`.
+    /// `JᵀJ` and `−Jᵀr`: partial sums per chunk in parallel, added in chunk order, so the result does
+    /// not depend on how the threads shared the work (resumed studies are byte-identical).
     fn normal_equations(&self, r: &[f64]) -> ([[f64; 6]; 6], [f64; 6]) {
-        let acc = self
+        let parts: Vec<[f64; 27]> = self
             .rows
             .par_chunks(CHUNK)
             .zip(r.par_chunks(CHUNK))
@@ -115,15 +117,13 @@ impl Jacobian {
                 }
                 a
             })
-            .reduce(
-                || [0.0; 27],
-                |mut a, b| {
-                    for (x, y) in a.iter_mut().zip(b) {
-                        *x += y;
-                    }
-                    a
-                },
-            );
+            .collect();
+        let mut acc = [0.0f64; 27];
+        for part in &parts {
+            for (x, y) in acc.iter_mut().zip(part) {
+                *x += y;
+            }
+        }
         // `acc` holds the upper triangle row by row: entry (p, q ≥ p) at p·(11 − p)/2 + q.
         let jtj = std::array::from_fn(|p| {
             std::array::from_fn(|q| {
@@ -170,15 +170,13 @@ pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResul
         if eval.cost <= opts.abs_tol {
             break "abs_tol";
         }
-        if iterations >= opts.max_iterations {
-            break "max_iterations";
-        }
         let j = match jac.take() {
             Some(j) if j.updates == 0 || (opts.broyden && j.updates < MAX_SECANTS) => j,
             _ => {
-                if !opts.broyden {
-                    iterations += 1;
+                if iterations >= opts.max_iterations {
+                    break "max_iterations";
                 }
+                iterations += 1;
                 Jacobian::by_differences(obj, &p, &r, h)?
             }
         };
@@ -195,9 +193,6 @@ pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResul
             jac = Some(j);
             continue;
         };
-        if opts.broyden {
-            iterations += 1;
-        }
         let q: [f64; 6] = std::array::from_fn(|k| p[k] + delta[k]);
         let step_len = delta.iter().map(|x| x * x).sum::<f64>().sqrt();
         let mut rq = Vec::new();
@@ -219,10 +214,12 @@ pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResul
             } else {
                 None
             };
-            if let Some(rule) = rule {
-                break rule;
+            match rule {
+                // A rule met by a step on secant updates is checked on a fresh Jacobian.
+                Some(_) if !was_fresh => jac = None,
+                Some(rule) => break rule,
+                None => jac = opts.broyden.then_some(j),
             }
-            jac = opts.broyden.then_some(j);
             continue;
         }
         if !was_fresh {
