@@ -238,6 +238,8 @@ pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResul
             jac = None;
             continue;
         }
+        // Damp harder on the same Jacobian (with its one secant from the rejected step, which is
+        // still a measured difference), counted as fresh so another rejection damps again.
         jac = Some(Jacobian { updates: 0, ..j });
     };
     Ok(LmResult {
