@@ -246,8 +246,9 @@ pub fn register_intensity(
         let finest = li + 1 == opts.levels.len();
         let subsample = finest && b > 1 && opts.subsample_finest.unwrap_or(mesh);
         // The largest factor ≤ the supersampling that divides the binning, on a binned level.
-        // The coarsest level, the global search's, renders one ray per pixel whatever the DRR.
-        let rays = if li == 0 { 1 } else { rays };
+        // The coarsest level, the global search's, renders one ray per pixel whatever the DRR (unless
+        // it is also the finest).
+        let rays = if li == 0 && !finest { 1 } else { rays };
         let ss = (1..=rays.max(1).min(b.max(1)))
             .rev()
             .find(|s| b % s == 0 && !subsample)
