@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use glam::DVec3;
 use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
-use spinedrr::geometry::{CArm, Perturbation};
+use spinedrr::geometry::{CArm, Perturbation, box_corners};
 use spinedrr::io::{
     DrrProducts, DrrValues, XrayModel, check_output_paths, drr_set_paths, write_drr_set,
 };
@@ -17,8 +17,7 @@ use spinedrr::render::{
 };
 
 use super::render_checks::{
-    RenderRun, box_corners, check_not_empty, check_not_negative, check_source_outside,
-    split_mesh_spec,
+    RenderRun, check_not_empty, check_not_negative, check_source_outside, split_mesh_spec,
 };
 use super::render_timing::{median_min, peak_rss_mb};
 

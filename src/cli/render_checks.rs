@@ -66,17 +66,6 @@ pub fn check_source_outside(view: &View, meshes: &[(&str, &TriMesh)]) -> anyhow:
     Ok(())
 }
 
-/// The eight corners of the box `lo`–`hi`.
-pub fn box_corners(lo: DVec3, hi: DVec3) -> [DVec3; 8] {
-    std::array::from_fn(|i| {
-        DVec3::new(
-            if i & 1 == 0 { lo.x } else { hi.x },
-            if i & 2 == 0 { lo.y } else { hi.y },
-            if i & 4 == 0 { lo.z } else { hi.z },
-        )
-    })
-}
-
 /// Where the anatomy with world bounding-box corners `corners` lands on the detector of `view`, in words.
 fn where_it_projects(view: &View, corners: &[DVec3]) -> String {
     let behind = corners.iter().filter(|&&c| view.depth(c) <= 0.0).count();

@@ -14,8 +14,9 @@ use spinedrr::render::volume::{
     VolumeDetails, VolumeMethod, VolumeRenderOptions, VolumeRenderer, select_voxels,
 };
 
-use super::render_checks::{RenderRun, box_corners, check_not_empty};
+use super::render_checks::{RenderRun, check_not_empty};
 use super::render_timing::{median_min, peak_rss_mb};
+use spinedrr::geometry::box_corners;
 
 /// Flags of a CT volume DRR.
 #[derive(clap::Args, Debug, Clone)]

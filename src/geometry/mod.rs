@@ -16,4 +16,4 @@ pub use intrinsics::{
 };
 pub use perturbation::Perturbation;
 pub use pose::{RigidTransform, rotation_angle_deg, rotation_exp, rotation_log};
-pub use view::{Ray, View, apply_homography};
+pub use view::{Ray, View, apply_homography, box_corners};

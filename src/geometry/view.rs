@@ -122,6 +122,17 @@ pub fn apply_homography(h: &DMat3, x: DVec2) -> DVec2 {
     DVec2::new(p.x / p.z, p.y / p.z)
 }
 
+/// The eight corners of the box `lo`–`hi`.
+pub fn box_corners(lo: DVec3, hi: DVec3) -> [DVec3; 8] {
+    std::array::from_fn(|i| {
+        DVec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        )
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

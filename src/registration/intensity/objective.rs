@@ -130,7 +130,7 @@ impl LevelRenderer<'_> {
         Ok(out)
     }
 
-    /// Renders into `out`, reusing its buffer (mesh renderers; the volume renderer returns a new image);
+    /// Renders into `out`, reusing its buffer;
     /// `summed` takes a mesh renderer's signed-sum path
     /// ([`ThicknessRenderer::render_line_integral_summed_into`]) instead of the paired one.
     fn render_into(

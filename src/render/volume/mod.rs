@@ -28,7 +28,7 @@ pub use self::select::select_voxels;
 
 pub use crate::anatomy::ct::{CtVolume, VoxelMask};
 use crate::anatomy::{MU_WATER_PER_MM, mu_from_hu};
-use crate::geometry::{Ray, View};
+use crate::geometry::{Ray, View, box_corners};
 use crate::io::ImageF32;
 use crate::{Error, Result};
 
@@ -289,14 +289,11 @@ impl VolumeRenderer {
         let whole = Some((0, w - 1, 0, h - 1));
         let index_to_world = self.world_to_index.inverse();
         let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
-        for corner in 0..8 {
-            let i = DVec3::from_array(std::array::from_fn(|a| {
-                if corner >> a & 1 == 0 {
-                    self.lo[a] as f64 - 0.5
-                } else {
-                    self.hi[a] as f64 + 0.5
-                }
-            }));
+        let (i_lo, i_hi) = (
+            DVec3::from_array(self.lo.map(|v| v as f64 - 0.5)),
+            DVec3::from_array(self.hi.map(|v| v as f64 + 0.5)),
+        );
+        for i in box_corners(i_lo, i_hi) {
             let x = index_to_world.transform_point3(i);
             if view.depth(x).is_nan() || view.depth(x) <= 1e-6 {
                 return whole;
