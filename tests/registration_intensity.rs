@@ -12,9 +12,9 @@ use spinedrr::anatomy::{Level, Phantom, PhantomOptions, build_phantom};
 use spinedrr::geometry::{CArm, Perturbation, RigidTransform, View};
 use spinedrr::io::XrayModel;
 use spinedrr::registration::intensity::{
-    IntensityOptions, IntensityProblem, IntensityView, MovingScope, Similarity, binned_view,
-    fixed_image, level_targets, mtre_mm, phantom_moving, phantom_renderer, register_intensity,
-    start_at_mtre,
+    IntensityOptions, IntensityProblem, IntensityView, MovingScope, Objective, Similarity,
+    binned_view, fixed_image, level_targets, mtre_mm, phantom_moving, phantom_renderer,
+    register_intensity, start_at_mtre,
 };
 use spinedrr::registration::{
     RegistrationOptions, RegistrationProblem, SplitMix64, register_direct,
@@ -254,16 +254,67 @@ fn joint_focal_and_piercing_error_agrees_with_the_landmark_solver() {
     let landmark = register_direct(&lm, &TRUTH, &RegistrationOptions::default())
         .unwrap()
         .pose;
-    let d = mtre_mm(&reg, &landmark, &p.targets);
     let bias = mtre_mm(&landmark, &TRUTH, &p.targets);
-    // Under an inconsistent geometry the two optima differ by what the image weighs differently from
-    // the surface points, which grows with the inconsistency. The issue's fixed 0.5 mm held on the old
-    // box-like phantom; on the anatomical one (posterior elements weigh more in the image) the optima
-    // differ by ~9% of the ~10 mm bias, so the bound is 0.5 mm or 10% of the bias (issue #13 notes it).
+    // The intensity result is its own objective's optimum, checked with another optimiser: a compass
+    // search on the finest level's similarity (steps 0.2 down to 0.002 in each parameter, mm and mm of
+    // rotation at the targets' radius) started at the registered pose moves it by little — the cost is
+    // flat along the out-of-plane rotation here, so the LM's tolerances stop it short by ~0.15 mm.
+    let (c, rho) = (p.centre(), p.rho_mm());
+    let views = p
+        .views
+        .iter()
+        .map(|v| (v.view.clone(), v.fixed.clone()))
+        .collect();
+    let obj = Objective::new(&p.moving, 1, views, Similarity::Ncc, 0.0, reg, c, rho).unwrap();
+    let at = |q: &[f64; 6]| obj.evaluate(q, None).unwrap().similarity;
+    let (mut x, mut step) = ([0.0; 6], 0.2);
+    let mut best = at(&x);
+    while step > 0.002 {
+        let mut improved = false;
+        for i in 0..6 {
+            for sign in [-1.0, 1.0] {
+                let mut q = x;
+                q[i] += sign * step;
+                let s = at(&q);
+                if s > best {
+                    (best, x, improved) = (s, q, true);
+                }
+            }
+        }
+        if !improved {
+            step /= 2.0;
+        }
+    }
+    let refined = obj.pose(&x);
+    let polish = mtre_mm(&refined, &reg, &p.targets);
     assert!(
-        d <= 0.5_f64.max(0.1 * bias),
-        "intensity vs landmark optimum {d} mm (landmark bias {bias} mm)"
+        polish <= 0.25,
+        "a compass search moved the optimum {polish} mm"
     );
+    let from_reg = landmark.compose(&reg.inverse());
+    let w = spinedrr::geometry::rotation_log(from_reg.rotation) * rho;
+    let t = from_reg.apply(reg.apply(c)) - reg.apply(c);
+    let at_landmark = at(&[w.x, w.y, w.z, t.x, t.y, t.z]);
+    assert!(
+        at_landmark < best,
+        "the landmark optimum's similarity {at_landmark} is not below the intensity optimum's {best}"
+    );
+    // The two optima place the vertebra's centre alike (the issue's 0.5 mm holds for it); they differ in
+    // rotation. Under an inconsistent geometry no pose fits both views, and the image similarity also
+    // trades the wrong magnification against out-of-plane rotation (tilting the vertebra changes its
+    // silhouette's extent, which points do not see): measured, the optima are 2.2° apart about the AP
+    // beam's axis, out of plane for LAT, whose similarity gains 0.014 while AP's loses 0.002. Their mTRE
+    // distance is then a share of the bias (~9 % here; 0.4–1.1 mm across the similarities and for the
+    // piercing shift alone), so it is bounded by 0.5 mm or 10 % of the bias (issue #13 notes it).
+    let centre_gap = (reg.apply(c) - landmark.apply(c)).length();
+    assert!(centre_gap <= 0.5, "centres {centre_gap} mm apart");
+    for (what, pose) in [("registered", &reg), ("compass-refined", &refined)] {
+        let d = mtre_mm(pose, &landmark, &p.targets);
+        assert!(
+            d <= 0.5_f64.max(0.1 * bias),
+            "{what} intensity vs landmark optimum {d} mm (landmark bias {bias} mm)"
+        );
+    }
 }
 
 #[test]
