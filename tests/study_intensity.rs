@@ -102,6 +102,25 @@ fn intensity_study_tables_agree_with_the_library_and_resume_byte_identically() {
             r.final_mtre_mm
         );
         assert!(r.optimum_mtre_mm < 0.5, "{}", r.optimum_mtre_mm);
+        assert!(
+            r.optimum_to_landmark_mm < 0.5,
+            "{}",
+            r.optimum_to_landmark_mm
+        );
+    }
+    // The distance between the two optima bounds the difference of their biases (the triangle
+    // inequality, point by point over the same targets).
+    for r in &t.intensity {
+        let gap = (r.optimum_mtre_mm - r.landmark_mtre_mm).abs();
+        assert!(
+            gap <= r.optimum_to_landmark_mm + 1e-9,
+            "{} Δf {} piercing {}: biases differ by {gap}, optima {} mm apart",
+            r.views,
+            r.df_px,
+            r.piercing_px,
+            r.optimum_to_landmark_mm
+        );
+        assert!(r.optimum_to_landmark_rot_deg >= 0.0 && r.optimum_to_landmark_centre_mm >= 0.0);
     }
     // A focal offset biases every registration: the landmark one by a lot in a single view (depth).
     let ap300 = t

@@ -10,7 +10,7 @@ use glam::DVec3;
 
 use super::Context;
 use crate::anatomy::{Level, Phantom, PhantomOptions, build_phantom, parse_levels};
-use crate::geometry::{RigidTransform, View, rotation_log};
+use crate::geometry::{RigidTransform, View, rotation_angle_deg, rotation_log};
 use crate::io::{ImageF32, XrayModel};
 use crate::registration::intensity::{
     IntensityOptions, IntensityProblem, IntensityView, MeshDrr, MovingDrr, SUCCESS_MTRE_MM,
@@ -139,12 +139,11 @@ fn options(s: &IntensitySection, seed: u64) -> Result<IntensityOptions> {
 
 /// mTRE over `targets` of the landmark registration of `landmarks` seen exactly through `truth` views
 /// and solved with `assumed` views (direct LM, started at the truth); NaN when it fails.
-fn landmark_mtre(
+fn landmark_optimum(
     landmarks: &[(String, DVec3)],
     truth: &[View],
     assumed: &[View],
-    targets: &[DVec3],
-) -> f64 {
+) -> Option<RigidTransform> {
     let names = landmarks.iter().map(|(n, _)| n.clone()).collect();
     let points = landmarks.iter().map(|(_, p)| *p).collect();
     let solve = || -> Result<RigidTransform> {
@@ -162,7 +161,7 @@ fn landmark_mtre(
         };
         Ok(register(&problem, Method::Direct, &opts)?.pose)
     };
-    solve().map_or(f64::NAN, |pose| mtre_mm(&pose, &TRUTH, targets))
+    solve().ok()
 }
 
 /// Runs every start of one cell's bin.
@@ -201,7 +200,8 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
         views,
         targets: t.targets.clone(),
     };
-    let landmark = landmark_mtre(&t.landmarks, &truth_views, &assumed, &t.targets);
+    let landmark_pose = landmark_optimum(&t.landmarks, &truth_views, &assumed);
+    let landmark = landmark_pose.map_or(f64::NAN, |l| mtre_mm(&l, &TRUTH, &t.targets));
     // The intensity optimum under this K: the registration started at the truth (local stage only).
     // Its mTRE is the calibration's bias, free of capture failures; a start "reached" it when it ends
     // within the success radius of it.
@@ -218,6 +218,15 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
     let optimum = optimum.ok().map(|r| r.pose);
     let optimum_mtre = optimum.map_or(f64::NAN, |o| mtre_mm(&o, &TRUTH, &t.targets));
     let (centre, rho) = (problem.centre(), problem.rho_mm());
+    let (optimum_to_landmark, optimum_to_landmark_centre, optimum_to_landmark_rot) =
+        match (&optimum, &landmark_pose) {
+            (Some(o), Some(l)) => (
+                mtre_mm(o, l, &t.targets),
+                (o.apply(centre) - l.apply(centre)).length(),
+                rotation_angle_deg(o.rotation * l.rotation.transpose()),
+            ),
+            _ => (f64::NAN, f64::NAN, f64::NAN),
+        };
     let key = cell.seed_key();
     let mut rng = SplitMix64::new(derive_seed(ctx.cfg.seed, &key, 0));
     let ptre = |name: &str, pose: &RigidTransform| {
@@ -293,6 +302,9 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
             tz_mm: tr.z,
             landmark_mtre_mm: landmark,
             optimum_mtre_mm: optimum_mtre,
+            optimum_to_landmark_mm: optimum_to_landmark,
+            optimum_to_landmark_centre_mm: optimum_to_landmark_centre,
+            optimum_to_landmark_rot_deg: optimum_to_landmark_rot,
             to_optimum_mm: to_optimum,
             reached_optimum: to_optimum < SUCCESS_MTRE_MM,
         });

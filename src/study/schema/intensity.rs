@@ -68,6 +68,15 @@ pub struct IntensityRow {
     /// its mTRE to the truth, the calibration's bias free of capture failures.
     #[serde(with = "num")]
     pub optimum_mtre_mm: f64,
+    /// The two optima side by side: their mTRE to each other over the target points, the distance of
+    /// the target centre they place (mm) and the angle of the rotation between them (degrees). Under
+    /// an inconsistent K they can have the same bias and still be different poses.
+    #[serde(with = "num")]
+    pub optimum_to_landmark_mm: f64,
+    #[serde(with = "num")]
+    pub optimum_to_landmark_centre_mm: f64,
+    #[serde(with = "num")]
+    pub optimum_to_landmark_rot_deg: f64,
     /// mTRE of this start's result to that optimum; `reached_optimum` when below the success radius.
     #[serde(with = "num")]
     pub to_optimum_mm: f64,
@@ -127,6 +136,13 @@ pub struct IntensitySummaryRow {
     pub landmark_mtre_mm: f64,
     #[serde(with = "num")]
     pub optimum_mtre_mm: f64,
+    /// See [`IntensityRow::optimum_to_landmark_mm`] and the two after it.
+    #[serde(with = "num")]
+    pub optimum_to_landmark_mm: f64,
+    #[serde(with = "num")]
+    pub optimum_to_landmark_centre_mm: f64,
+    #[serde(with = "num")]
+    pub optimum_to_landmark_rot_deg: f64,
     #[serde(with = "num")]
     pub reached_optimum_rate: f64,
     #[serde(with = "num")]
@@ -243,6 +259,9 @@ pub fn summary(rows: &[IntensityRow]) -> Vec<IntensitySummaryRow> {
                 final_mtre_median_mm: crate::analysis::percentile(&all, 50.0),
                 landmark_mtre_mm: r0.landmark_mtre_mm,
                 optimum_mtre_mm: r0.optimum_mtre_mm,
+                optimum_to_landmark_mm: r0.optimum_to_landmark_mm,
+                optimum_to_landmark_centre_mm: r0.optimum_to_landmark_centre_mm,
+                optimum_to_landmark_rot_deg: r0.optimum_to_landmark_rot_deg,
                 reached_optimum_rate: reached_rate(c.iter()),
                 evaluations_mean: c.iter().map(|r| r.evaluations as f64).sum::<f64>()
                     / c.len() as f64,
