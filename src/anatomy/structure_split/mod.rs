@@ -26,9 +26,13 @@
 //! transverse process from the pedicle–lamina junction to the most lateral surface point on its side; a
 //! superior articular process from the top of the pedicle's end to the highest point of the arch on its
 //! side, an inferior one from the lamina's lower border to the lowest point of the arch on its side (off
-//! the midline, where the spinous process is). A posterior triangle takes the structure of the nearest
-//! axis. Nothing here assumes a primitive shape, so the split follows the anatomy as the landmarks and
-//! the surface place it.
+//! the midline, where the spinous process is). The articular processes are plates: in the horizontal
+//! section through the middle of their axis, the shortest chord is their thickness and the chord across
+//! it their width, and the axis moves to the centre of both. A posterior triangle takes the structure of
+//! the nearest model (a bar, or a ribbon for a plate, around its axis; [`arch`]). Nothing here assumes
+//! a primitive shape, so the split follows the anatomy as the landmarks and the surface place it.
+
+mod arch;
 
 use glam::DVec3;
 
@@ -36,6 +40,7 @@ use super::auto_landmarks::{line_intervals, smoothed_normals};
 use super::landmarks::Landmarks;
 use super::{Structure, TriMesh};
 use crate::{Error, Result};
+use arch::{Axis, Probe, lamina_plane, laminar_junction};
 
 /// Margin by which a point behind the measured posterior wall still counts as body (mm).
 const WALL_MARGIN_MM: f64 = 1.5;
@@ -202,172 +207,6 @@ fn no_body(what: &str) -> Error {
     Error::Numerical(format!("structure split: {what}"))
 }
 
-/// One structure's model in the local frame: a bar of radius `radius` around a segment, or around a
-/// vertical ribbon (the segment swept `half_height` up and down the superior axis, between its ends) for
-/// a plate such as the lamina. Points take the structure whose model surface is nearest.
-#[derive(Debug, Clone, Copy)]
-struct Axis {
-    structure: Structure,
-    a: DVec3,
-    b: DVec3,
-    half_height: f64,
-    /// The ribbon's sweep direction (unit; the superior axis, or a lamina's sloping plane).
-    up: DVec3,
-    radius: f64,
-    /// The cross-section's radius along `up` over `radius` (≤ 1: a part wider than tall, an elliptic bar).
-    flat: f64,
-}
-
-impl Axis {
-    /// Signed distance (approximate) from `p` to the model's surface, a bar with flat ends: a part
-    /// does not reach past the ends of its axis, where the next part begins.
-    fn distance(&self, p: DVec3) -> f64 {
-        let ab = self.b - self.a;
-        let len = ab.length().max(1e-9);
-        let t = (p - self.a).dot(ab) / (len * len);
-        let d = p - (self.a + t * ab);
-        let h = d.dot(self.up);
-        let radial = (d - h * self.up
-            + (h.abs() - self.half_height).max(0.0) / self.flat * self.up)
-            .length();
-        let (r, e) = (radial - self.radius, (t - 0.5).abs() * len - 0.5 * len);
-        glam::DVec2::new(r.max(0.0), e.max(0.0)).length() + r.max(e).min(0.0)
-    }
-}
-
-/// The laminar junction: the first solid behind the canal on the mid-sagittal line, searched from the
-/// pedicles' height downward to the inferior endplate; with the arch's height there (mm).
-fn laminar_junction(
-    mesh: &TriMesh,
-    f: &LandmarkFrame,
-    wall_y: f64,
-    z_top: f64,
-    z_bottom: f64,
-) -> Result<(DVec3, f64)> {
-    let mut z = z_top;
-    while z >= z_bottom {
-        let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
-        let behind = line_intervals(mesh, q, f.anterior)
-            .into_iter()
-            .rev()
-            .find(|&(_, t1)| t1 < wall_y - 3.0);
-        if let Some((t0, t1)) = behind {
-            let y = t1 - 3.0f64.min(0.5 * (t1 - t0));
-            // Centre the junction on the arch's height there.
-            let v = line_intervals(mesh, f.world(DVec3::new(0.0071, y, 0.0)), f.superior);
-            let (lo, hi) = v
-                .iter()
-                .copied()
-                .find(|(a, b)| *a <= z && *b >= z)
-                .unwrap_or((z, z));
-            return Ok((DVec3::new(0.0, y, 0.5 * (lo + hi)), hi - lo));
-        }
-        z -= 1.0;
-    }
-    Err(no_body(
-        "no posterior arch behind the canal on the mid-sagittal line",
-    ))
-}
-
-/// The direction in which the lamina's plane rises (unit, in the sagittal plane): from the canal's
-/// posterior border (the anterior face of the arch on the mid-sagittal line) a quarter of the arch's
-/// height above and below the junction; the superior axis where a probe misses.
-fn lamina_plane(
-    mesh: &TriMesh,
-    f: &LandmarkFrame,
-    wall_y: f64,
-    junction: DVec3,
-    height: f64,
-) -> DVec3 {
-    let border = |z: f64| {
-        let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
-        line_intervals(mesh, q, f.anterior)
-            .into_iter()
-            .rev()
-            .find(|&(_, t1)| t1 < wall_y - 3.0)
-            .map(|(_, t1)| t1)
-    };
-    let dz = 0.25 * height;
-    match (border(junction.z + dz), border(junction.z - dz)) {
-        (Some(a), Some(b)) if (a - b).abs() < 2.0 * dz => {
-            DVec3::new(0.0, a - b, 2.0 * dz).normalize()
-        }
-        _ => DVec3::Z,
-    }
-}
-
-/// Chords of the solid through points of the local frame.
-struct Probe<'a> {
-    mesh: &'a TriMesh,
-    f: &'a LandmarkFrame,
-}
-
-impl Probe<'_> {
-    /// The solid interval along local direction `d` through local point `p`, in mm from `p`.
-    fn interval(&self, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
-        let d = d.try_normalize()?;
-        let dw = d.x * self.f.right + d.y * self.f.anterior + d.z * self.f.superior;
-        // A small offset (fixed in the frame) keeps the line off the voxel grid's vertices and edges.
-        let q = self.f.world(p + 0.0091 * d.any_orthonormal_vector());
-        line_intervals(self.mesh, q, dw)
-            .into_iter()
-            .find(|(a, b)| *a <= 0.0 && *b >= 0.0)
-    }
-
-    /// Length of the chord along `d` through `p` (0 outside the solid).
-    fn chord(&self, p: DVec3, d: DVec3) -> f64 {
-        self.interval(p, d).map_or(0.0, |(a, b)| b - a)
-    }
-
-    /// Distance from `p` to the surface along `d` (0 outside the solid).
-    fn reach(&self, p: DVec3, d: DVec3) -> f64 {
-        self.interval(p, d).map_or(0.0, |(_, b)| b)
-    }
-
-    /// The bar model of the part from `a` to `b`, measured at its middle: radius half its horizontal
-    /// thickness across the axis, and — for a plate taller than thick — a ribbon of its height
-    /// (`height`, or the vertical chord there) less that radius. A steep axis (an articular
-    /// process) is a plain bar.
-    fn bar(&self, structure: Structure, a: DVec3, b: DVec3, height: Option<f64>) -> Axis {
-        self.bar_at(structure, a, b, height, 0.5)
-    }
-
-    /// [`Probe::bar`] measured at fraction `at` of the way from `a` to `b`.
-    fn bar_at(
-        &self,
-        structure: Structure,
-        a: DVec3,
-        b: DVec3,
-        height: Option<f64>,
-        at: f64,
-    ) -> Axis {
-        let m = a.lerp(b, at);
-        let dir = b - a;
-        let flat = DVec3::new(dir.x, dir.y, 0.0);
-        let steep = flat.length() < dir.z.abs();
-        let across = if steep {
-            DVec3::X
-        } else {
-            flat.cross(DVec3::Z).normalize_or_zero()
-        };
-        let radius = 0.5 * self.chord(m, across);
-        let half_height = if steep {
-            0.0
-        } else {
-            (0.5 * height.unwrap_or_else(|| self.chord(m, DVec3::Z)) - radius).max(0.0)
-        };
-        Axis {
-            structure,
-            a,
-            b,
-            half_height,
-            up: DVec3::Z,
-            radius,
-            flat: 1.0,
-        }
-    }
-}
-
 /// Per-triangle [`Structure`] codes of a closed vertebra surface from its landmarks (see the module
 /// documentation), in triangle order.
 pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
@@ -453,9 +292,9 @@ pub fn split_structures(mesh: &TriMesh, lm: &Landmarks) -> Result<Vec<u8>> {
         // The superior articular process rises from the top of the pedicle's end; the inferior one
         // hangs from the lamina's lower border.
         let top = end + 0.25 * probe.chord(ped, DVec3::Z) * DVec3::Z;
-        axes.push(probe.bar(Structure::Articular, top, highest, None));
+        axes.push(probe.plate(Structure::Articular, top, highest));
         let below = 0.5 * (lamina_start + junction) - lamina.half_height * lamina.up;
-        axes.push(probe.bar(Structure::Articular, below, lowest, None));
+        axes.push(probe.plate(Structure::Articular, below, lowest));
     }
     let normals = smoothed_normals(mesh);
     let labels = (0..mesh.triangles.len())
