@@ -137,8 +137,8 @@ fn options(s: &IntensitySection, seed: u64) -> Result<IntensityOptions> {
     })
 }
 
-/// mTRE over `targets` of the landmark registration of `landmarks` seen exactly through `truth` views
-/// and solved with `assumed` views (direct LM, started at the truth); NaN when it fails.
+/// The pose of the landmark registration of `landmarks` seen exactly through `truth` views and solved
+/// with `assumed` views (direct LM, started at the truth); `None` when it fails.
 fn landmark_optimum(
     landmarks: &[(String, DVec3)],
     truth: &[View],

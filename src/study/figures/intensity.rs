@@ -1,7 +1,7 @@
 //! Intensity-registration figures, per target: the final mTRE vs Δf (a panel per view set, a line per
 //! piercing shift, the landmark registration's mTRE and its distance to the intensity optimum beside
-//! it), and the van de Kraats plot — success
-//! rate vs initial mTRE (a panel per view set, a line per assumed K: true and each perturbation).
+//! it), and the van de Kraats plot — success rate vs initial mTRE (a panel per view set, a line per
+//! assumed K: true and each perturbation).
 
 use std::path::Path;
 

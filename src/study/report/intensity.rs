@@ -190,7 +190,7 @@ landmarks and its projected density agree on that pose. "
                         words,
                         "A wrong K cannot be absorbed exactly by a rigid pose (a focal error scales points at \
 different depths differently, a piercing shift is a rotation about the source only to first order, and \
-two views ask for different corrections), so each method settles on a compromise weighted by what it \
+two views can ask for different corrections), so each method settles on a compromise weighted by what it \
 matches: the landmark registration by a handful of points, the image similarity by every edge and \
 density of the projected vertebra. "
                     );
