@@ -29,6 +29,19 @@ struct Fixture {
     dir: PathBuf,
 }
 
+/// The phantom's synthetic CT and label map at 0.8 mm, one sample per voxel.
+fn synthetic_ct_08(phantom: &Phantom) -> (spinedrr::anatomy::ct::CtVolume, LabelMap) {
+    synthetic_ct(
+        phantom,
+        &SyntheticCtOptions {
+            voxel_mm: 0.8,
+            supersample: 1,
+            ..Default::default()
+        },
+    )
+    .expect("synthetic CT")
+}
+
 fn fixture() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {
@@ -39,15 +52,7 @@ fn fixture() -> &'static Fixture {
             ..Default::default()
         })
         .expect("phantom");
-        let (ct, seg) = synthetic_ct(
-            &phantom,
-            &SyntheticCtOptions {
-                voxel_mm: 0.8,
-                supersample: 1,
-                ..Default::default()
-            },
-        )
-        .expect("synthetic CT");
+        let (ct, seg) = synthetic_ct_08(&phantom);
         let dir = tempfile::tempdir().expect("temp dir");
         write_ct(&dir.path().join("ct.nii"), &ct).expect("write CT");
         write_labels(&dir.path().join("seg.nii"), &seg).expect("write labels");
@@ -167,15 +172,7 @@ fn every_level_of_the_default_l1_l5_segment_is_labelled_as_the_phantom_mesh_says
     // The built-in segment as `PhantomOptions::default()` builds it (discs, lordosis, 0.6 mm mesh), its
     // synthetic CT at 0.8 mm: neighbours close together, each level's surface cut from one label map.
     let phantom = build_phantom(&PhantomOptions::default()).expect("phantom");
-    let (_, seg) = synthetic_ct(
-        &phantom,
-        &SyntheticCtOptions {
-            voxel_mm: 0.8,
-            supersample: 1,
-            ..Default::default()
-        },
-    )
-    .expect("synthetic CT");
+    let (_, seg) = synthetic_ct_08(&phantom);
     check_split_against_the_phantom(&phantom, &seg);
 }
 

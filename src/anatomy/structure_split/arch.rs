@@ -44,6 +44,16 @@ impl Axis {
     }
 }
 
+/// The first solid interval (along the anterior axis, mm) behind the canal — more than 3 mm behind the
+/// posterior wall at `wall_y` — on the mid-sagittal line at height `z`.
+fn behind_canal(mesh: &TriMesh, f: &LandmarkFrame, wall_y: f64, z: f64) -> Option<(f64, f64)> {
+    let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
+    line_intervals(mesh, q, f.anterior)
+        .into_iter()
+        .rev()
+        .find(|&(_, t1)| t1 < wall_y - 3.0)
+}
+
 /// The laminar junction: the first solid behind the canal on the mid-sagittal line, searched from the
 /// pedicles' height downward to the inferior endplate; with the arch's height there (mm).
 pub(super) fn laminar_junction(
@@ -55,12 +65,7 @@ pub(super) fn laminar_junction(
 ) -> Result<(DVec3, f64)> {
     let mut z = z_top;
     while z >= z_bottom {
-        let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
-        let behind = line_intervals(mesh, q, f.anterior)
-            .into_iter()
-            .rev()
-            .find(|&(_, t1)| t1 < wall_y - 3.0);
-        if let Some((t0, t1)) = behind {
+        if let Some((t0, t1)) = behind_canal(mesh, f, wall_y, z) {
             let y = t1 - 3.0f64.min(0.5 * (t1 - t0));
             // Centre the junction on the arch's height there.
             let v = line_intervals(mesh, f.world(DVec3::new(0.0071, y, 0.0)), f.superior);
@@ -88,14 +93,7 @@ pub(super) fn lamina_plane(
     junction: DVec3,
     height: f64,
 ) -> DVec3 {
-    let border = |z: f64| {
-        let q = f.world(DVec3::new(0.0071, 0.0, z + 0.0113));
-        line_intervals(mesh, q, f.anterior)
-            .into_iter()
-            .rev()
-            .find(|&(_, t1)| t1 < wall_y - 3.0)
-            .map(|(_, t1)| t1)
-    };
+    let border = |z: f64| behind_canal(mesh, f, wall_y, z).map(|(_, t1)| t1);
     let dz = 0.25 * height;
     match (border(junction.z + dz), border(junction.z - dz)) {
         (Some(a), Some(b)) if (a - b).abs() < 2.0 * dz => {
@@ -135,8 +133,8 @@ impl Probe<'_> {
 
     /// The bar model of the part from `a` to `b`, measured at its middle: radius half its horizontal
     /// thickness across the axis, and — for a plate taller than thick — a ribbon of its height
-    /// (`height`, or the vertical chord there) less that radius. A steep axis (an articular
-    /// process) is a plain bar.
+    /// (`height`, or the vertical chord there) less that radius. A steep axis is a plain bar (an
+    /// articular process whose middle misses the solid, see [`Probe::plate`]).
     pub(super) fn bar(
         &self,
         structure: Structure,
