@@ -69,11 +69,28 @@ fn inline(text: &str) -> String {
         }) else {
             break;
         };
-        h.push_str(&escape(&rest[..open]));
+        h.push_str(&strong(&escape(&rest[..open])));
         let _ = write!(h, "<a href=\"{}\">{}</a>", escape(target), escape(label));
         rest = &rest[open + len..];
     }
-    h.push_str(&escape(rest));
+    h.push_str(&strong(&escape(rest)));
+    h
+}
+
+/// Markdown's `**bold**` as `<strong>`, pair by pair; an unpaired `**` stays as written.
+fn strong(text: &str) -> String {
+    let parts: Vec<&str> = text.split("**").collect();
+    if parts.len() % 2 == 0 {
+        return text.to_string();
+    }
+    let mut h = String::with_capacity(text.len() + 8 * parts.len());
+    for (i, part) in parts.iter().enumerate() {
+        if i % 2 == 1 {
+            let _ = write!(h, "<strong>{part}</strong>");
+        } else {
+            h.push_str(part);
+        }
+    }
     h
 }
 
@@ -240,6 +257,15 @@ mod tests {
             "a &lt; b (<a href=\"tables/t.csv\">t.csv</a>, <a href=\"figures/f.png\">f</a>)."
         );
         assert_eq!(inline("no [link here"), "no [link here");
+    }
+
+    #[test]
+    fn bold_becomes_strong_and_an_unpaired_marker_stays() {
+        assert_eq!(
+            inline("**L3, ap+lat.** the **assumed** K ([t](t.csv))"),
+            "<strong>L3, ap+lat.</strong> the <strong>assumed</strong> K (<a href=\"t.csv\">t</a>)"
+        );
+        assert_eq!(inline("a ** b"), "a ** b");
     }
 
     #[test]
