@@ -29,28 +29,28 @@ fn local_mesh(p: &Phantom, i: usize) -> TriMesh {
     m
 }
 
+/// Where triangle `i` crosses the plane `z = z0`, as a segment in (x, y).
+fn cut_z(m: &TriMesh, i: usize, z0: f64) -> Option<(DVec2, DVec2)> {
+    let c = m.corners(i);
+    let cut: Vec<DVec2> = (0..3)
+        .filter_map(|k| {
+            let (a, b) = (c[k], c[(k + 1) % 3]);
+            ((a.z - z0) * (b.z - z0) < 0.0).then(|| {
+                let p = a + (b - a) * ((z0 - a.z) / (b.z - a.z));
+                DVec2::new(p.x, p.y)
+            })
+        })
+        .collect();
+    (cut.len() == 2).then(|| (cut[0], cut[1]))
+}
+
 /// Midpoints and ends of the segments where the triangles labelled `keep` cross the plane `z = z0`.
 fn section_z(m: &TriMesh, keep: &[Structure], z0: f64) -> Vec<DVec2> {
-    let mut out = Vec::new();
-    for i in 0..m.triangles.len() {
-        if !keep.contains(&m.label(i)) {
-            continue;
-        }
-        let c = m.corners(i);
-        let mut pts = Vec::new();
-        for k in 0..3 {
-            let (a, b) = (c[k], c[(k + 1) % 3]);
-            if (a.z - z0) * (b.z - z0) < 0.0 {
-                let t = (z0 - a.z) / (b.z - a.z);
-                let p = a + (b - a) * t;
-                pts.push(DVec2::new(p.x, p.y));
-            }
-        }
-        if pts.len() == 2 {
-            out.extend([pts[0], (pts[0] + pts[1]) / 2.0]);
-        }
-    }
-    out
+    (0..m.triangles.len())
+        .filter(|&i| keep.contains(&m.label(i)))
+        .filter_map(|i| cut_z(m, i, z0))
+        .flat_map(|(a, b)| [a, (a + b) / 2.0])
+        .collect()
 }
 
 /// Unit principal direction of 2-D points (largest variance).
@@ -97,8 +97,8 @@ fn pedicle_angle_width(m: &TriMesh, s: Structure) -> (f64, f64) {
 /// One axial section of the pedicle at height `z`. A first axis: the mean direction of its two wall
 /// lines (each the principal direction of the middle 40 % of its labelled points). Then the axis as a
 /// morphometrist draws it, through the isthmus's centre: chords across the whole section perpendicular
-/// to the axis, every 0.25 mm along it; the isthmus is the narrowest chord of the run around the pedicle's
-/// centre, the tube the chords within 3 % of it; the axis is the line fitted through the tube's chord
+/// to the axis, every 0.25 mm along it; the isthmus is the narrowest run of chords (at least 2 mm long)
+/// whose widths stay within 0.25 mm of each other; the axis is the line fitted through that run's chord
 /// midpoints (iterated). The walls alone would read the fillets where the lamina and the body join the
 /// pedicle (the medial wall is straight over only ~5 mm at L1); the chord midpoints do not.
 fn section_angle_width(m: &TriMesh, s: Structure, z: f64) -> (f64, f64) {
@@ -144,7 +144,7 @@ fn section_angle_width(m: &TriMesh, s: Structure, z: f64) -> (f64, f64) {
             .filter_map(|t| chord(&section, c + dir * t, n).map(|(a, b)| (t, b - a, (a + b) / 2.0)))
             .collect();
         // The isthmus: the narrowest run, at least 2 mm long, of contiguous chords whose widths stay
-        // within 3 % of each other (the tube between the fillets).
+        // within 0.25 mm of each other (the tube between the fillets).
         let runs = (0..chords.len()).map(|i| {
             let (mut j, mut w_min, mut w_max) = (i, chords[i].1, chords[i].1);
             while j + 1 < chords.len() && chords[j + 1].0 - chords[j].0 < 0.3 {
@@ -184,19 +184,7 @@ fn section_angle_width(m: &TriMesh, s: Structure, z: f64) -> (f64, f64) {
 /// Every segment where the mesh's triangles cross the plane `z = z0` (the closed section outline).
 fn section_segments(m: &TriMesh, z0: f64) -> Vec<(DVec2, DVec2)> {
     (0..m.triangles.len())
-        .filter_map(|i| {
-            let c = m.corners(i);
-            let cut: Vec<DVec2> = (0..3)
-                .filter_map(|k| {
-                    let (a, b) = (c[k], c[(k + 1) % 3]);
-                    ((a.z - z0) * (b.z - z0) < 0.0).then(|| {
-                        let p = a + (b - a) * ((z0 - a.z) / (b.z - a.z));
-                        DVec2::new(p.x, p.y)
-                    })
-                })
-                .collect();
-            (cut.len() == 2).then(|| (cut[0], cut[1]))
-        })
+        .filter_map(|i| cut_z(m, i, z0))
         .collect()
 }
 
