@@ -69,19 +69,12 @@ demo: build
 		--landmarks $(OUT)/phantom/landmarks.json --out $(OUT)/compare_lat_df500
 	@echo "DRRs, previews, masks and sidecars are in $(OUT)/; metrics and heatmaps in $(OUT)/compare_*/"
 
-# The last line is a plain "N passed, N failed" total over every test binary and the Python tests. The
-# Python tests compare the module with the CLI that `cargo test` built (target/debug/spinedrr).
-test: deps
-	$(CARGO) fmt --all -- --check
-	$(CARGO) clippy --workspace --all-targets -- -D warnings
-	python3 scripts/check_import_cycles.py src
-	@mkdir -p target
-	set -o pipefail; $(CARGO) test --workspace --lib --bins --tests 2>&1 | tee target/test.log
-	$(MAKE) --no-print-directory python
-	set -o pipefail; SPINEDRR_BIN=target/debug/spinedrr $(PYTHON) -m pytest -p no:cacheprovider python/tests 2>&1 | tee target/pytest.log
-	@awk '/^test result:/ {p += $$4; f += $$6} END {print p, f}' target/test.log > target/test.counts
-	@awk '/ in [0-9.]+s/ && /(passed|failed|error)/ { for (i = 2; i <= NF; i++) { if ($$i ~ /^passed/) p += $$(i-1); if ($$i ~ /^(failed|error)/) f += $$(i-1) } } END {print p + 0, f + 0}' target/pytest.log >> target/test.counts
-	@awk '{p += $$1; f += $$2} END {printf "%d passed, %d failed\n", p, f}' target/test.counts
+# fmt, clippy -D warnings, the import-cycle check, every Rust test and the Python tests, in one compile of
+# the tree (scripts/test.sh says how); it ends with the wall time of each phase and a plain
+# "N passed, N failed" total over the Rust and Python tests. The Python tests compare the module with the
+# CLI that the same build made (target/debug/spinedrr).
+test:
+	@bash scripts/test.sh
 
 bench: deps
 	$(CARGO) bench

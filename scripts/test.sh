@@ -1,0 +1,101 @@
+#!/usr/bin/env bash
+# `make test`: every check a change must pass, in one compile of the tree, with the wall time of each phase
+# printed at the end beside the pass/fail totals.
+#
+# Phases:
+#   deps    scripts/install-deps.sh (system packages, only those missing)
+#   static  cargo fmt --check, the import-cycle check
+#   build   ONE `cargo test --no-run` of every target of the workspace with clippy-driver as the workspace
+#           wrapper, so clippy's lints (-D warnings) are emitted by the same compile that produces the test
+#           binaries, the CLI and the Python module (no separate `cargo clippy` check build, no release build
+#           of the module); the Python virtual environment is made meanwhile
+#   rust    the library's unit tests and the one integration-test binary (tests/it/)
+#   python  the module the build phase compiled, installed into the venv, and pytest over python/tests
+#
+# The last line is a plain "N passed, N failed" total over the Rust and the Python tests.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYENV=target/pyenv
+mkdir -p target
+phases=()
+now_ms() { echo $(($(date +%s%N) / 1000000)); }
+seconds() { printf '%d.%d' $(($1 / 1000)) $(($1 % 1000 / 100)); }
+phase() { # phase NAME COMMAND… : runs COMMAND, records its wall time under NAME, returns its status
+  local name="$1" t0 rc=0
+  shift
+  t0=$(now_ms)
+  "$@" || rc=$?
+  phases+=("$name $(seconds $(($(now_ms) - t0)))")
+  return $rc
+}
+
+# clippy-driver is rustc plus clippy's lints: as RUSTC_WORKSPACE_WRAPPER it lints the workspace's own crates
+# (not the dependencies) during the ordinary build, which is what `cargo clippy` does in a check build.
+# CLIPPY_ARGS is how cargo-clippy hands `-- -D warnings` to the driver.
+clippy_driver="$(rustc --print sysroot)/bin/clippy-driver"
+[ -x "$clippy_driver" ] || clippy_driver="$(command -v clippy-driver || true)"
+if [ -z "$clippy_driver" ]; then
+  echo "make test needs clippy (rustup component add clippy)" >&2
+  exit 1
+fi
+export RUSTC_WORKSPACE_WRAPPER="$clippy_driver"
+export CLIPPY_ARGS="-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__"
+# The Python module is compiled by the same build as an extension module (no libpython linked: what maturin
+# sets) for the system python3 the venv is made from, so it is installed as built (`python/install-dev.sh`).
+export PYO3_PYTHON=python3
+export PYO3_BUILD_EXTENSION_MODULE=1
+
+static_checks() {
+  cargo fmt --all -- --check
+  python3 scripts/check_import_cycles.py src
+}
+
+build() {
+  # The venv (pip, network) is made while cargo compiles.
+  bash python/make-venv.sh "$PYENV" > target/venv.log 2>&1 &
+  local venv=$!
+  local rc=0
+  cargo test --workspace --all-targets --no-run || rc=$?
+  wait "$venv" || { cat target/venv.log >&2; return 1; }
+  return $rc
+}
+
+rust_tests() {
+  set -o pipefail
+  cargo test --workspace --lib --bins --tests 2>&1 | tee target/test.log
+}
+
+python_tests() {
+  set -o pipefail
+  bash python/install-dev.sh "$PYENV" target/debug
+  SPINEDRR_BIN=target/debug/spinedrr "$PYENV/bin/python" -m pytest -p no:cacheprovider python/tests 2>&1 |
+    tee target/pytest.log
+}
+
+t_start=$(now_ms)
+rm -f target/test.log target/pytest.log
+status=0
+phase deps bash scripts/install-deps.sh || status=$?
+[ $status -ne 0 ] || phase static static_checks || status=$?
+[ $status -ne 0 ] || phase build build || status=$?
+if [ $status -eq 0 ]; then
+  # The Python tests run even when a Rust test failed, so both totals count.
+  phase rust rust_tests || status=$?
+  phase python python_tests || status=$?
+fi
+
+rust_counts=$(awk '/^test result:/ {p += $4; f += $6} END {print p + 0, f + 0}' target/test.log 2>/dev/null ||
+  echo 0 0)
+py_counts="0 0"
+[ -f target/pytest.log ] &&
+  py_counts=$(awk '/ in [0-9.]+s/ && /(passed|failed|error)/ { for (i = 2; i <= NF; i++) {
+      if ($i ~ /^passed/) p += $(i-1); if ($i ~ /^(failed|error)/) f += $(i-1) } } END {print p + 0, f + 0}' \
+    target/pytest.log)
+echo
+echo "wall time per phase (s):"
+for p in "${phases[@]}"; do printf '  %-7s %7s\n' ${p}; done
+printf '  %-7s %7s\n' total "$(seconds $(($(now_ms) - t_start)))"
+echo "Rust: ${rust_counts% *} passed, ${rust_counts#* } failed; Python: ${py_counts% *} passed, ${py_counts#* } failed"
+printf '%s\n%s\n' "$rust_counts" "$py_counts" | awk '{p += $1; f += $2} END {printf "%d passed, %d failed\n", p, f}'
+exit $status

