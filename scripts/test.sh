@@ -5,7 +5,8 @@
 # Phases:
 #   deps    scripts/install-deps.sh (system packages, only those missing)
 #   static  cargo fmt --check, the import-cycle check
-#   build   ONE `cargo test --no-run` of every target of the workspace with clippy-driver as the workspace
+#   build   ONE `cargo build --all-targets` of the workspace (test binaries, benches, examples, the CLI, the
+#           Python cdylib) with clippy-driver as the workspace
 #           wrapper, so clippy's lints (-D warnings) are emitted by the same compile that produces the test
 #           binaries, the CLI and the Python module (no separate `cargo clippy` check build, no release build
 #           of the module); the Python virtual environment is made meanwhile
@@ -56,7 +57,7 @@ build() {
   bash python/make-venv.sh "$PYENV" > target/venv.log 2>&1 &
   local venv=$!
   local rc=0
-  cargo test --workspace --all-targets --no-run || rc=$?
+  cargo build --workspace --all-targets || rc=$?
   wait "$venv" || { cat target/venv.log >&2; return 1; }
   return $rc
 }

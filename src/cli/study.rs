@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args as ClapArgs;
+use spinedrr::study::folder::FolderPolicy;
 use spinedrr::study::runner::max_threads;
 use spinedrr::study::shard::Shard;
 use spinedrr::study::slurm::{self, SlurmOptions};
@@ -62,6 +63,11 @@ pub struct Args {
     /// Submit the jobs with sbatch and print their ids (else only write the scripts).
     #[arg(long, requires = "slurm")]
     submit: bool,
+    /// When OUT holds the results of another study config (its OUT/study.toml differs), delete them —
+    /// that run's unit files, tables, figures, references and report — and run this config. Without it
+    /// such a folder is refused, naming the keys that differ, and nothing in it changes.
+    #[arg(long, conflicts_with_all = ["shard", "assemble"])]
+    start_over: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -97,6 +103,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         progress: true,
         shard,
         assemble_only: a.assemble,
+        folder: folder_policy(a.start_over),
     };
     let s = run_study(&cfg, &opts).context("running the study")?;
     if let Some(sh) = shard {
@@ -145,6 +152,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn folder_policy(start_over: bool) -> FolderPolicy {
+    if start_over {
+        FolderPolicy::StartOver
+    } else {
+        FolderPolicy::Keep
+    }
+}
+
 /// `--slurm`: the scripts (and with `--submit` the jobs) of this study's shards.
 fn run_slurm(a: &Args, cfg: &StudyConfig) -> anyhow::Result<()> {
     let absolute = |p: &std::path::Path| -> anyhow::Result<PathBuf> {
@@ -171,6 +186,7 @@ fn run_slurm(a: &Args, cfg: &StudyConfig) -> anyhow::Result<()> {
         cpus_per_task: a.cpus_per_task,
         array_size: a.array_size,
         command,
+        folder: folder_policy(a.start_over),
     };
     let plan = slurm::prepare(cfg, &out, &opts).context("preparing the Slurm jobs")?;
     let shards: Vec<String> = plan.pending_shards.iter().map(|s| s.to_string()).collect();

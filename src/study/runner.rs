@@ -1,11 +1,14 @@
 //! Parallel, deterministic, resumable execution of a study's work units.
 //!
-//! Each unit's typed rows go atomically to `out/units/<id>.json`, tagged with the config fingerprint; a
-//! unit whose file exists with the same fingerprint is skipped (resume). Tables, figures and the report
-//! are assembled only once every unit is present, in the fixed unit order, so their bytes do not depend
-//! on the thread count or on interruptions. One run at a time owns the output folder
-//! (`OUT/.study.lock`), and a folder left by another config is cleared of that run's products first, so
-//! a report never links figures or units that are not its own.
+//! Each unit's typed rows go atomically to `out/units/<id>.json`, tagged with the unit's identity (the
+//! config's fingerprint and the content of every input file the unit reads, [`UnitIdentity`]); a unit
+//! whose file exists with the same identity is skipped (resume), so a changed input reruns exactly the
+//! units that read it. Tables, figures and the report are assembled only once every unit is present, in
+//! the fixed unit order, so their bytes do not depend on the thread count or on interruptions. One run at
+//! a time owns the output folder (`OUT/.study.lock`, [`super::lock`]), and a folder left by another
+//! config is refused — or, with `--start-over`, cleared of that run's products — so a report never links
+//! figures or units that are not its own and a finished run is never deleted implicitly
+//! ([`super::folder`]).
 
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -16,12 +19,15 @@ use rayon::prelude::*;
 
 use super::config::StudyConfig;
 use super::experiments::{self, Context};
+use super::folder::{FolderPolicy, PRODUCT_DIRS, claim_folder};
+use super::identity::UnitIdentity;
+pub use super::lock::{LOCK_FILE, OutputLock};
 use super::schema::StudyTables;
 use super::shard::{self, Shard};
 use super::timings::{Phase, RunFacts, TimingRow, Timings, to_csv};
 use super::units::{Unit, UnitFile, derive_seed, enumerate_units};
 use super::{figures, report, report_html};
-use crate::io::{self, write_atomic_bytes};
+use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
 
 /// How to run a study.
@@ -40,6 +46,8 @@ pub struct RunOptions {
     /// Run no unit: build tables, figures and report from the unit files present, and fail, naming
     /// them, when units are missing.
     pub assemble_only: bool,
+    /// What to do when the folder holds another config's results (default: refuse).
+    pub folder: FolderPolicy,
 }
 
 impl RunOptions {
@@ -52,6 +60,7 @@ impl RunOptions {
             progress: false,
             shard: None,
             assemble_only: false,
+            folder: FolderPolicy::Keep,
         }
     }
 }
@@ -82,11 +91,11 @@ fn unit_path(out: &Path, id: &str) -> PathBuf {
     out.join("units").join(format!("{id}.json"))
 }
 
-/// The unit file at `path` if it exists, parses and carries `fp`.
-fn load_unit(path: &Path, fp: &str) -> Option<UnitFile> {
-    let text = std::fs::read_to_string(path).ok()?;
+/// The unit file of `u` under `out` if it exists, parses and carries the unit's identity.
+fn load_unit(out: &Path, u: &Unit, ident: &UnitIdentity) -> Option<UnitFile> {
+    let text = std::fs::read_to_string(unit_path(out, &u.id())).ok()?;
     let f: UnitFile = serde_json::from_str(&text).ok()?;
-    (f.fingerprint == fp).then_some(f)
+    (f.fingerprint == ident.of(u) && f.id == u.id()).then_some(f)
 }
 
 fn create_dir(p: &Path) -> Result<()> {
@@ -116,7 +125,9 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         Some(s) => shard::units_of(cfg, &units, s),
         None => units.iter().collect(),
     };
-    let is_pending = |u: &Unit| load_unit(&unit_path(&opts.out, &u.id()), &fp).is_none();
+    // Every input file is read (or its cached digest) once, here: a missing one fails before any work.
+    let ident = UnitIdentity::new(cfg, &fp, &opts.out)?;
+    let is_pending = |u: &Unit| load_unit(&opts.out, u, &ident).is_none();
     // What is pending, read before the lock only to decide whether the anatomy must be built.
     let work_before =
         !opts.assemble_only && opts.max_units != Some(0) && mine.iter().any(|u| is_pending(u));
@@ -129,18 +140,17 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     };
     let mut build_wall = build_start.elapsed();
     create_dir(&opts.out)?;
-    let dirs = ["units", "tables", "figures", experiments::REFERENCES_DIR];
     // A shard shares the folder with the other shards: no lock, no clearing, no removal of
     // temporaries (another host's live process cannot be told from a dead one).
     let _lock = match opts.shard {
         Some(_) => {
-            shard::prepare_folder(&opts.out, &toml, &dirs)?;
+            shard::prepare_folder(&opts.out, &toml, &PRODUCT_DIRS)?;
             None
         }
-        None => Some(claim_folder(&opts.out, &toml, &fp)?),
+        None => Some(claim_folder(&opts.out, &toml, &units, &ident, opts.folder)?),
     };
     if opts.assemble_only {
-        let missing = missing_units(&opts.out, &units, &fp);
+        let missing = missing_units(&opts.out, &units, &ident);
         if !missing.is_empty() {
             let shards = shard::planned_shards(&opts.out)
                 .map(|n| (n, shard::shards_with(cfg, &units, &missing, n)));
@@ -169,7 +179,7 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         timings.add(Phase::Build, build_wall, ctx.targets.len() as u64);
         let t0 = Instant::now();
         ctx.prepare_references(&todo, &pool)?;
-        run_units(&ctx, &pool, opts, &fp, &todo)?;
+        run_units(&ctx, &pool, opts, &ident, &todo)?;
         timings.add(Phase::Units, t0.elapsed(), todo.len() as u64);
     }
     // A shard never assembles (the other shards' units may still be running).
@@ -182,7 +192,7 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     };
     if complete {
         let t0 = Instant::now();
-        let tables = assemble(&opts.out, &units, &fp)?;
+        let tables = assemble(&opts.out, &units, &ident)?;
         let n_tables = tables.write(&opts.out.join("tables"))?
             + super::cohort::write_tables(&opts.out, cfg, &tables)?;
         timings.add(Phase::Tables, t0.elapsed(), n_tables as u64);
@@ -211,28 +221,15 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     })
 }
 
-/// Claims the output folder `out` (which must exist) for this process: takes its lock, clears the
-/// products of another config, creates the product folders and removes stale temporaries.
-pub(super) fn claim_folder(out: &Path, toml: &str, fp: &str) -> Result<OutputLock> {
-    let lock = OutputLock::acquire(out)?;
-    clear_foreign_products(out, toml, fp)?;
-    for d in ["units", "tables", "figures", experiments::REFERENCES_DIR] {
-        create_dir(&out.join(d))?;
-        io::remove_stale_temporaries(&out.join(d));
-    }
-    io::remove_stale_temporaries(out);
-    Ok(lock)
-}
-
 /// The config's canonical TOML and fingerprint.
 pub(super) fn config_identity(cfg: &StudyConfig) -> Result<(String, String)> {
     Ok((config_toml(cfg)?, fingerprint(cfg)?))
 }
 
-/// The positions in `units` of those without a unit file of fingerprint `fp` under `out`.
-pub(super) fn missing_units(out: &Path, units: &[Unit], fp: &str) -> Vec<usize> {
+/// The positions in `units` of those without a unit file of their identity under `out`.
+pub(super) fn missing_units(out: &Path, units: &[Unit], ident: &UnitIdentity) -> Vec<usize> {
     (0..units.len())
-        .filter(|&i| load_unit(&unit_path(out, &units[i].id()), fp).is_none())
+        .filter(|&i| load_unit(out, &units[i], ident).is_none())
         .collect()
 }
 
@@ -286,7 +283,7 @@ fn run_units(
     ctx: &Context,
     pool: &rayon::ThreadPool,
     opts: &RunOptions,
-    fp: &str,
+    ident: &UnitIdentity,
     todo: &[&Unit],
 ) -> Result<()> {
     let bar = progress_bar(opts.progress, todo.len());
@@ -300,7 +297,7 @@ fn run_units(
                     let rows = ctx.run(u).map_err(|e| in_unit(e, u))?;
                     let file = UnitFile {
                         id: u.id(),
-                        fingerprint: fp.to_string(),
+                        fingerprint: ident.of(u),
                         rows,
                     };
                     let text = serde_json::to_string(&file)
@@ -334,14 +331,16 @@ fn progress_bar(wanted: bool, n: usize) -> Option<indicatif::ProgressBar> {
 }
 
 /// Every unit's rows, in unit order, as the study's tables.
-fn assemble(out: &Path, units: &[Unit], fp: &str) -> Result<StudyTables> {
+fn assemble(out: &Path, units: &[Unit], ident: &UnitIdentity) -> Result<StudyTables> {
     let rows = units
         .iter()
         .map(|u| {
-            let path = unit_path(out, &u.id());
-            load_unit(&path, fp)
-                .map(|f| f.rows)
-                .ok_or_else(|| Error::format(&path, "unit result missing or from another config"))
+            load_unit(out, u, ident).map(|f| f.rows).ok_or_else(|| {
+                Error::format(
+                    unit_path(out, &u.id()),
+                    "unit result missing, or of another config or other input files",
+                )
+            })
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(StudyTables::from_units(rows))
@@ -364,150 +363,4 @@ fn in_unit(e: Error, u: &Unit) -> Error {
         },
         other => other,
     }
-}
-
-/// The name of the lock file in a study's output folder.
-pub const LOCK_FILE: &str = ".study.lock";
-
-/// An exclusive claim on a study's output folder: `OUT/.study.lock`, created with `create_new` and
-/// holding the process id, removed when dropped. A lock whose process is no longer running (a killed
-/// run) is taken over with a warning; a live one is an error naming its PID, so two studies never write
-/// into one folder at once.
-#[derive(Debug)]
-pub struct OutputLock {
-    path: PathBuf,
-}
-
-impl OutputLock {
-    /// Claims `out` (which must exist).
-    pub fn acquire(out: &Path) -> Result<OutputLock> {
-        let path = out.join(LOCK_FILE);
-        for _ in 0..3 {
-            match std::fs::OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .open(&path)
-            {
-                Ok(mut f) => {
-                    use std::io::Write;
-                    write!(f, "{}", std::process::id()).map_err(|e| Error::io(&path, e))?;
-                    return Ok(OutputLock { path });
-                }
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    let owner = lock_owner(&path);
-                    match owner {
-                        Some(pid) if pid != std::process::id() && process_running(pid) => {
-                            return Err(Error::Resource(format!(
-                                "{}: another study (PID {pid}) is running into {}; wait for it to \
-                                 finish, or use another --out",
-                                path.display(),
-                                out.display()
-                            )));
-                        }
-                        _ => {
-                            let who =
-                                owner.map_or_else(|| "no PID".to_string(), |p| format!("PID {p}"));
-                            eprintln!(
-                                "warning: taking over the stale lock {} ({who}, no longer running)",
-                                path.display()
-                            );
-                            match std::fs::remove_file(&path) {
-                                Ok(()) => {}
-                                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                                Err(e) => return Err(Error::io(&path, e)),
-                            }
-                        }
-                    }
-                }
-                Err(e) => return Err(Error::io(&path, e)),
-            }
-        }
-        Err(Error::Resource(format!(
-            "{}: could not claim the output folder (another run keeps taking it)",
-            path.display()
-        )))
-    }
-}
-
-impl Drop for OutputLock {
-    fn drop(&mut self) {
-        // Only our own lock is removed (a lock taken over by another run after ours went stale is theirs).
-        if lock_owner(&self.path) == Some(std::process::id()) {
-            let _ = std::fs::remove_file(&self.path);
-        }
-    }
-}
-
-/// The PID in a lock file; a lock just created by another run may not hold it yet, so an empty one is
-/// read again after a moment.
-fn lock_owner(path: &Path) -> Option<u32> {
-    for attempt in 0..2 {
-        match std::fs::read_to_string(path) {
-            Ok(t) if !t.trim().is_empty() => return t.trim().parse().ok(),
-            Ok(_) if attempt == 0 => std::thread::sleep(std::time::Duration::from_millis(200)),
-            _ => return None,
-        }
-    }
-    None
-}
-
-/// Whether process `pid` runs (read from `/proc`; where there is none, every PID counts as running, so
-/// a lock is never taken from a live run).
-fn process_running(pid: u32) -> bool {
-    let proc = Path::new("/proc");
-    !proc.join("self").exists() || proc.join(pid.to_string()).exists()
-}
-
-/// When `out/study.toml` is that of another config, removes what belongs to that run — `figures/`,
-/// `tables/`, `references/`, `report.*`, `timings.csv` and the unit files of other configs — so this
-/// run's report cannot link an earlier run's products; says so on stderr.
-fn clear_foreign_products(out: &Path, toml: &str, fp: &str) -> Result<()> {
-    let Ok(previous) = std::fs::read_to_string(out.join("study.toml")) else {
-        return Ok(());
-    };
-    if previous == toml {
-        return Ok(());
-    }
-    let mut removed = Vec::new();
-    for d in ["figures", "tables", experiments::REFERENCES_DIR] {
-        let p = out.join(d);
-        if p.is_dir() {
-            std::fs::remove_dir_all(&p).map_err(|e| Error::io(&p, e))?;
-            removed.push(format!("{d}/"));
-        }
-    }
-    let entries = std::fs::read_dir(out).map_err(|e| Error::io(out, e))?;
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let timings = name == "timings.csv" || name.starts_with("timings-shard-");
-        if (name.starts_with("report.") || timings) && e.path().is_file() {
-            std::fs::remove_file(e.path()).map_err(|err| Error::io(e.path(), err))?;
-            removed.push(name);
-        }
-    }
-    let mut stale_units = 0;
-    if let Ok(entries) = std::fs::read_dir(out.join("units")) {
-        for e in entries.flatten() {
-            let p = e.path();
-            if p.extension().is_some_and(|x| x == "json") && load_unit(&p, fp).is_none() {
-                std::fs::remove_file(&p).map_err(|err| Error::io(&p, err))?;
-                stale_units += 1;
-            }
-        }
-    }
-    if stale_units > 0 {
-        removed.push(format!("{stale_units} unit files"));
-    }
-    removed.sort();
-    eprintln!(
-        "note: {} held the products of another study config (its study.toml differs from this one); \
-         removed {}",
-        out.display(),
-        if removed.is_empty() {
-            "nothing else".to_string()
-        } else {
-            removed.join(", ")
-        }
-    );
-    Ok(())
 }

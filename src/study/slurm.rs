@@ -17,7 +17,9 @@ use std::process::Command;
 use serde::{Deserialize, Serialize};
 
 use super::config::StudyConfig;
-use super::runner::{claim_folder, config_identity, missing_units};
+use super::folder::{FolderPolicy, claim_folder};
+use super::identity::UnitIdentity;
+use super::runner::{config_identity, missing_units};
 use super::shard;
 use super::units::enumerate_units;
 use crate::io::{write_atomic_bytes, write_json};
@@ -40,6 +42,8 @@ pub struct SlurmOptions {
     /// The command line that runs this study, without `--out`, `--threads` and the mode flags:
     /// the binary and its arguments (`study --config ABS [--quick]`), absolute paths.
     pub command: Vec<String>,
+    /// What to do when OUT holds another config's results (`--start-over`: delete them; else refuse).
+    pub folder: FolderPolicy,
 }
 
 /// The written plan (`OUT/slurm/plan.json`).
@@ -173,12 +177,13 @@ pub fn prepare(cfg: &StudyConfig, out: &Path, o: &SlurmOptions) -> Result<SlurmP
     let units = enumerate_units(cfg)?;
     let (toml, fp) = config_identity(cfg)?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let _lock = claim_folder(out, &toml, &fp)?;
+    let ident = UnitIdentity::new(cfg, &fp, out)?;
+    let _lock = claim_folder(out, &toml, &units, &ident, o.folder)?;
     write_atomic_bytes(&out.join("study.toml"), toml.as_bytes())?;
     let dir = out.join(SLURM_DIR);
     let logs = dir.join("logs");
     std::fs::create_dir_all(&logs).map_err(|e| Error::io(&logs, e))?;
-    let missing = missing_units(out, &units, &fp);
+    let missing = missing_units(out, &units, &ident);
     let pending = shard::shards_with(cfg, &units, &missing, o.array_size);
     let n = o.array_size;
     let out_s = out.display().to_string();

@@ -89,6 +89,16 @@ impl Unit {
         }
     }
 
+    /// The anatomy target the unit studies (none for a calibration cell, which images a calibration
+    /// phantom).
+    pub fn target(&self) -> Option<&str> {
+        match self {
+            Unit::Projection { target, .. } | Unit::Registration { target, .. } => Some(target),
+            Unit::Intensity(c) => Some(&c.target),
+            Unit::Calibration(_) => None,
+        }
+    }
+
     /// The key every random draw of this unit derives from (trial chunking excluded, so the same trial
     /// draws the same numbers whatever `trials_per_unit` is).
     pub fn seed_key(&self) -> String {

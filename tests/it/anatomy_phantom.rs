@@ -1,8 +1,6 @@
 //! The parametric lumbar phantom: closed meshes whose volumes match the SDF, landmarks consistent with the
 //! SDF, published morphometry, the placement rule and tissue classification.
 
-use std::sync::OnceLock;
-
 use glam::DVec3;
 use rayon::prelude::*;
 use spinedrr::anatomy::{

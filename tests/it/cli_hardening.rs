@@ -266,7 +266,8 @@ fn ct_renders_time_repeats_and_refuse_inapplicable_values() {
     let (ok, err) = crate::common::run(&[&args[..], &ct_args[..]].concat());
     assert!(ok, "{err}");
     let o = d.path().join("o.tiff");
-    let (ok, err) = crate::common::run(&["render", "--ct", &s(&ct), "--repeat", "3", "--out", &s(&o)]);
+    let (ok, err) =
+        crate::common::run(&["render", "--ct", &s(&ct), "--repeat", "3", "--out", &s(&o)]);
     assert!(ok, "{err}");
     let timing: serde_json::Value = err
         .lines()

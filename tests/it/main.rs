@@ -1,7 +1,6 @@
 //! The integration tests: one crate, one binary, linked once (matklad, "Delete Cargo Integration
 //! Tests"). Each module is one former `tests/NAME.rs`; `common` is the shared runner of the binary.
 
-mod common;
 mod analysis_cli;
 mod analysis_metrics;
 mod anatomy_cli;
@@ -13,6 +12,7 @@ mod calibration_cli;
 mod calibration_study;
 mod cli_hardening;
 mod cli_render;
+mod common;
 mod ct_structures;
 mod fuzz_regressions;
 mod landmark_formats;

@@ -2,9 +2,7 @@
 //! transform and stripped of its structure labels, gives each landmark within 3 mm of the analytic one.
 
 use glam::{DMat3, DVec3};
-use spinedrr::anatomy::{
-    Landmarks, PhantomOptions, TriMesh, auto_landmarks, build_phantom, decimate,
-};
+use spinedrr::anatomy::{Landmarks, TriMesh, auto_landmarks, decimate};
 use spinedrr::geometry::RigidTransform;
 
 /// A deterministic pseudo-random number in [0, 1) (SplitMix64).

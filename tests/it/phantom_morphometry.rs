@@ -4,7 +4,6 @@
 //! without unpaired rays; and its silhouettes against real vertebrae segmented from a public CT.
 
 use std::path::PathBuf;
-use std::sync::OnceLock;
 
 use glam::{DVec2, DVec3};
 use spinedrr::anatomy::auto_landmarks::line_intervals;

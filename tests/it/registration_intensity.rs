@@ -5,10 +5,8 @@
 //! detector is the default C-arm binned by 4 (256 × 256 px, fx = 1125 px) to keep the suite quick;
 //! perturbations are stated at full resolution and binned with the detector.
 
-use std::sync::OnceLock;
-
 use glam::{DMat3, DVec3};
-use spinedrr::anatomy::{Level, Phantom, PhantomOptions, build_phantom};
+use spinedrr::anatomy::{Level, Phantom};
 use spinedrr::geometry::{CArm, Perturbation, RigidTransform, View};
 use spinedrr::io::XrayModel;
 use spinedrr::registration::intensity::{

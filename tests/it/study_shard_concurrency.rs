@@ -7,6 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use spinedrr::study::StudyConfig;
+use spinedrr::study::identity::UnitIdentity;
 use spinedrr::study::runner::fingerprint;
 use spinedrr::study::shard::{Shard, units_of};
 use spinedrr::study::units::{Unit, UnitFile, enumerate_units};
@@ -134,13 +135,19 @@ fn two_shards_at_once_share_inputs_without_tearing() {
         );
     }
     no_temporaries(&shared);
+    // Each unit file carries its unit's identity: the config's fingerprint with the digests of the CT
+    // files the unit reads (so never the bare config fingerprint here, every target being a CT's).
     let fp = fingerprint(&expanded).unwrap();
+    let ident = UnitIdentity::new(&expanded, &fp, &shared).unwrap();
+    let identity: std::collections::HashMap<String, String> =
+        units.iter().map(|u| (u.id(), ident.of(u))).collect();
     let unit_files = files(&shared.join("units"));
     assert_eq!(unit_files.len(), units.len());
     for (name, bytes) in &unit_files {
         let f: UnitFile = serde_json::from_slice(bytes)
             .unwrap_or_else(|e| panic!("unit file {name} does not parse: {e}"));
-        assert_eq!(f.fingerprint, fp, "{name}");
+        assert_eq!(Some(&f.fingerprint), identity.get(&f.id), "{name}");
+        assert_ne!(f.fingerprint, fp, "{name}");
         assert_eq!(format!("{}.json", f.id), *name);
     }
     assert_eq!(

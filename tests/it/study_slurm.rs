@@ -14,6 +14,7 @@ use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use spinedrr::study::StudyConfig;
+use spinedrr::study::identity::UnitIdentity;
 use spinedrr::study::runner::fingerprint;
 use spinedrr::study::shard::{Shard, units_of};
 use spinedrr::study::units::enumerate_units;
@@ -336,7 +337,7 @@ fn cancelled_task_is_rerun_alone_on_resubmission() {
         "task {victim} finished before it was cancelled: nothing to resubmit"
     );
     let index: usize = victim.rsplit('_').next().unwrap().parse().unwrap();
-    let fp = fingerprint(&expanded).unwrap();
+    let ident = UnitIdentity::new(&expanded, &fingerprint(&expanded).unwrap(), &out).unwrap();
     let victim_units = units_of(&expanded, &units, Shard::new(index, 4).unwrap());
 
     let (array2, assemble2) = submit(&cluster, &r.config, &out);
@@ -355,7 +356,7 @@ fn cancelled_task_is_rerun_alone_on_resubmission() {
     for u in victim_units {
         let p = out.join("units").join(format!("{}.json", u.id()));
         let text = std::fs::read_to_string(&p).unwrap();
-        assert!(text.contains(&fp), "{}", p.display());
+        assert!(text.contains(&ident.of(u)), "{}", p.display());
     }
     assert!(
         csv_tables(&out) == r.tables,
