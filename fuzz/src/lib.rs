@@ -1,7 +1,7 @@
 //! The readers under fuzz, one function per target: each feeds raw bytes to the same public entry point
 //! the CLI uses and checks only what must hold for *any* input (no panic, no runaway; a parsed value that
 //! prints back must parse to itself). `fuzz_targets/*.rs` call these under libFuzzer (nightly), and
-//! `tests/fuzz_regressions.rs` includes this file to replay the kept corpora under stable `cargo test`.
+//! `tests/it/fuzz_regressions.rs` includes this file to replay the kept corpora under stable `cargo test`.
 
 use std::io::Write;
 use std::path::Path;

@@ -4,7 +4,7 @@
 //! orientation that overlaps best.
 //!
 //! Used to judge the phantom against vertebrae segmented from real CTs (`examples/phantom_vs_ct.rs`,
-//! `tests/phantom_morphometry.rs`). Both meshes are taken in RAS+ world axes; the phantom's local axes are
+//! `tests/it/phantom_morphometry.rs`). Both meshes are taken in RAS+ world axes; the phantom's local axes are
 //! the anatomical ones, a CT vertebra's are the scanner's, so a vertebra tilted in the scanner (lordosis,
 //! scoliosis, patient rotation) is compared after the rotation search, which is a coordinate descent over
 //! rotations about x, y and z (±`max_deg`, steps halving from 4° to 0.5°) maximising the mean of the three

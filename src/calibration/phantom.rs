@@ -308,6 +308,9 @@ pub struct Placement {
     pub phantom_to_world: RigidTransform,
 }
 
+/// The most plate poses per view a calibration takes (Zhang's estimate settles within 10–20).
+pub const MAX_POSES_PER_VIEW: usize = 200;
+
 /// Where a phantom is placed for each image: a plate faces each view's source at the world origin
 /// (the vertebra's place), tilted by `tilt_deg` about `poses_per_view` axes evenly spread in its plane; a
 /// 3-D phantom sits once at the world origin in its own frame and is imaged in every view.
@@ -333,11 +336,13 @@ pub fn placements(
                     format!("a plate's tilt must be in (0°, 80°), got {tilt_deg}"),
                 ));
             }
-            if poses_per_view < 2 {
+            if !(2..=MAX_POSES_PER_VIEW).contains(&poses_per_view) {
                 return Err(Error::invalid(
                     "poses_per_view",
                     format!(
-                        "Zhang's method needs at least 2 plate poses per view, got {poses_per_view}"
+                        "{poses_per_view}: Zhang's method needs at least 2 plate poses per view, and more \
+                         than {MAX_POSES_PER_VIEW} only grow the joint refinement's memory and time (10 000 poses \
+                         per view once asked for a 115 GB allocation)"
                     ),
                 ));
             }

@@ -13,8 +13,8 @@ use spinedrr::analysis::{
     Comparison, MaskPair, abs_difference, compare, read_landmarks, read_mask_png,
 };
 use spinedrr::io::{
-    ImageF32, Sidecar, check_output_paths, difference_set_paths, read_with_sidecar, sidecar_path,
-    write_difference_set,
+    ImageF32, Sidecar, check_output_paths, check_spares_inputs, difference_set_paths,
+    read_with_sidecar, sidecar_path, write_difference_set,
 };
 
 #[derive(clap::Args)]
@@ -164,6 +164,9 @@ struct Inputs {
 /// `metrics.json`.
 #[derive(Serialize)]
 struct Metrics {
+    /// `spinedrr` (what [`check_output_paths`] recognises as its own file).
+    tool: &'static str,
+    kind: &'static str,
     #[serde(flatten)]
     inputs: Inputs,
     view: String,
@@ -172,6 +175,33 @@ struct Metrics {
     /// `image`, `silhouettes` and `landmarks`.
     #[serde(flatten)]
     comparison: Comparison,
+}
+
+/// The files of the comparison's output set, each named by `--out`.
+fn outputs(out: &Path) -> Vec<(String, PathBuf)> {
+    difference_set_paths(out)
+        .into_iter()
+        .map(|p| ("--out".to_string(), p))
+        .collect()
+}
+
+/// Every file this comparison reads: both images and their sidecars, the masks and theirs, the landmarks.
+fn inputs_of(a: &Args, masks: &[(String, PathBuf, PathBuf)]) -> Vec<(String, PathBuf)> {
+    let mut v = Vec::new();
+    for (what, img) in [("--reference", &a.reference), ("--perturbed", &a.perturbed)] {
+        v.push((format!("the {what} image"), img.clone()));
+        v.push((format!("the {what} image's sidecar"), sidecar_path(img)));
+    }
+    for (name, r, p) in masks {
+        for m in [r, p] {
+            v.push((format!("mask '{name}'"), m.clone()));
+            v.push((format!("the sidecar of mask '{name}'"), sidecar_path(m)));
+        }
+    }
+    if let Some(l) = &a.landmarks {
+        v.push(("the --landmarks file".to_string(), l.clone()));
+    }
+    v
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -186,8 +216,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             rb.height
         );
     }
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    check_output_paths(&difference_set_paths(&a.out))?;
     let specs = if a.masks.is_empty() {
         conventional_masks((&a.reference, &sa), (&a.perturbed, &sb))
     } else {
@@ -196,6 +224,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .map(|s| parse_mask_spec(s))
             .collect::<anyhow::Result<_>>()?
     };
+    check_spares_inputs(&outputs(&a.out), &inputs_of(&a, &specs))?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    check_output_paths(&difference_set_paths(&a.out))?;
     let size = (ra.width, ra.height);
     let masks = specs
         .iter()
@@ -226,6 +257,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         perturbed: a.perturbed.display().to_string(),
     };
     let metrics = Metrics {
+        tool: "spinedrr",
+        kind: "metrics",
         inputs: inputs.clone(),
         view: sa.view,
         perturbation_reference: sa.perturbation_spec,

@@ -10,6 +10,7 @@ use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::markups::{LandmarkFormat, write_landmarks_as};
 use spinedrr::anatomy::structure_split::label_structures;
 use spinedrr::anatomy::{Landmarks, MeshFormat, TriMesh, auto_landmarks, decimate, write_mesh};
+use spinedrr::io::{check_spares_inputs, same_file};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -95,6 +96,20 @@ fn landmark_output(a: &Args) -> anyhow::Result<Option<(PathBuf, LandmarkFormat)>
 pub fn run(a: Args) -> anyhow::Result<()> {
     let lm_out = landmark_output(&a)?;
     MeshFormat::from_path(&a.out).with_context(|| format!("--out {}", a.out.display()))?;
+    let mut outputs = vec![("--out".to_string(), a.out.clone())];
+    if let Some((p, _)) = &lm_out {
+        outputs.push((
+            "the landmarks output (--landmarks-out)".to_string(),
+            p.clone(),
+        ));
+        if same_file(p, &a.out) {
+            bail!(
+                "--landmarks-out {} is also the mesh --out: both would be written to one file",
+                p.display()
+            );
+        }
+    }
+    check_spares_inputs(&outputs, &[("the --seg file".to_string(), a.seg.clone())])?;
     if a.smooth > MAX_SMOOTH_ITERATIONS {
         bail!(
             "--smooth {}: more than the limit of {MAX_SMOOTH_ITERATIONS} Taubin iterations",
@@ -105,6 +120,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let id = convention
         .resolve(&a.label)
         .with_context(|| format!("--label {:?}", a.label))?;
+    if id == 0 {
+        bail!(
+            "--label {:?}: label 0 is the background of every label map, not a structure (give the \
+             label of a vertebra, e.g. L3 or its id)",
+            a.label
+        );
+    }
     let seg =
         read_labels(&a.seg).with_context(|| format!("reading segmentation {}", a.seg.display()))?;
     let opts = SurfaceOptions {

@@ -54,6 +54,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.intensity {
         return run_intensity(&a);
     }
+    spinedrr::io::check_spares_inputs(
+        &[("--out".to_string(), a.out.clone())],
+        &[("the --problem file".to_string(), a.problem.clone())],
+    )?;
+    spinedrr::io::check_ours(&a.out)?;
     let loaded = LoadedProblem::read(&a.problem)
         .with_context(|| format!("reading problem {}", a.problem.display()))?;
     let req = RegisterRequest {

@@ -9,7 +9,8 @@ use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
 use spinedrr::geometry::{CArm, Perturbation, box_corners};
 use spinedrr::io::{
-    DrrProducts, DrrValues, XrayModel, check_output_paths, drr_set_paths, write_drr_set,
+    DrrProducts, DrrValues, XrayModel, check_output_paths, check_spares_inputs, drr_set_paths,
+    write_drr_set,
 };
 use spinedrr::render::{
     Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, orient_outward_warning,
@@ -108,6 +109,28 @@ pub struct Args {
     out: PathBuf,
 }
 
+/// The most renders `--repeat` asks for.
+const MAX_REPEAT: u32 = 10_000;
+
+/// Every file a render reads: mesh files, the geometry, the CT and its label map.
+fn render_inputs(a: &Args) -> anyhow::Result<Vec<(String, PathBuf)>> {
+    let mut v = Vec::new();
+    for spec in &a.mesh {
+        let (path, _) = split_mesh_spec(spec, a.mu_default)?;
+        v.push((format!("the --mesh file {}", path.display()), path));
+    }
+    for (what, p) in [
+        ("the --geometry file", &a.geometry),
+        ("the --ct volume", &a.ct.ct),
+        ("the --seg label map", &a.ct.seg),
+    ] {
+        if let Some(p) = p {
+            v.push((what.to_string(), p.clone()));
+        }
+    }
+    Ok(v)
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     check_out_path(&a.out)?;
     let carm = match &a.geometry {
@@ -130,8 +153,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.repeat == 0 {
         bail!("invalid --repeat 0: render at least once");
     }
-    // The files every render writes, checked before the (possibly long) render.
-    check_output_paths(&drr_set_paths(&a.out, &[], a.depth))?;
+    if a.repeat > MAX_REPEAT {
+        bail!(
+            "invalid --repeat {}: at most {MAX_REPEAT} renders (timing statistics settle within tens; \
+             {} renders of even a 10 ms image would take {:.1} hours)",
+            a.repeat,
+            a.repeat,
+            f64::from(a.repeat) * 0.01 / 3600.0
+        );
+    }
+    // The files every render writes, checked before the (possibly long) render: none may be one of the
+    // render's inputs, and an existing JSON there must be a spinedrr sidecar.
+    let set = drr_set_paths(&a.out, &[], a.depth);
+    let outputs: Vec<(String, PathBuf)> = set
+        .iter()
+        .map(|p| ("--out".to_string(), p.clone()))
+        .collect();
+    check_spares_inputs(&outputs, &render_inputs(&a)?)?;
+    check_output_paths(&set)?;
     let run = RenderRun {
         view: &view,
         rendered: &rendered,

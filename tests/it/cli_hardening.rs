@@ -109,6 +109,33 @@ fn absurd_allocations_and_runaway_work_are_refused_up_front() {
         .collect::<Vec<_>>(),
         &["--smooth 100000", "limit of 500"],
     );
+    // Renders repeated past any benchmark's need, and calibrations with absurd plate poses, are refused
+    // before any work (the first used to abort allocating, the second to ask for 115 GB).
+    let c = s(&cube(d.path(), "c.stl", DVec3::ZERO, 10.0));
+    let tiff = s(&d.path().join("r.tiff"));
+    for n in ["4294967295", "1000000000", "10001"] {
+        refused(
+            &["render", "--mesh", &c, "--repeat", n, "--out", &tiff],
+            &[&format!("--repeat {n}"), "at most 10000", "hours"],
+        );
+    }
+    assert!(!Path::new(&tiff).exists());
+    for n in ["10000", "1000000"] {
+        refused(
+            &[
+                "calibrate",
+                "--phantom",
+                "plate",
+                "--noise-px",
+                "0.5",
+                "--poses-per-view",
+                n,
+                "--out",
+                &s(&d.path().join("cal")),
+            ],
+            &["poses_per_view", n, "200"],
+        );
+    }
 }
 
 #[test]

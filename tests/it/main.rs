@@ -21,6 +21,7 @@ mod meshing_decimate;
 mod meshing_landmarks;
 mod nifti_io;
 mod output_sets;
+mod outputs_spare_inputs;
 mod phantom_morphometry;
 mod readers_hardening;
 mod real_ct;

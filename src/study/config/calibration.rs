@@ -211,10 +211,11 @@ impl CalibrationSection {
                 format!("must be in (0, 80) degrees, got {}", self.tilt_deg),
             ));
         }
-        if self.poses_per_view < 2 {
+        let max = crate::calibration::phantom::MAX_POSES_PER_VIEW;
+        if !(2..=max).contains(&self.poses_per_view) {
             return Err(Error::invalid(
                 "calibration.poses_per_view",
-                "must be at least 2",
+                format!("{}: must be between 2 and {max}", self.poses_per_view),
             ));
         }
         Ok(())
