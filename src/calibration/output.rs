@@ -275,7 +275,7 @@ pub fn product_paths(out: &Path) -> [PathBuf; 2] {
 
 /// Writes `calibrations.csv` and `phantom.json` into `out` (created if absent), each atomically.
 pub fn write_outcome(out: &Path, o: &CalibrateOutcome) -> Result<()> {
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    crate::io::create_output_dir(out, "--out")?;
     let [csv_path, json_path] = product_paths(out);
     let mut w = csv::Writer::from_writer(Vec::new());
     for r in &o.rows {

@@ -204,9 +204,46 @@ fn inputs_of(a: &Args, masks: &[(String, PathBuf, PathBuf)]) -> Vec<(String, Pat
     v
 }
 
+/// Refuses a pair that cannot be compared as two renders of one view: a sidecar of another kind (a mask,
+/// a depth map), images in different units (an intensity against a line integral), or two views.
+fn check_comparable(a: &Args, sa: &Sidecar, sb: &Sidecar) -> anyhow::Result<()> {
+    for (path, sc) in [(&a.reference, sa), (&a.perturbed, sb)] {
+        if sc.kind != spinedrr::io::kind::DRR {
+            bail!(
+                "{} is a '{}' image (its sidecar {} says so), not a DRR: compare takes two DRRs",
+                path.display(),
+                sc.kind,
+                sidecar_path(path).display()
+            );
+        }
+    }
+    if sa.units != sb.units {
+        bail!(
+            "the images are in different units: {} holds \"{}\", {} holds \"{}\" (render both the same \
+             way: both line integrals, both --intensity, or the same --photons model)",
+            a.reference.display(),
+            sa.units,
+            a.perturbed.display(),
+            sb.units
+        );
+    }
+    if sa.view != sb.view {
+        bail!(
+            "{} is view '{}' and {} is view '{}': compare measures what a perturbation moves in one view, \
+             so both must be renders of the same view",
+            a.reference.display(),
+            sa.view,
+            a.perturbed.display(),
+            sb.view
+        );
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     let (ra, sa) = load(&a.reference)?;
     let (rb, sb) = load(&a.perturbed)?;
+    check_comparable(&a, &sa, &sb)?;
     if (ra.width, ra.height) != (rb.width, rb.height) {
         bail!(
             "the images differ in size: {}×{} vs {}×{}",
@@ -225,7 +262,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .collect::<anyhow::Result<_>>()?
     };
     check_spares_inputs(&outputs(&a.out), &inputs_of(&a, &specs))?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    spinedrr::io::create_output_dir(&a.out, "--out")?;
     check_output_paths(&difference_set_paths(&a.out))?;
     let size = (ra.width, ra.height);
     let masks = specs

@@ -147,7 +147,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Format::Obj => MeshFormat::Obj,
         Format::Ply => MeshFormat::PlyBinary,
     };
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    spinedrr::io::create_output_dir(&a.out, "--out")?;
     let phantom = build_phantom(&opts).context("building the phantom")?;
     for v in &phantom.vertebrae {
         write_one(

@@ -14,7 +14,11 @@ pub struct Args {
     /// "similarity"?: ncc | gc | gncc | lncc[:P], "levels"?: [16, 8, 4, 2], "global"?, "seed"?}; see the
     /// README). R.json then holds R, t, similarity, evaluations, seconds, converged (+ rot_err_deg,
     /// trans_err_mm, mtre_mm with a truth).
-    #[arg(long, conflicts_with_all = ["views", "noise_px", "init_rot_deg", "init_trans_mm"])]
+    /// The landmark solver's flags do not apply (--method, --view, --noise-px, --seed, --init-rot-deg,
+    /// --init-trans-mm, --max-iterations): the problem file states its views and options.
+    #[arg(long, conflicts_with_all = [
+        "method", "views", "noise_px", "seed", "init_rot_deg", "init_trans_mm", "max_iterations",
+    ])]
     intensity: bool,
     /// Problem JSON: {"landmarks_3d": {...}, "views": [{"name", "K", "world_to_camera", "observed"}],
     /// "init"?: {"R", "t"}, "truth"?: {"R", "t"}} (R, t map model to world).
@@ -51,14 +55,13 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if a.intensity {
-        return run_intensity(&a);
-    }
     spinedrr::io::check_spares_inputs(
         &[("--out".to_string(), a.out.clone())],
         &[("the --problem file".to_string(), a.problem.clone())],
     )?;
-    spinedrr::io::check_ours(&a.out)?;
+    if a.intensity {
+        return run_intensity(&a);
+    }
     let loaded = LoadedProblem::read(&a.problem)
         .with_context(|| format!("reading problem {}", a.problem.display()))?;
     let req = RegisterRequest {

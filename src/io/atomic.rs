@@ -15,19 +15,23 @@ fn temp_name(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
-/// The process id of a temporary named by [`write_atomic`] (`.NAME.tmp-PID`), else `None`.
+/// The process id of a temporary named by [`write_atomic`] (`.NAME.tmp-PID`) or a staging folder of an
+/// output set (`.NAME.staging-PID`, [`super::output_set::Staging`]), else `None`.
 fn temp_owner(file_name: &str) -> Option<u32> {
     let rest = file_name.strip_prefix('.')?;
-    let (name, pid) = rest.rsplit_once(".tmp-")?;
+    let (name, pid) = rest
+        .rsplit_once(".tmp-")
+        .or_else(|| rest.rsplit_once(".staging-"))?;
     if name.is_empty() || pid.is_empty() || !pid.bytes().all(|b| b.is_ascii_digit()) {
         return None;
     }
     pid.parse().ok()
 }
 
-/// Removes the temporaries (`.NAME.tmp-PID`) that [`write_atomic`] calls of processes no longer running
-/// (a killed run) from `dir`, and returns their paths. Liveness is read from `/proc`; where there is no
-/// `/proc`, nothing is removed. A temporary of a live process (another run writing now) is kept.
+/// Removes the temporaries (`.NAME.tmp-PID`) that [`write_atomic`] calls, and the staging folders of
+/// output sets (`.NAME.staging-PID/`), of processes no longer running (a killed run) from `dir`, and
+/// returns their paths. Liveness is read from `/proc`; where there is no `/proc`, nothing is removed. A
+/// temporary of a live process (another run writing now) is kept.
 pub fn remove_stale_temporaries(dir: &Path) -> Vec<PathBuf> {
     let proc = Path::new("/proc");
     if !proc.join("self").exists() {
@@ -43,12 +47,17 @@ pub fn remove_stale_temporaries(dir: &Path) -> Vec<PathBuf> {
             let Some(pid) = temp_owner(&name.to_string_lossy()) else {
                 return false;
             };
-            pid != std::process::id()
-                && !proc.join(pid.to_string()).exists()
-                && e.file_type().is_ok_and(|t| t.is_file())
+            pid != std::process::id() && !proc.join(pid.to_string()).exists()
         })
-        .map(|e| e.path())
-        .filter(|p| std::fs::remove_file(p).is_ok())
+        .filter_map(|e| {
+            let p = e.path();
+            let removed = match e.file_type() {
+                Ok(t) if t.is_file() => std::fs::remove_file(&p).is_ok(),
+                Ok(t) if t.is_dir() => std::fs::remove_dir_all(&p).is_ok(),
+                _ => false,
+            };
+            removed.then_some(p)
+        })
         .collect()
 }
 

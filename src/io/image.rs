@@ -53,6 +53,42 @@ pub fn write_tiff_f32(path: &Path, img: &ImageF32) -> Result<()> {
 
 /// Reads a single-channel TIFF (float32, or any integer type converted to f32).
 pub fn read_tiff_f32(path: &Path) -> Result<ImageF32> {
+    Ok(read_tiff(path)?.image)
+}
+
+/// Reads `path` as a DRR: one page of float samples, as spinedrr writes them. An integer TIFF (a
+/// detector's raw image, an 8-bit export) or a stack of pages is refused, naming what it is: its values
+/// are not a DRR's and comparing them as one would measure nonsense.
+pub fn read_drr_tiff(path: &Path) -> Result<ImageF32> {
+    let t = read_tiff(path)?;
+    if !t.float {
+        return Err(Error::format(
+            path,
+            format!(
+                "holds {} integer samples, not the float32 values of a DRR (spinedrr writes DRRs as \
+                 float TIFF)",
+                t.sample
+            ),
+        ));
+    }
+    if t.more_pages {
+        return Err(Error::format(
+            path,
+            "holds more than one page (an image stack), not one DRR",
+        ));
+    }
+    Ok(t.image)
+}
+
+/// A decoded TIFF: its first page, whether its samples are floats, and whether more pages follow.
+struct Tiff {
+    image: ImageF32,
+    float: bool,
+    sample: &'static str,
+    more_pages: bool,
+}
+
+fn read_tiff(path: &Path) -> Result<Tiff> {
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let bad = |e: tiff::TiffError| Error::format(path, format!("not a readable TIFF image: {e}"));
     let mut dec = Decoder::new(BufReader::new(file)).map_err(bad)?;
@@ -64,21 +100,46 @@ pub fn read_tiff_f32(path: &Path) -> Result<ImageF32> {
             format!("expected a single-channel image, found {colour:?}"),
         ));
     }
-    let data: Vec<f32> = match dec.read_image().map_err(bad)? {
-        DecodingResult::F32(v) => v,
-        DecodingResult::F64(v) => v.into_iter().map(|x| x as f32).collect(),
-        DecodingResult::U8(v) => v.into_iter().map(f32::from).collect(),
-        DecodingResult::U16(v) => v.into_iter().map(f32::from).collect(),
-        DecodingResult::I16(v) => v.into_iter().map(f32::from).collect(),
-        DecodingResult::U32(v) => v.into_iter().map(|x| x as f32).collect(),
-        DecodingResult::I32(v) => v.into_iter().map(|x| x as f32).collect(),
-        other => {
+    let (data, float, sample): (Vec<f32>, bool, &'static str) = match dec
+        .read_image()
+        .map_err(bad)?
+    {
+        DecodingResult::F32(v) => (v, true, "32-bit float"),
+        DecodingResult::F64(v) => (
+            v.into_iter().map(|x| x as f32).collect(),
+            true,
+            "64-bit float",
+        ),
+        DecodingResult::U8(v) => (
+            v.into_iter().map(f32::from).collect(),
+            false,
+            "8-bit unsigned",
+        ),
+        DecodingResult::U16(v) => (
+            v.into_iter().map(f32::from).collect(),
+            false,
+            "16-bit unsigned",
+        ),
+        DecodingResult::I16(v) => (
+            v.into_iter().map(f32::from).collect(),
+            false,
+            "16-bit signed",
+        ),
+        DecodingResult::U32(v) => (
+            v.into_iter().map(|x| x as f32).collect(),
+            false,
+            "32-bit unsigned",
+        ),
+        DecodingResult::I32(v) => (
+            v.into_iter().map(|x| x as f32).collect(),
+            false,
+            "32-bit signed",
+        ),
+        _ => {
             return Err(Error::format(
                 path,
-                format!(
-                    "unsupported TIFF sample type {:?}",
-                    std::mem::discriminant(&other)
-                ),
+                "unsupported TIFF sample type (spinedrr reads 8-, 16- and 32-bit integers and 32- and \
+                 64-bit floats)",
             ));
         }
     };
@@ -88,10 +149,15 @@ pub fn read_tiff_f32(path: &Path) -> Result<ImageF32> {
             "pixel count does not match the image size",
         ));
     }
-    Ok(ImageF32 {
-        width,
-        height,
-        data,
+    Ok(Tiff {
+        image: ImageF32 {
+            width,
+            height,
+            data,
+        },
+        float,
+        sample,
+        more_pages: dec.more_images(),
     })
 }
 

@@ -12,7 +12,9 @@ mod xray;
 pub use atomic::{remove_stale_temporaries, write_atomic, write_atomic_bytes, write_json};
 pub use heatmap::{format_label, heatmap_rgb, write_heatmap_png};
 pub use image::{ImageF32, read_tiff_f32, write_mask_png, write_preview_png, write_tiff_f32};
-pub use output_set::{check_ours, check_output_paths, check_spares_inputs, same_file};
+pub use output_set::{
+    check_ours, check_output_paths, check_spares_inputs, create_output_dir, same_file,
+};
 pub use products::{
     DrrProducts, DrrValues, Silhouette, SilhouetteOf, difference_set_paths, drr_set_paths,
     read_with_sidecar, sibling, write_depth, write_difference, write_difference_heatmap,

@@ -1,7 +1,10 @@
 //! Output sets: every file of a product is checked before the first is written, so a run that cannot
-//! write all of them writes none; then the files are written with the set's marker (the main sidecar or
-//! `metrics.json`) last, after the previous marker was removed, so a reader can tell a complete set (marker
-//! present, listing its companions) from one a killed run left behind (no marker).
+//! write all of them writes none. The files are then written aside, into a staging folder beside the set
+//! ([`Staging`]); only when every one is on disk is the set committed: under the set's lock, the previous
+//! marker (the main sidecar or `metrics.json`) is removed, the files are renamed into place and the new
+//! marker comes last. A run that fails while writing (a full disk) leaves the previous set whole; two runs
+//! writing one set commit one after the other, so the set is one run's; and a reader can tell a complete
+//! set (marker present, listing its companions) from one a killed run left behind (no marker).
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -59,7 +62,8 @@ pub fn check_output_paths(paths: &[PathBuf]) -> Result<()> {
 }
 
 /// Refuses to replace an existing `.json` file at `path` that spinedrr did not write (a JSON object whose
-/// `tool` is `spinedrr`: every sidecar and `metrics.json`), naming what it appears to be.
+/// `tool` is `spinedrr`: every sidecar and `metrics.json`; or an earlier version's `metrics.json`, known by
+/// its `image` and `silhouettes` records), naming what it appears to be.
 pub fn check_ours(path: &Path) -> Result<()> {
     if path.extension().is_none_or(|e| e != "json") || !path.is_file() {
         return Ok(());
@@ -70,7 +74,11 @@ pub fn check_ours(path: &Path) -> Result<()> {
         .as_ref()
         .and_then(|v| v.get("tool"))
         .and_then(|t| t.as_str());
-    if tool == Some("spinedrr") {
+    // `metrics.json` of a spinedrr before it named its tool: the comparison record's own keys.
+    let old_metrics = value
+        .as_ref()
+        .is_some_and(|v| v.get("image").is_some() && v.get("silhouettes").is_some());
+    if tool == Some("spinedrr") || old_metrics {
         return Ok(());
     }
     let first = match &value {
@@ -130,6 +138,22 @@ pub fn check_spares_inputs(
     Ok(())
 }
 
+/// Creates the output folder `dir` (and its parents) named by `what` (a flag such as `--out`); a path that
+/// exists as a file is refused by name, not reported as the OS's "File exists".
+pub fn create_output_dir(dir: &Path, what: &str) -> Result<()> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(Error::invalid(
+            what,
+            format!(
+                "{} is a file, not a folder: {what} names a folder (created when missing); give another \
+                 path, or move that file",
+                dir.display()
+            ),
+        ));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))
+}
+
 /// Removes the marker `path` of an earlier output set before a new set is written (a missing file is
 /// fine).
 pub(super) fn remove_marker(path: &Path) -> Result<()> {
@@ -147,4 +171,121 @@ pub(super) fn file_names(paths: &[PathBuf]) -> Vec<String> {
         .filter_map(|p| p.file_name())
         .map(|n| n.to_string_lossy().into_owned())
         .collect()
+}
+
+/// The files of one output set, written into a hidden folder beside it (`.STEM.N.staging-PID/`, same
+/// file names) and moved into place by [`Staging::commit`]. Dropped uncommitted (an error), the staging folder
+/// is removed and the previous set is untouched.
+pub struct Staging {
+    dir: PathBuf,
+    folder: PathBuf,
+    stem: String,
+}
+
+impl Staging {
+    /// A staging folder for the set named `stem` in `folder`.
+    pub fn new(folder: &Path, stem: &str) -> Result<Staging> {
+        // Unique per process and per call: threads of one run may write sets of one name.
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = folder.join(format!(".{stem}.{n}.staging-{}", std::process::id()));
+        if dir.exists() {
+            std::fs::remove_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        }
+        std::fs::create_dir(&dir).map_err(|e| Error::io(&dir, e))?;
+        Ok(Staging {
+            dir,
+            folder: folder.to_path_buf(),
+            stem: stem.to_string(),
+        })
+    }
+
+    /// The staging folder (a set whose writer takes a folder writes into it).
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Where the set's file `final_path` is written before the commit.
+    pub fn path(&self, final_path: &Path) -> PathBuf {
+        self.dir.join(final_path.file_name().unwrap_or_default())
+    }
+
+    /// Moves the staged files of `paths` (the set, its marker last) into place: under the set's lock
+    /// (`.STEM.lock`), the previous marker is removed, every staged file renamed over its target, and the
+    /// marker renamed last.
+    pub fn commit(self, paths: &[PathBuf]) -> Result<()> {
+        let (marker, companions) = paths
+            .split_last()
+            .ok_or_else(|| Error::Internal("an output set without a marker".into()))?;
+        let _lock = SetLock::acquire(&self.folder, &self.stem)?;
+        remove_marker(marker)?;
+        for p in companions {
+            let staged = self.path(p);
+            if staged.exists() {
+                std::fs::rename(&staged, p).map_err(|e| Error::io(p, e))?;
+            }
+        }
+        std::fs::rename(self.path(marker), marker).map_err(|e| Error::io(marker, e))
+    }
+}
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// `.STEM.lock` beside an output set while a run commits it (created exclusively, holding the PID). A
+/// lock whose process no longer runs is taken over; a live one is waited for (a commit is renames only).
+struct SetLock(PathBuf);
+
+impl SetLock {
+    const WAIT: std::time::Duration = std::time::Duration::from_secs(120);
+
+    fn acquire(folder: &Path, stem: &str) -> Result<SetLock> {
+        let path = folder.join(format!(".{stem}.lock"));
+        let start = std::time::Instant::now();
+        loop {
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&path)
+            {
+                Ok(mut f) => {
+                    use std::io::Write;
+                    let _ = write!(f, "{}", std::process::id());
+                    return Ok(SetLock(path));
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    let holder: Option<u32> = std::fs::read_to_string(&path)
+                        .ok()
+                        .and_then(|t| t.trim().parse().ok());
+                    let dead = holder.is_some_and(|pid| {
+                        Path::new("/proc/self").exists()
+                            && !Path::new("/proc").join(pid.to_string()).exists()
+                    });
+                    if dead {
+                        let _ = std::fs::remove_file(&path);
+                        continue;
+                    }
+                    if start.elapsed() > Self::WAIT {
+                        return Err(Error::Resource(format!(
+                            "{}: another run (PID {}) has been writing this output set for over {} s",
+                            path.display(),
+                            holder.map_or_else(|| "unknown".to_string(), |p| p.to_string()),
+                            Self::WAIT.as_secs()
+                        )));
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
+                Err(e) => return Err(Error::io(&path, e)),
+            }
+        }
+    }
+}
+
+impl Drop for SetLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
 }

@@ -8,11 +8,11 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 use serde_json::json;
 
-use super::output_set::{file_names, folder_of, remove_marker};
+use super::output_set::{Staging, file_names, folder_of};
 use super::xray::XrayModel;
 use super::{
-    ImageF32, Sidecar, check_output_paths, kind, read_tiff_f32, remove_stale_temporaries,
-    sidecar_path, units, write_heatmap_png, write_mask_png, write_preview_png, write_tiff_f32,
+    ImageF32, Sidecar, check_output_paths, kind, remove_stale_temporaries, sidecar_path, units,
+    write_heatmap_png, write_mask_png, write_preview_png, write_tiff_f32,
 };
 use crate::geometry::{Perturbation, View};
 use crate::{Error, Result};
@@ -114,8 +114,9 @@ pub fn drr_set_paths(out: &Path, silhouettes: &[Silhouette], depth: bool) -> Vec
 /// intensity image, and `companions`: the other files of the set).
 ///
 /// Every path is checked first ([`check_output_paths`]): when one cannot be written, nothing is. Then
-/// temporaries of killed runs are removed, the previous `OUT.json` is removed, and the files are written
-/// (each atomically), so a set without `OUT.json` is one a run did not finish.
+/// temporaries of killed runs are removed and the set is written aside and committed
+/// ([`super::output_set::Staging`]): a run that fails while writing leaves the previous set whole, and a
+/// set without `OUT.json` is one a run did not finish committing.
 pub fn write_drr_set(
     out: &Path,
     products: &DrrProducts,
@@ -133,17 +134,20 @@ pub fn write_drr_set(
     }
     let paths = drr_set_paths(out, products.silhouettes, products.depth.is_some());
     check_output_paths(&paths)?;
-    remove_stale_temporaries(folder_of(out));
-    let marker = sidecar_path(out);
-    remove_marker(&marker)?;
-    write_masks(out, products.silhouettes, view, perturbation)?;
+    let folder = folder_of(out);
+    remove_stale_temporaries(folder);
+    let stem = out.file_name().unwrap_or_default().to_string_lossy();
+    let stage = Staging::new(folder, &stem)?;
+    let staged = stage.path(out);
+    write_masks(&staged, products.silhouettes, view, perturbation)?;
     if let Some(depth) = products.depth {
-        write_depth(out, depth, view, perturbation)?;
+        write_depth(&staged, depth, view, perturbation)?;
     }
-    write_tiff_f32(out, &values.apply(products.line_integral))?;
-    write_preview_png(&out.with_extension("png"), products.line_integral, false)?;
+    write_tiff_f32(&staged, &values.apply(products.line_integral))?;
+    write_preview_png(&staged.with_extension("png"), products.line_integral, false)?;
     sidecar.companions = file_names(&paths[..paths.len() - 1]);
-    sidecar.write(&marker)
+    sidecar.write(&sidecar_path(&staged))?;
+    stage.commit(&paths)
 }
 
 /// [`write_drr_set`] of a DRR alone (its TIFF, preview and sidecar).
@@ -164,10 +168,10 @@ pub fn write_drr(
     write_drr_set(out, &products, view, perturbation, details)
 }
 
-/// Reads an image written with its sidecar (a DRR, or any float TIFF beside a `name.json`), checking
-/// that the two agree on the size.
+/// Reads a DRR written with its sidecar: one page of float samples ([`super::image::read_drr_tiff`])
+/// beside its `name.json`, checking that the two agree on the size.
 pub fn read_with_sidecar(path: &Path) -> Result<(ImageF32, Sidecar)> {
-    let img = read_tiff_f32(path)?;
+    let img = super::image::read_drr_tiff(path)?;
     let sc_path = sidecar_path(path);
     let sc = Sidecar::read(&sc_path)?;
     if (sc.width, sc.height) != (img.width, img.height) {
@@ -296,13 +300,16 @@ pub fn write_difference_set(
     let paths = difference_set_paths(dir);
     check_output_paths(&paths)?;
     remove_stale_temporaries(dir);
-    let (marker_path, companions) = paths.split_last().expect("a set has a marker");
-    remove_marker(marker_path)?;
-    write_difference(dir, diff, base, details)?;
+    let (marker_path, companions) = paths
+        .split_last()
+        .ok_or_else(|| Error::Internal("a difference set without a marker".into()))?;
+    let stage = Staging::new(dir, "difference")?;
+    write_difference(stage.dir(), diff, base, details)?;
     let mut marker = marker;
     marker.insert("companions".into(), json!(file_names(companions)));
     // Through a JSON value: its keys come out sorted.
-    super::write_json(marker_path, &serde_json::Value::Object(marker))
+    super::write_json(&stage.path(marker_path), &serde_json::Value::Object(marker))?;
+    stage.commit(&paths)
 }
 
 /// Writes the heatmap PNG of `diff = |A − B|`, the difference of the line-integral DRRs of `view` (A,

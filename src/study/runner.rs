@@ -98,10 +98,6 @@ fn load_unit(out: &Path, u: &Unit, ident: &UnitIdentity) -> Option<UnitFile> {
     (f.fingerprint == ident.of(u) && f.id == u.id()).then_some(f)
 }
 
-fn create_dir(p: &Path) -> Result<()> {
-    std::fs::create_dir_all(p).map_err(|e| Error::io(p, e))
-}
-
 /// Runs (or resumes) the study.
 ///
 /// Order: validate the config (keys, grid, work limits) and the thread count; when there is work to do,
@@ -120,6 +116,9 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     let fp = fingerprint(cfg)?;
     let toml = config_toml(cfg)?;
     let units = enumerate_units(cfg)?;
+    if units.is_empty() {
+        return Err(no_units_error());
+    }
     // This invocation's units: a shard's, or all.
     let mine: Vec<&Unit> = match opts.shard {
         Some(s) => shard::units_of(cfg, &units, s),
@@ -139,7 +138,7 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         None
     };
     let mut build_wall = build_start.elapsed();
-    create_dir(&opts.out)?;
+    crate::io::create_output_dir(&opts.out, "--out")?;
     // A shard shares the folder with the other shards: no lock, no clearing, no removal of
     // temporaries (another host's live process cannot be told from a dead one).
     let _lock = match opts.shard {
@@ -219,6 +218,15 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         complete,
         timings: rows,
     })
+}
+
+/// The refusal of a config that describes no work (every grid of its experiments empty).
+pub(super) fn no_units_error() -> Error {
+    Error::invalid(
+        "perturbations",
+        "the config describes no work unit (the grids of its experiments are empty, e.g. df_px = [] and \
+         piercing_px = []): a study of nothing would be reported complete; give at least one grid value",
+    )
 }
 
 /// The config's canonical TOML and fingerprint.

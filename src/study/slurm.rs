@@ -127,6 +127,17 @@ fn check(o: &SlurmOptions) -> Result<()> {
             ),
         ));
     }
+    if let Some(t) = &o.time
+        && !is_slurm_time(t)
+    {
+        return Err(Error::invalid(
+            "--time",
+            format!(
+                "{t:?} is not a Slurm time limit: use minutes, MM:SS, HH:MM:SS, D-HH, D-HH:MM or \
+                 D-HH:MM:SS (e.g. 30, 2:00:00, 1-12:00:00), or UNLIMITED"
+            ),
+        ));
+    }
     for (key, v) in [("--partition", &o.partition), ("--time", &o.time)] {
         if let Some(v) = v
             && (v.is_empty() || v.chars().any(|c| c.is_whitespace() || c == '\''))
@@ -136,6 +147,40 @@ fn check(o: &SlurmOptions) -> Result<()> {
                 format!("{v:?}: must be one word without quotes"),
             ));
         }
+    }
+    Ok(())
+}
+
+/// Whether `t` is a time limit `sbatch --time` accepts: `M`, `M:S`, `H:M:S`, `D-H`, `D-H:M`, `D-H:M:S`
+/// (numbers of digits), `UNLIMITED` or `INFINITE`.
+pub fn is_slurm_time(t: &str) -> bool {
+    if matches!(t, "UNLIMITED" | "INFINITE") {
+        return true;
+    }
+    let number = |s: &str| !s.is_empty() && s.len() <= 6 && s.bytes().all(|b| b.is_ascii_digit());
+    let (days, rest) = match t.split_once('-') {
+        Some((d, r)) => (Some(d), r),
+        None => (None, t),
+    };
+    let parts: Vec<&str> = rest.split(':').collect();
+    days.is_none_or(number) && parts.iter().all(|p| number(p)) && (1..=3).contains(&parts.len())
+}
+
+/// A path `sbatch` reads from an `#SBATCH` line (the task logs under `--out`): no whitespace, quotes,
+/// backslashes or `%` (Slurm expands `%j`, `%a`, … in `--output`). The `exec` lines quote their words.
+fn check_script_path(what: &str, p: &Path) -> Result<()> {
+    let s = p.display().to_string();
+    if let Some(c) = s
+        .chars()
+        .find(|c| c.is_whitespace() || matches!(c, '\'' | '"' | '%' | '\\'))
+    {
+        return Err(Error::invalid(
+            what,
+            format!(
+                "{s}: --slurm writes this path into #SBATCH lines, where {c:?} breaks it (sbatch splits on \
+                 whitespace and expands %); use a path without whitespace, quotes, % or backslashes"
+            ),
+        ));
     }
     Ok(())
 }
@@ -171,12 +216,16 @@ pub fn prepare(cfg: &StudyConfig, out: &Path, o: &SlurmOptions) -> Result<SlurmP
             format!("{}: must be an absolute path for --slurm", out.display()),
         ));
     }
+    check_script_path("--out", out)?;
     cfg.validate()?;
     // The cohort's cases are checked here, once, and the manifest cached for the shards.
     let cfg = &super::cohort::resolve(cfg, out)?;
     let units = enumerate_units(cfg)?;
+    if units.is_empty() {
+        return Err(super::runner::no_units_error());
+    }
     let (toml, fp) = config_identity(cfg)?;
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    crate::io::create_output_dir(out, "--out")?;
     let ident = UnitIdentity::new(cfg, &fp, out)?;
     let _lock = claim_folder(out, &toml, &units, &ident, o.folder)?;
     write_atomic_bytes(&out.join("study.toml"), toml.as_bytes())?;
@@ -346,6 +395,52 @@ mod tests {
         assert_eq!(array_spec(&[0, 2, 3, 5, 7, 8, 9]), "0,2-3,5,7-9");
         assert_eq!(array_spec(&[4]), "4");
         assert_eq!(array_spec(&[]), "");
+    }
+
+    /// The formats `man sbatch` lists for `--time`, and what it does not.
+    #[test]
+    fn slurm_time_limits() {
+        for ok in [
+            "30",
+            "30:00",
+            "2:00:00",
+            "1-12",
+            "1-12:30",
+            "1-12:30:00",
+            "0",
+            "UNLIMITED",
+            "INFINITE",
+        ] {
+            assert!(is_slurm_time(ok), "{ok}");
+        }
+        for bad in [
+            "",
+            "1:2:3:4",
+            "1-",
+            "-5",
+            "1h",
+            "30m",
+            "1-2-3",
+            "1-2:3:4:5",
+            ":30",
+            "30:",
+            "1.5",
+            "forever",
+            "1--2",
+        ] {
+            assert!(!is_slurm_time(bad), "{bad}");
+        }
+    }
+
+    #[test]
+    fn paths_sbatch_cannot_read_are_refused() {
+        for bad in ["/a b/out", "/a\tb", "/out%j", "/it's", "/a\"b"] {
+            let e = check_script_path("--out", Path::new(bad))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("--out") && e.contains("#SBATCH"), "{bad}: {e}");
+        }
+        check_script_path("--out", Path::new("/shared/run-1/out_2")).unwrap();
     }
 
     #[test]

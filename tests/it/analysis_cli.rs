@@ -169,3 +169,96 @@ fn compare_reports_bad_input() {
     let (ok, err) = run(&[], Some("pert.json"));
     assert!(!ok && err.contains("pert.json"), "{err}");
 }
+
+#[test]
+fn compare_refuses_what_is_not_two_drrs_of_one_view() {
+    let dir = tempfile::tempdir().unwrap();
+    let view = small_view();
+    let c = DVec2::new(127.5, 127.5);
+    write_case(dir.path(), "ref", &view, &Perturbation::NONE, c, 50.0);
+    let compare_with = |stem: &str| {
+        Spinedrr::new()
+            .current_dir(dir.path())
+            .args(["compare", "--reference", "ref.tiff", "--perturbed"])
+            .arg(format!("{stem}.tiff"))
+            .args(["--out", "o"])
+            .outcome()
+    };
+    let sidecar = |stem: &str, kind: &str, units: &str, v: &View| {
+        Sidecar::new(kind, units, v, &Perturbation::focal(50.0))
+            .unwrap()
+            .write(&dir.path().join(format!("{stem}.json")))
+            .unwrap();
+    };
+    let refused = |stem: &str, needles: &[&str]| {
+        let (ok, err) = compare_with(stem);
+        assert!(!ok && !err.contains("panicked"), "{stem}: {err}");
+        for n in needles {
+            assert!(err.contains(n), "{stem}: stderr lacks {n:?}: {err}");
+        }
+        assert!(!dir.path().join("o").exists(), "{stem}: wrote output");
+    };
+    // A mask's (or a depth map's) sidecar: not a DRR.
+    write_case(
+        dir.path(),
+        "mask",
+        &view,
+        &Perturbation::focal(50.0),
+        c,
+        52.0,
+    );
+    sidecar("mask", "mask", "mm", &view);
+    refused("mask", &["mask.tiff", "'mask' image", "not a DRR"]);
+    // An intensity image against a line integral.
+    write_case(
+        dir.path(),
+        "int",
+        &view,
+        &Perturbation::focal(50.0),
+        c,
+        52.0,
+    );
+    sidecar("int", "drr", "intensity I0·exp(−∫μ dl)", &view);
+    refused("int", &["different units", "intensity"]);
+    // A LAT render against an AP render.
+    write_case(
+        dir.path(),
+        "lat",
+        &view,
+        &Perturbation::focal(50.0),
+        c,
+        52.0,
+    );
+    let mut lat = view.clone();
+    lat.name = "lat".into();
+    sidecar("lat", "drr", "mm", &lat);
+    refused("lat", &["view 'ap'", "view 'lat'", "same view"]);
+    // Integer samples, and a stack of two pages, beside a valid DRR sidecar.
+    let (img, _) = blob(c, 52.0);
+    let ints: Vec<u16> = img.data.iter().map(|&x| x as u16).collect();
+    let file = std::fs::File::create(dir.path().join("int16.tiff")).unwrap();
+    let mut enc = tiff::encoder::TiffEncoder::new(file).unwrap();
+    enc.write_image::<tiff::encoder::colortype::Gray16>(N, N, &ints)
+        .unwrap();
+    sidecar("int16", "drr", "mm", &view);
+    refused("int16", &["int16.tiff", "16-bit unsigned integer samples"]);
+    let file = std::fs::File::create(dir.path().join("stack.tiff")).unwrap();
+    let mut enc = tiff::encoder::TiffEncoder::new(file).unwrap();
+    for _ in 0..2 {
+        enc.write_image::<tiff::encoder::colortype::Gray32Float>(N, N, &img.data)
+            .unwrap();
+    }
+    sidecar("stack", "drr", "mm", &view);
+    refused("stack", &["stack.tiff", "more than one page"]);
+    // Not vacuous: the same pair as DRRs of one view in one unit compares.
+    write_case(
+        dir.path(),
+        "pert",
+        &view,
+        &Perturbation::focal(50.0),
+        c,
+        52.0,
+    );
+    let (ok, err) = compare_with("pert");
+    assert!(ok, "{err}");
+}

@@ -329,3 +329,29 @@ fn ct_renders_time_repeats_and_refuse_inapplicable_values() {
         assert!(!d.path().join(name).exists());
     }
 }
+
+#[test]
+fn an_output_folder_that_is_a_file_is_named_not_file_exists() {
+    let d = tempfile::tempdir().unwrap();
+    let file = d.path().join("taken");
+    std::fs::write(&file, "mine").unwrap();
+    let f = s(&file);
+    for args in [
+        vec!["phantom", "--levels", "L3", "--voxel-mm", "2", "--out", &f],
+        vec![
+            "calibrate",
+            "--phantom",
+            "helix",
+            "--noise-px",
+            "0.5",
+            "--trials",
+            "2",
+            "--out",
+            &f,
+        ],
+    ] {
+        let err = refused(&args, &["--out", "taken", "is a file, not a folder"]);
+        assert!(!err.contains("File exists"), "{err}");
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
+}

@@ -309,3 +309,35 @@ fn bad_files_give_clear_errors() {
     let missing = dir.path().join("missing.nii.gz");
     assert!(err_of(&missing).contains("missing.nii.gz"));
 }
+
+/// A `.nii.gz` of several gzip members (`cat a.gz b.gz`, pigz, bgzip) reads like the one-member file:
+/// every member is decoded, not just the first (which used to be reported as "truncated").
+#[test]
+fn multi_member_gzip_reads_every_member() {
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let vol = sphere_ct(
+        [9, 8, 7],
+        oblique_affine(),
+        DVec3::new(4.0, 4.0, 3.0),
+        2.5,
+        700.0,
+    );
+    let plain = dir.path().join("ct.nii");
+    write_ct(&plain, &vol).unwrap();
+    let bytes = std::fs::read(&plain).unwrap();
+    let mut multi = Vec::new();
+    // Three members, split inside the header and inside the voxels.
+    for part in [&bytes[..100], &bytes[100..900], &bytes[900..]] {
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+        gz.write_all(part).unwrap();
+        multi.extend(gz.finish().unwrap());
+    }
+    let path = dir.path().join("multi.nii.gz");
+    std::fs::write(&path, multi).unwrap();
+    let back = read_ct(&path).unwrap();
+    let single = read_ct(&plain).unwrap();
+    assert_eq!(back.dims, single.dims);
+    assert_eq!(back.values, single.values);
+    assert_eq!(back.index_to_world, single.index_to_world);
+}

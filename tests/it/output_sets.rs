@@ -162,3 +162,151 @@ fn compare_refuses_or_skips_masks_of_another_render() {
     assert!(d.path().join("cmp/metrics.json").exists());
     assert!(temporaries(&d.path().join("cmp")).is_empty());
 }
+
+/// A 128 × 128 detector (64 KiB float images), so a set fits a small tmpfs.
+const SMALL_DETECTOR: &str = "[detector]\nwidth = 128\nheight = 128\npixel_spacing_mm = [2.4, 2.4]\n\
+sdd_mm = 1350.0\n[[view]]\nname = \"ap\"\nsource_mm = [0.0, -1000.0, 0.0]\ntarget_mm = [0.0, 0.0, 0.0]\n\
+up = [0.0, 0.0, 1.0]\n";
+
+/// A re-render that runs out of disk space (a 1 MiB tmpfs filled up, in a mount namespace of its own)
+/// fails naming the cause and leaves the earlier set whole: every file byte for byte, the sidecar
+/// present, no staging folder left.
+#[test]
+fn a_render_that_runs_out_of_space_leaves_the_earlier_set_whole() {
+    let root = std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0");
+    if !root {
+        eprintln!("skipping: mounting a tmpfs needs root");
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let mesh = cube(d.path());
+    let geometry = d.path().join("small.toml");
+    std::fs::write(&geometry, SMALL_DETECTOR).unwrap();
+    let (mnt, snap) = (d.path().join("mnt"), d.path().join("snap"));
+    std::fs::create_dir_all(&mnt).unwrap();
+    std::fs::create_dir_all(&snap).unwrap();
+    let render = |spec: &str| {
+        format!(
+            "\"$B\" render --mesh '{mesh}:0.05' --geometry '{}' --perturb {spec} --masks --depth --out \
+             '{}/a.tiff'",
+            s(&geometry),
+            s(&mnt)
+        )
+    };
+    let script = format!(
+        "set -u\nB='{bin}'\nmount -t tmpfs -o size=1m tmpfs '{m}' || {{ echo MOUNT-FAILED; exit 0; }}\n\
+         {first} || exit 11\ncp -a '{m}'/. '{snap}'/\n\
+         dd if=/dev/zero of='{m}/fill' bs=4096 2>/dev/null\n\
+         {second} 2> '{snap_err}' && exit 12\n\
+         rm -f '{m}/fill'\n\
+         for f in '{snap}'/*; do cmp \"$f\" '{m}'/\"$(basename \"$f\")\" || exit 13; done\n\
+         ls -A '{m}' | grep -q staging && exit 14\n\
+         [ \"$(ls -A '{m}' | wc -l)\" = \"$(ls -A '{snap}' | wc -l)\" ] || exit 15\n\
+         echo SET-INTACT\n",
+        bin = env!("CARGO_BIN_EXE_spinedrr"),
+        m = s(&mnt),
+        snap = s(&snap),
+        snap_err = s(&d.path().join("second.err")),
+        first = render("none"),
+        second = render("df=300"),
+    );
+    let o = std::process::Command::new("unshare")
+        .args(["--mount", "--propagation", "private", "sh", "-c", &script])
+        .output()
+        .expect("unshare");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    if stdout.contains("MOUNT-FAILED") || !o.status.success() && o.status.code() == Some(1) {
+        eprintln!(
+            "skipping: no tmpfs in a mount namespace here: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        return;
+    }
+    assert!(
+        stdout.contains("SET-INTACT"),
+        "exit {:?}: {stdout} {}",
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let err = std::fs::read_to_string(d.path().join("second.err")).unwrap();
+    assert!(
+        err.contains("No space left") && !err.contains("panicked"),
+        "{err}"
+    );
+    // The snapshot is a complete set: its sidecar lists every other file.
+    let sc = Sidecar::read(&snap.join("a.json")).unwrap();
+    assert!(
+        sc.companions.contains(&"a_depth.tiff".to_string()),
+        "{sc:?}"
+    );
+}
+
+/// Renders of two perturbations to one name at once end as one render's complete set: the sidecar's
+/// perturbation is the image's (the image equals a render of that perturbation alone), and every
+/// companion belongs to it.
+#[test]
+fn concurrent_renders_to_one_name_leave_one_consistent_set() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = format!("{}:0.05", cube(d.path()));
+    let geometry = d.path().join("small.toml");
+    std::fs::write(&geometry, SMALL_DETECTOR).unwrap();
+    let g = s(&geometry);
+    let out = d.path().join("o.tiff");
+    for round in 0..4 {
+        let children: Vec<_> = ["none", "df=300"]
+            .iter()
+            .map(|spec| {
+                crate::common::Spinedrr::new()
+                    .args(["render", "--mesh", &mesh, "--geometry", &g, "--masks"])
+                    .args(["--perturb", spec, "--out"])
+                    .arg(&out)
+                    .command()
+                    .stderr(std::process::Stdio::piped())
+                    .spawn()
+                    .unwrap()
+            })
+            .collect();
+        for c in children {
+            let o = c.wait_with_output().unwrap();
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        }
+        let sc = Sidecar::read(&d.path().join("o.json")).unwrap();
+        let alone = d.path().join(format!("alone{round}.tiff"));
+        render(
+            &mesh,
+            &alone,
+            &[
+                "--geometry",
+                &g,
+                "--masks",
+                "--perturb",
+                &sc.perturbation_spec,
+            ],
+        );
+        for (a, b) in [
+            ("o.tiff", "alone{round}.tiff"),
+            ("o_mask_c.png", "alone{round}_mask_c.png"),
+        ] {
+            let b = b.replace("{round}", &round.to_string());
+            assert_eq!(
+                std::fs::read(d.path().join(a)).unwrap(),
+                std::fs::read(d.path().join(&b)).unwrap(),
+                "round {round}: {a} is not the render its sidecar describes ({})",
+                sc.perturbation_spec
+            );
+        }
+        assert!(staging_dirs(d.path()).is_empty());
+    }
+}
+
+fn staging_dirs(dir: &Path) -> Vec<PathBuf> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.to_string_lossy().contains(".staging-"))
+        .collect()
+}

@@ -236,3 +236,26 @@ fn a_solve_that_does_not_converge_warns_and_fails_unless_accepted() {
     let (ok, err, _) = run(dir.path(), &text, &["--init-rot-deg", "60", "--seed", "4"]);
     assert!(ok && err.is_empty(), "{err}");
 }
+
+/// The landmark solver's flags with `--intensity` are refused by name, not silently ignored.
+#[test]
+fn landmark_flags_do_not_apply_to_intensity_registration() {
+    let dir = tempfile::tempdir().unwrap();
+    for flag in [
+        &["--method", "kabsch"][..],
+        &["--seed", "3"],
+        &["--max-iterations", "5"],
+        &["--view", "ap"],
+    ] {
+        let args: Vec<&str> = ["--intensity"]
+            .into_iter()
+            .chain(flag.iter().copied())
+            .collect();
+        let (ok, err, r) = run(dir.path(), "{}", &args);
+        assert!(!ok && r.is_none(), "{flag:?} accepted: {err}");
+        assert!(
+            err.contains(flag[0]) && err.contains("--intensity") && !err.contains("panicked"),
+            "{flag:?}: {err}"
+        );
+    }
+}

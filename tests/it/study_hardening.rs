@@ -541,3 +541,35 @@ fn a_run_in_another_pid_namespace_keeps_its_lock_and_its_units() {
     assert_eq!(units, 48, "the first run's units");
     assert!(out.join("report.md").exists() && !lock.exists());
 }
+
+#[test]
+fn slurm_scripts_sbatch_would_reject_are_never_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write(dir.path(), "study.toml", SMALL);
+    let spaced = std::path::absolute(dir.path().join("out dir")).unwrap();
+    refused(&study(&cfg, &spaced, &["--slurm"]), &["--out", "#SBATCH"]);
+    assert!(!spaced.exists());
+    let out = std::path::absolute(dir.path().join("out")).unwrap();
+    for t in ["1:2:3:4", "30m", "1-"] {
+        refused(
+            &study(&cfg, &out, &["--slurm", "--time", t]),
+            &["--time", t, "not a Slurm time limit"],
+        );
+    }
+    assert!(!out.exists());
+}
+
+#[test]
+fn a_config_with_no_work_is_refused_not_reported_complete() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write(
+        dir.path(),
+        "study.toml",
+        &SMALL
+            .replace("df_px = [100.0]", "df_px = []")
+            .replace("piercing_px = [0.0]", "piercing_px = []"),
+    );
+    let out = dir.path().join("out");
+    refused(&study(&cfg, &out, &[]), &["no work unit", "df_px"]);
+    assert!(!out.exists());
+}

@@ -245,7 +245,8 @@ fn read_raw(source: impl Read, path: &Path) -> Result<(NiftiHeader, Vec<u8>)> {
     let n = read_up_to(&mut source, &mut magic).map_err(|e| Error::io(path, e))?;
     let head = Cursor::new(magic[..n].to_vec());
     let mut stream: Box<dyn Read> = if n == 2 && magic == [0x1f, 0x8b] {
-        Box::new(flate2::read::GzDecoder::new(head.chain(source)))
+        // Every gzip member, not just the first: `cat a.gz b.gz`, pigz and bgzip write several.
+        Box::new(flate2::read::MultiGzDecoder::new(head.chain(source)))
     } else {
         Box::new(head.chain(source))
     };

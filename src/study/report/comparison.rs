@@ -125,8 +125,8 @@ pub fn silhouette_table(rows: &[ProjectionRow], paper: &PaperResults, first: &st
     }
 }
 
-/// Landmark shift (px) per landmark of `first` under focal Δf = 100 px, AP and LAT, paper vs ours
-/// (measured, with the H·x prediction in parentheses).
+/// Landmark shift (px) per landmark of `first`, AP and LAT: the paper's (whose Δf it does not state) beside
+/// ours under focal Δf = 100 px (measured, with the H·x prediction in parentheses).
 pub fn landmark_table(rows: &[LandmarkRow], paper: &PaperResults, first: &str) -> PaperTable {
     let df = 100.0;
     let names = crate::study::figures::distinct(
@@ -156,7 +156,7 @@ pub fn landmark_table(rows: &[LandmarkRow], paper: &PaperResults, first: &str) -
     PaperTable {
         name: "landmark_shift",
         caption: format!(
-            "Landmark shift (px), focal Δf = {df} px, {first}: paper vs ours (measured from marker images; H·x predicted)"
+            "Landmark shift (px), {first}: the paper's values (the paper does not state their Δf) beside ours at focal Δf = {df} px (measured from marker images; H·x predicted)"
         ),
         header: [
             "landmark",

@@ -119,17 +119,59 @@ fn structures_finding(rows: &[StructureRow], first: &str) -> Option<String> {
         .iter()
         .find(|r| r.target == first)
         .map(|r| r.view.as_str())?;
+    // Structures within TIE of the extreme are tied (a mirror pair such as the two pedicles differs only
+    // by the pixel grid), and named together.
+    let tied = |x: f64, extreme: f64| (x - extreme).abs() <= TIE * extreme.abs();
+    let top: Vec<&(String, f64)> = loss.iter().filter(|l| tied(l.1, most.1)).collect();
+    let bottom: Vec<&(String, f64)> = loss.iter().filter(|l| tied(l.1, least.1)).collect();
+    if top.len() == loss.len() {
+        return Some(format!(
+            "At focal Δf {df} px every structure loses alike (mean 1 − Dice {:.3}–{:.3} over targets and \
+views, within {:.0} % of each other) ({}, e.g. {}).",
+            least.1,
+            most.1,
+            100.0 * TIE,
+            table::<StructureRow>(),
+            figure(&format!("structures_dice_{first}_{view}.png"))
+        ));
+    }
+    let names = |v: &[&(String, f64)]| {
+        v.iter()
+            .map(|l| l.0.as_str())
+            .collect::<Vec<_>>()
+            .join(" and ")
+    };
+    let values = |v: &[&(String, f64)]| {
+        v.iter()
+            .map(|l| format!("{:.3}", l.1))
+            .collect::<Vec<_>>()
+            .join(" and ")
+    };
+    let tie_note = |v: &[&(String, f64)]| {
+        if v.len() > 1 {
+            format!(", tied within {:.0} %", 100.0 * TIE)
+        } else {
+            String::new()
+        }
+    };
     Some(format!(
-        "At focal Δf {df} px the most sensitive structure is {} (mean 1 − Dice {:.3} over targets and \
-views) and the least sensitive {} ({:.3}) ({}, e.g. {}).",
-        most.0,
-        most.1,
-        least.0,
-        least.1,
+        "At focal Δf {df} px the most sensitive structure{} {} {} (mean 1 − Dice {}{} over targets and \
+views) and the least sensitive {} ({}{}) ({}, e.g. {}).",
+        if top.len() > 1 { "s" } else { "" },
+        if top.len() > 1 { "are" } else { "is" },
+        names(&top),
+        values(&top),
+        tie_note(&top),
+        names(&bottom),
+        values(&bottom),
+        tie_note(&bottom),
         table::<StructureRow>(),
         figure(&format!("structures_dice_{first}_{view}.png"))
     ))
 }
+
+/// Relative difference within which two structures' mean Dice losses are called a tie.
+const TIE: f64 = 0.02;
 
 fn registration(t: &StudyTables, first: &str) -> Option<String> {
     let rows = &t.registration_summary;
@@ -324,6 +366,17 @@ mod tests {
             text.contains("most sensitive structure is pedicle_left (mean 1 − Dice 0.400")
                 && text.contains("least sensitive body (0.100)")
                 && text.contains("structures_dice_L1_ap.png"),
+            "{text}"
+        );
+        // A mirror pair 0.400 and 0.399 (0.25 % apart) is a tie, named together.
+        let mut pair = structures.clone();
+        pair.push(structure("ap", "pedicle_right", 0.601));
+        let text = structures_finding(&pair, "L1").unwrap();
+        assert!(
+            text.contains(
+                "most sensitive structures are pedicle_left and pedicle_right (mean 1 − Dice \
+0.400 and 0.399, tied within 2 %"
+            ),
             "{text}"
         );
         let mut md = String::new();

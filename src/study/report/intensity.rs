@@ -197,11 +197,12 @@ density of the projected vertebra. "
                     if dc < 0.5 * d {
                         let _ = write!(
                             words,
-                            "Here the compromises place the vertebra alike and differ in orientation: the image \
-similarity also fits the vertebra's projected shape through the wrong K by rotating it (measured on the \
-phantom's L3 under Δf = 300 px and piercing (30, 30) px: 2.2° about the AP beam's axis, out of plane for \
-LAT: LAT's similarity gains 0.014 where AP's loses 0.002), which the points do not ask for — an error \
-of the intensity-based pose that the landmark registration under the same K does not show. "
+                            "Here the compromises place the vertebra alike (centres {} mm apart) and differ in \
+orientation ({}° between the two optima): the image similarity also fits the vertebra's projected shape \
+through the wrong K by rotating it, which the points do not ask for — an error of the intensity-based \
+pose that the landmark registration under the same K does not show. ",
+                            num(dc, 3),
+                            num(da, 2)
                         );
                     }
                 }
