@@ -155,8 +155,8 @@ views, within {:.0} % of each other) ({}, e.g. {}).",
         }
     };
     Some(format!(
-        "At focal Δf {df} px the most sensitive structure{} {} {} (mean 1 − Dice {}{} over targets and \
-views) and the least sensitive {} ({}{}) ({}, e.g. {}).",
+        "At focal Δf {df} px the most sensitive structure{} {} {} (mean 1 − Dice over targets and views \
+{}{}) and the least sensitive {} ({}{}) ({}, e.g. {}).",
         if top.len() > 1 { "s" } else { "" },
         if top.len() > 1 { "are" } else { "is" },
         names(&top),
@@ -363,7 +363,7 @@ mod tests {
         ];
         let text = structures_finding(&structures, "L1").unwrap();
         assert!(
-            text.contains("most sensitive structure is pedicle_left (mean 1 − Dice 0.400")
+            text.contains("most sensitive structure is pedicle_left (mean 1 − Dice over targets and views 0.400")
                 && text.contains("least sensitive body (0.100)")
                 && text.contains("structures_dice_L1_ap.png"),
             "{text}"
@@ -374,8 +374,8 @@ mod tests {
         let text = structures_finding(&pair, "L1").unwrap();
         assert!(
             text.contains(
-                "most sensitive structures are pedicle_left and pedicle_right (mean 1 − Dice \
-0.400 and 0.399, tied within 2 %"
+                "most sensitive structures are pedicle_left and pedicle_right (mean 1 − Dice over \
+targets and views 0.400 and 0.399, tied within 2 %)"
             ),
             "{text}"
         );
