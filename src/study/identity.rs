@@ -33,6 +33,8 @@ pub struct UnitIdentity {
     targets: HashMap<String, Vec<String>>,
     /// Digests of calibration phantom files, by their `phantoms` entry.
     calibration: HashMap<String, Vec<String>>,
+    /// The digest cache, when this computation added to it ([`UnitIdentity::save_cache`]).
+    cache: Option<BTreeMap<String, CachedDigest>>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -94,14 +96,9 @@ impl Digests {
         Ok(format!("{}:{digest}", path.display()))
     }
 
-    fn save(&self, out: &Path) {
-        if !self.changed || !out.is_dir() {
-            return;
-        }
-        // A cache only saves reading: failing to write it is not an error of the study.
-        if let Ok(text) = serde_json::to_string(&self.cache) {
-            let _ = crate::io::write_atomic_bytes(&out.join(DIGEST_CACHE), text.as_bytes());
-        }
+    /// The cache to save, when this run added to it.
+    fn into_changes(self) -> Option<BTreeMap<String, CachedDigest>> {
+        self.changed.then_some(self.cache)
     }
 }
 
@@ -146,13 +143,25 @@ impl UnitIdentity {
                 calibration.insert(p.clone(), files(&[&PathBuf::from(p)])?);
             }
         }
-        digests.save(out);
         Ok(UnitIdentity {
             config_fp: config_fp.to_string(),
             common,
             targets,
             calibration,
+            cache: digests.into_changes(),
         })
+    }
+
+    /// Writes the digest cache into `out` when this computation added to it. Called once the run owns
+    /// the folder (a refused run changes nothing in it); a cache only saves reading, so failing to write
+    /// it is not an error of the study.
+    pub fn save_cache(&self, out: &Path) {
+        let Some(cache) = &self.cache else {
+            return;
+        };
+        if let Ok(text) = serde_json::to_string(cache) {
+            let _ = crate::io::write_atomic_bytes(&out.join(DIGEST_CACHE), text.as_bytes());
+        }
     }
 
     /// The fingerprint a unit file of `u` must carry: the config's when the unit reads no file, else

@@ -148,6 +148,7 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         }
         None => Some(claim_folder(&opts.out, &toml, &units, &ident, opts.folder)?),
     };
+    ident.save_cache(&opts.out);
     if opts.assemble_only {
         let missing = missing_units(&opts.out, &units, &ident);
         if !missing.is_empty() {

@@ -228,6 +228,7 @@ pub fn prepare(cfg: &StudyConfig, out: &Path, o: &SlurmOptions) -> Result<SlurmP
     crate::io::create_output_dir(out, "--out")?;
     let ident = UnitIdentity::new(cfg, &fp, out)?;
     let _lock = claim_folder(out, &toml, &units, &ident, o.folder)?;
+    ident.save_cache(out);
     write_atomic_bytes(&out.join("study.toml"), toml.as_bytes())?;
     let dir = out.join(SLURM_DIR);
     let logs = dir.join("logs");

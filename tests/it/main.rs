@@ -35,6 +35,7 @@ mod render_products;
 mod render_thickness;
 mod study_cohort;
 mod study_ct;
+mod study_folder_safety;
 mod study_hardening;
 mod study_intensity;
 mod study_meshes;
