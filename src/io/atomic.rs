@@ -28,13 +28,19 @@ fn temp_owner(file_name: &str) -> Option<u32> {
     pid.parse().ok()
 }
 
+/// Whether process `pid` runs on this host, as `/proc` says; where there is no `/proc`, every PID counts
+/// as running, so nothing of a live run is ever taken for stale.
+pub fn process_running(pid: u32) -> bool {
+    let proc = Path::new("/proc");
+    !proc.join("self").exists() || proc.join(pid.to_string()).exists()
+}
+
 /// Removes the temporaries (`.NAME.tmp-PID`) that [`write_atomic`] calls, and the staging folders of
 /// output sets (`.NAME.staging-PID/`), of processes no longer running (a killed run) from `dir`, and
 /// returns their paths. Liveness is read from `/proc`; where there is no `/proc`, nothing is removed. A
 /// temporary of a live process (another run writing now) is kept.
 pub fn remove_stale_temporaries(dir: &Path) -> Vec<PathBuf> {
-    let proc = Path::new("/proc");
-    if !proc.join("self").exists() {
+    if !Path::new("/proc/self").exists() {
         return Vec::new();
     }
     let Ok(entries) = std::fs::read_dir(dir) else {
@@ -47,7 +53,7 @@ pub fn remove_stale_temporaries(dir: &Path) -> Vec<PathBuf> {
             let Some(pid) = temp_owner(&name.to_string_lossy()) else {
                 return false;
             };
-            pid != std::process::id() && !proc.join(pid.to_string()).exists()
+            pid != std::process::id() && !process_running(pid)
         })
         .filter_map(|e| {
             let p = e.path();

@@ -260,10 +260,7 @@ impl SetLock {
                     let holder: Option<u32> = std::fs::read_to_string(&path)
                         .ok()
                         .and_then(|t| t.trim().parse().ok());
-                    let dead = holder.is_some_and(|pid| {
-                        Path::new("/proc/self").exists()
-                            && !Path::new("/proc").join(pid.to_string()).exists()
-                    });
+                    let dead = holder.is_some_and(|pid| !super::process_running(pid));
                     if dead {
                         let _ = std::fs::remove_file(&path);
                         continue;

@@ -19,6 +19,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
 
+use crate::io::process_running;
 use crate::{Error, Result};
 
 /// The name of the lock file in a study's output folder.
@@ -90,13 +91,6 @@ fn pid_namespace() -> Option<String> {
     std::fs::read_link("/proc/self/ns/pid")
         .ok()
         .map(|p| p.to_string_lossy().into_owned())
-}
-
-/// Whether process `pid` runs (read from `/proc`; where there is none, every PID counts as running, so
-/// a lock is never taken from a live run).
-fn process_running(pid: u32) -> bool {
-    let proc = Path::new("/proc");
-    !proc.join("self").exists() || proc.join(pid.to_string()).exists()
 }
 
 /// What a lock file says about its owner.

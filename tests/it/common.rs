@@ -135,3 +135,11 @@ pub fn default_phantom() -> &'static spinedrr::anatomy::Phantom {
         p
     })
 }
+
+/// Whether the tests run as root (`id -u` is 0): mounting, PID namespaces and slurmd need it.
+pub fn is_root() -> bool {
+    Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+}

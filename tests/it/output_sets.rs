@@ -173,10 +173,7 @@ up = [0.0, 0.0, 1.0]\n";
 /// present, no staging folder left.
 #[test]
 fn a_render_that_runs_out_of_space_leaves_the_earlier_set_whole() {
-    let root = std::process::Command::new("id")
-        .arg("-u")
-        .output()
-        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0");
+    let root = crate::common::is_root();
     if !root {
         eprintln!("skipping: mounting a tmpfs needs root");
         return;

@@ -30,8 +30,7 @@ fn script() -> PathBuf {
 
 /// Why this machine cannot run the cluster, if it cannot.
 fn cannot_run() -> Option<String> {
-    let uid = Command::new("id").arg("-u").output().ok()?;
-    if String::from_utf8_lossy(&uid.stdout).trim() != "0" {
+    if !crate::common::is_root() {
         return Some("not root: slurmd must run as root".into());
     }
     for b in [
