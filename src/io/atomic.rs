@@ -89,6 +89,49 @@ where
     result
 }
 
+/// Creates `path` holding `bytes`, but only if it does not exist yet: `Ok(true)` when this call created it,
+/// `Ok(false)` when it was already there. The bytes are written and synced under a temporary name first
+/// and then hard-linked into place, so another process sees either no file or the whole content — never
+/// an empty lock (linking is also how locks stay exclusive on NFS). On a file system without hard links
+/// it falls back to `create_new` and a write, where a reader may briefly see the file empty.
+pub fn create_new_with(path: &Path, bytes: &[u8]) -> std::io::Result<bool> {
+    // One temporary per call (threads of one process may race for the same lock).
+    static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let tmp = temp_name(&path.with_extension(format!("{n}.link")));
+    let linked = (|| {
+        let mut f = File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::hard_link(&tmp, path)
+    })();
+    let _ = std::fs::remove_file(&tmp);
+    match linked {
+        Ok(()) => Ok(true),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(false),
+        Err(e)
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::Unsupported | std::io::ErrorKind::PermissionDenied
+            ) && !path.exists() =>
+        {
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(path)
+            {
+                Ok(mut f) => f
+                    .write_all(bytes)
+                    .and_then(|()| f.sync_all())
+                    .map(|()| true),
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(false),
+                Err(e) => Err(e),
+            }
+        }
+        Err(e) => Err(e),
+    }
+}
+
 /// Writes `value` to `path` atomically as pretty-printed JSON.
 pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
     let text = serde_json::to_string_pretty(value)
@@ -121,5 +164,15 @@ mod tests {
         assert_eq!(temp_owner("a.tiff.tmp-12"), None);
         assert_eq!(remove_stale_temporaries(dir.path()), vec![dead.clone()]);
         assert!(!dead.exists() && live.exists() && other.exists());
+    }
+
+    #[test]
+    fn create_new_with_never_replaces_and_leaves_no_temporary() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join(".x.lock");
+        assert!(create_new_with(&p, b"first").unwrap());
+        assert!(!create_new_with(&p, b"second").unwrap());
+        assert_eq!(std::fs::read(&p).unwrap(), b"first");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 }

@@ -10,7 +10,8 @@ mod sidecar;
 mod xray;
 
 pub use atomic::{
-    process_running, remove_stale_temporaries, write_atomic, write_atomic_bytes, write_json,
+    create_new_with, process_running, remove_stale_temporaries, write_atomic, write_atomic_bytes,
+    write_json,
 };
 pub use heatmap::{format_label, heatmap_rgb, write_heatmap_png};
 pub use image::{ImageF32, read_tiff_f32, write_mask_png, write_preview_png, write_tiff_f32};

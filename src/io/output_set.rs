@@ -246,17 +246,9 @@ impl SetLock {
         let path = folder.join(format!(".{stem}.lock"));
         let start = std::time::Instant::now();
         loop {
-            match std::fs::OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .open(&path)
-            {
-                Ok(mut f) => {
-                    use std::io::Write;
-                    let _ = write!(f, "{}", std::process::id());
-                    return Ok(SetLock(path));
-                }
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+            match super::create_new_with(&path, std::process::id().to_string().as_bytes()) {
+                Ok(true) => return Ok(SetLock(path)),
+                Ok(false) => {
                     let holder: Option<u32> = std::fs::read_to_string(&path)
                         .ok()
                         .and_then(|t| t.trim().parse().ok());

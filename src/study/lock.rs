@@ -1,7 +1,7 @@
 //! `OUT/.study.lock`: one run at a time in a study's output folder — also when the folder is on storage
 //! that several hosts (or PID namespaces) share.
 //!
-//! The lock file is created with `create_new` and names its owner: host, PID, PID namespace and start
+//! The lock file is created whole or not at all ([`create_new_with`]) and names its owner: host, PID, PID namespace and start
 //! time (JSON). While the run lives, a heartbeat thread refreshes the file's modification time every
 //! [`HEARTBEAT`]. Another run decides whether the lock is stale by the only evidence it can trust:
 //!
@@ -19,7 +19,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
 
-use crate::io::process_running;
+use crate::io::{create_new_with, process_running};
 use crate::{Error, Result};
 
 /// The name of the lock file in a study's output folder.
@@ -176,19 +176,9 @@ impl OutputLock {
         let me = LockOwner::current();
         let text = serde_json::to_string(&me).map_err(|e| Error::encode("the study lock", e))?;
         for _ in 0..3 {
-            match std::fs::OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .open(&path)
-            {
-                Ok(mut f) => {
-                    use std::io::Write;
-                    f.write_all(text.as_bytes())
-                        .and_then(|()| f.sync_all())
-                        .map_err(|e| Error::io(&path, e))?;
-                    return Ok(OutputLock::held(path, me));
-                }
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+            match create_new_with(&path, text.as_bytes()) {
+                Ok(true) => return Ok(OutputLock::held(path, me)),
+                Ok(false) => {
                     let owner = match read_owner(&path, &me) {
                         Read::Missing => continue,
                         Read::Owner(o) => Some(o),
