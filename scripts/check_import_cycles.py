@@ -1,5 +1,7 @@
 #!/usr/bin/env python3
-"""Fails when two files under src/ import each other, directly or through a chain.
+"""Fails when two files under src/ import each other, directly or through a chain, or when two sibling
+modules (files or folders) do: `figures/overlap.rs -> report/mod.rs` and `report/mod.rs -> figures/mod.rs`
+make `figures` and `report` depend on each other even though no single file chain closes a loop.
 
 Builds the file-level graph of `use` items and inline `crate::`/`super::` paths (a path resolves to the
 deepest module file that exists) and prints every strongly connected component of more than one file.
@@ -102,10 +104,31 @@ def strong(v):
         if len(comp) > 1: sccs.append(comp)
 for v in graph:
     if v not in index: strong(v)
+file_sccs, files_graph = list(sccs), graph
+# Sibling level: an edge a -> b lifts to the children of their deepest common ancestor that contain them.
+siblings = {}
+for a, targets in graph.items():
+    for b in targets:
+        n = 0
+        while n < min(len(a), len(b)) and a[n] == b[n]: n += 1
+        if n < len(a) and n < len(b):
+            siblings.setdefault(a[:n + 1], set()).add(b[:n + 1])
+            siblings.setdefault(b[:n + 1], set())
+graph, sccs = siblings, []
+index.clear(); low.clear(); stack.clear(); on.clear()
+for v in graph:
+    if v not in index: strong(v)
+folder_sccs = [comp for comp in sccs if not any(set(comp) <= set(f) for f in file_sccs)]
+for comp in folder_sccs:
+    print('cycle between sibling modules:', ', '.join(sorted(name(x) for x in comp)))
+    for a in comp:
+        for b in sorted(graph[a]):
+            if b in comp: print('   ', name(a), '->', name(b))
+graph, sccs = files_graph, file_sccs
 for comp in sccs:
     print('cycle:', ', '.join(sorted(name(x) for x in comp)))
     for a in comp:
         for b in graph[a]:
             if b in comp: print('   ', name(a), '->', name(b))
-print(f'import cycles between files under {root}: {len(sccs)}')
-sys.exit(1 if sccs else 0)
+print(f'import cycles between files under {root}: {len(sccs)}; between sibling modules: {len(folder_sccs)}')
+sys.exit(1 if sccs or folder_sccs else 0)

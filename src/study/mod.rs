@@ -3,8 +3,9 @@
 //!
 //! `config` (TOML parsed once into typed values, defaults = the paper), `units` (the work units),
 //! `schema` (the typed table rows, CSV via the `csv` crate), `runner` (parallel, deterministic,
-//! resumable execution), `experiments` (what a unit computes), `figures` (plotters), `report` (Markdown
-//! findings with the paper's numbers beside ours), `timings` (where an invocation's time went).
+//! resumable execution), `experiments` (what a unit computes), `paper` (the paper's reported figures, which
+//! figures and report both read), `figures` (plotters), `report` (Markdown findings with the paper's
+//! numbers beside ours), `timings` (where an invocation's time went).
 //!
 //! Data flows one way: config → units → experiments → rows (unit files) → tables → figures, report.
 
@@ -15,6 +16,7 @@ pub mod figures;
 pub mod folder;
 pub mod identity;
 pub mod lock;
+pub mod paper;
 pub mod report;
 pub mod report_html;
 pub mod runner;

@@ -226,3 +226,45 @@ pub struct UnitFile {
     pub fingerprint: String,
     pub rows: UnitRows,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::study::config::Experiment;
+
+    #[test]
+    fn the_configs_work_estimate_counts_what_enumeration_makes() {
+        let mut skewed = StudyConfig::quick();
+        skewed.perturbations.skew_px = vec![1.0, 2.0];
+        skewed.perturbations.pixel_scale = vec![1.01];
+        skewed.perturbations.piercing_px = vec![0.0, 5.0, 10.0, 20.0];
+        let mut calibration = StudyConfig::quick();
+        calibration.experiments.push(Experiment::Calibration);
+        calibration.calibration.trials = 7;
+        calibration.calibration.trials_per_unit = 3;
+        for mut cfg in [
+            StudyConfig::default(),
+            StudyConfig::quick(),
+            skewed,
+            calibration,
+        ] {
+            cfg.registration.trials = 7;
+            cfg.registration.trials_per_unit = 3;
+            assert_eq!(
+                cfg.work_estimate().projection_units,
+                (targets(&cfg).len() * 2 * projection_perturbations(&cfg).len()) as u64
+            );
+            let units = enumerate_units(&cfg).unwrap();
+            let w = cfg.work_estimate();
+            assert_eq!(w.units(), units.len() as u64);
+            let trials: usize = units
+                .iter()
+                .map(|u| match u {
+                    Unit::Registration { count, .. } => *count,
+                    _ => 0,
+                })
+                .sum();
+            assert_eq!(w.registration_trials, trials as u64);
+        }
+    }
+}

@@ -5,13 +5,13 @@
 
 use std::path::{Path, PathBuf};
 
+use base64::Engine as _;
 use image::RgbImage;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::chart::{encode_png_sized, plot_err, register_font};
 use crate::io::write_atomic_bytes;
-use crate::study::report_html::base64;
 use crate::{Error, Result};
 
 /// A raster placed with its top-left corner at pixel (x, y) of the figure, drawn at its own size.
@@ -93,7 +93,7 @@ fn with_underlay(svg: &str, size: (u32, u32), rasters: &[Raster]) -> Result<Stri
             r.y,
             r.image.width(),
             r.image.height(),
-            base64(&png)
+            base64::engine::general_purpose::STANDARD.encode(&png)
         ));
     }
     Ok(format!("{}{under}{}", &svg[..open], &svg[open..]))

@@ -13,7 +13,7 @@ use super::{distinct, overlap, overlay, registration};
 use crate::Result;
 use crate::io::units::LINE_INTEGRAL_DIFFERENCE;
 use crate::study::config::StudyConfig;
-use crate::study::report::PaperResults;
+use crate::study::paper::PaperResults;
 use crate::study::schema::{Family, StudyTables};
 
 /// The conditions every caption states.

@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 
 use super::chart::{Mark, Panel, Series};
-use crate::study::report::PaperResults;
+use crate::study::paper::PaperResults;
 use crate::study::schema::{Family, ProjectionRow};
 
 /// The targets pooled: every target but the whole segment (not a level), unless it is the only one.

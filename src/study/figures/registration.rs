@@ -11,7 +11,7 @@ use super::charts::PanelChart;
 use super::{Panel, Series, distinct, panel_chart};
 use crate::Result;
 use crate::study::config::RegistrationMethod;
-use crate::study::report::PaperResults;
+use crate::study::paper::PaperResults;
 use crate::study::schema::RegistrationSummaryRow;
 
 /// (mean, sd) of one error quantity of a summary row.

@@ -2,8 +2,8 @@
 //! ranges): the paper's figure beside ours, from the typed tables, as [`PaperTable`]s.
 
 use super::latex::PaperTable;
-use super::paper::{self, PaperResults};
 use crate::study::config::RegistrationMethod;
+use crate::study::paper::{self, PaperResults};
 use crate::study::schema::{Family, LandmarkRow, ProjectionRow, RegistrationSummaryRow};
 
 /// A number to 4 decimals, or `n/a`.

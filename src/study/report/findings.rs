@@ -3,10 +3,10 @@
 
 use std::fmt::Write as _;
 
-use super::paper::PaperResults;
 use super::{ap_joint_dice_min, paper_ranges, projection_row, summary_range};
 use crate::study::config::RegistrationMethod;
 use crate::study::figures::distinct;
+use crate::study::paper::PaperResults;
 use crate::study::schema::{
     Family, LandmarkRow, ProjectionRow, RegistrationSummaryRow, StructureRow, StudyTables, TableRow,
 };

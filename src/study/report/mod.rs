@@ -9,15 +9,14 @@ mod findings;
 mod intensity;
 pub mod latex;
 mod layout;
-mod paper;
 
 use std::fmt::Write as _;
 use std::path::Path;
 
+use super::paper::PaperResults;
 pub use comparison::{landmark_table, registration_table, silhouette_table};
 pub use latex::PaperTable;
 pub use layout::slug;
-pub use paper::{PAPER_RESULTS_TOML, PaperResults};
 
 use comparison::{ap_joint_dice_min, paper_ranges, projection_row, summary_range};
 

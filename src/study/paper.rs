@@ -7,7 +7,7 @@ use serde::Deserialize;
 use crate::{Error, Result};
 
 /// The paper's reported figures, as TOML.
-pub const PAPER_RESULTS_TOML: &str = include_str!("../../../reference/paper-results.toml");
+pub const PAPER_RESULTS_TOML: &str = include_str!("../../reference/paper-results.toml");
 
 /// A value at Δf = 100 and 500 px.
 #[derive(Debug, Clone, Copy, Deserialize)]
