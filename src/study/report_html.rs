@@ -16,7 +16,7 @@ use crate::{Error, Result};
 /// Width (px) of the embedded figure previews: the page's display width.
 pub const PREVIEW_WIDTH_PX: u32 = 1000;
 
-const STYLE: &str = "body{font-family:'DejaVu Sans',sans-serif;max-width:1040px;margin:auto;\
+const STYLE: &str = ".wide{overflow-x:auto;max-width:100%}code{background:#f3f3f3;padding:0 3px;border-radius:3px;font-size:0.92em}body{font-family:'DejaVu Sans',sans-serif;max-width:1040px;margin:auto;\
 padding:0 16px;line-height:1.45;color:#222}h1{border-bottom:2px solid #444}h2{border-bottom:1px solid #bbb;\
 margin-top:2em}table{border-collapse:collapse;margin:0.6em 0}td,th{border:1px solid #999;padding:2px 8px}\
 th{background:#eee}figure{margin:1.2em 0}img{max-width:100%;height:auto;border:1px solid #ddd}\
@@ -36,8 +36,29 @@ fn link(item: &str) -> Option<(&str, &str)> {
     Some((item.get(1..close)?, item.get(close + 2..item.len() - 1)?))
 }
 
-/// `text` escaped, with inline Markdown links `[a](b)` as `<a href="b">a</a>`.
+/// `text` escaped, with Markdown code spans as `<code>`, links `[a](b)` as `<a href="b">a</a>` and
+/// `**bold**` as `<strong>`.
 fn inline(text: &str) -> String {
+    // Code spans first (Markdown gives them precedence): `x` pair by pair; an unpaired backtick stays.
+    let parts: Vec<&str> = text.split('`').collect();
+    if parts.len() > 1 && parts.len() % 2 == 1 {
+        return parts
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                if i % 2 == 1 {
+                    format!("<code>{}</code>", escape(p))
+                } else {
+                    links(p)
+                }
+            })
+            .collect();
+    }
+    links(text)
+}
+
+/// Links and bold of a text without code spans.
+fn links(text: &str) -> String {
     let mut h = String::new();
     let mut rest = text;
     while let Some(open) = rest.find('[') {
@@ -81,7 +102,7 @@ fn table_row(line: &str, cell: &str) -> String {
     let cells: Vec<String> = line
         .trim_matches('|')
         .split('|')
-        .map(|c| format!("<{cell}>{}</{cell}>", escape(c.trim())))
+        .map(|c| format!("<{cell}>{}</{cell}>", inline(c.trim())))
         .collect();
     format!("<tr>{}</tr>\n", cells.join(""))
 }
@@ -160,7 +181,7 @@ pub fn markdown_to_html(md: &str, out: &Path) -> Result<String> {
         let line = lines[i];
         i += 1;
         let close = match block {
-            Block::Table if !line.starts_with('|') => "</table>\n",
+            Block::Table if !line.starts_with('|') => "</table></div>\n",
             Block::List if !line.starts_with("- ") => "</ul>\n",
             Block::Nav if !line.starts_with("- ") => "</ul></nav>\n",
             _ => "",
@@ -181,7 +202,7 @@ pub fn markdown_to_html(md: &str, out: &Path) -> Result<String> {
             if block == Block::Table {
                 h.push_str(&table_row(line, "td"));
             } else {
-                h.push_str("<table>\n");
+                h.push_str("<div class=\"wide\"><table>\n");
                 h.push_str(&table_row(line, "th"));
                 block = Block::Table;
             }
@@ -215,7 +236,7 @@ pub fn markdown_to_html(md: &str, out: &Path) -> Result<String> {
         }
     }
     h.push_str(match block {
-        Block::Table => "</table>\n",
+        Block::Table => "</table></div>\n",
         Block::List => "</ul>\n",
         Block::Nav => "</ul></nav>\n",
         Block::None => "",
@@ -252,5 +273,14 @@ mod tests {
             "<strong>L3, ap+lat.</strong> the <strong>assumed</strong> K (<a href=\"t.csv\">t</a>)"
         );
         assert_eq!(inline("a ** b"), "a ** b");
+    }
+
+    #[test]
+    fn code_spans_become_code_and_keep_their_markup_literal() {
+        assert_eq!(
+            inline("the `study.toml` (**B** `a<b>**c**`)"),
+            "the <code>study.toml</code> (<strong>B</strong> <code>a&lt;b&gt;**c**</code>)"
+        );
+        assert_eq!(inline("one ` tick"), "one ` tick");
     }
 }

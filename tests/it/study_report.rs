@@ -233,6 +233,62 @@ fn the_quick_report_is_small_and_self_contained() {
     }
 }
 
+/// The provenance line names this build's version and commit (as git says), the BLAKE3 of the
+/// `study.toml` beside the report, a date of this run and a thread count.
+#[test]
+fn the_report_states_its_provenance() {
+    let md = read(&quick_out().join("report.md"));
+    let line = md
+        .lines()
+        .find(|l| l.starts_with(spinedrr::study::report::PROVENANCE))
+        .expect("no provenance line");
+    assert!(
+        line.contains(&format!("spinedrr {}", env!("CARGO_PKG_VERSION"))),
+        "{line}"
+    );
+    let git = |args: &[&str]| {
+        Command::new("git")
+            .args(args)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+    };
+    // The commit the binary was built from (HEAD, unless a commit was made since the build); a clean
+    // checkout (CI's) was built clean, so it must not be called `-dirty`.
+    let head = git(&["rev-parse", "HEAD"]).unwrap_or_else(|| "unknown".to_string());
+    assert!(
+        line.contains(&format!("git commit `{head}`"))
+            || line.contains(&format!("git commit `{head}-dirty`")),
+        "{line} vs HEAD {head}"
+    );
+    let clean =
+        git(&["status", "--porcelain", "--untracked-files=no"]).is_some_and(|s| s.is_empty());
+    assert!(!(clean && line.contains("-dirty`")), "{line}");
+    let toml = std::fs::read(quick_out().join("study.toml")).unwrap();
+    let hash = blake3::hash(&toml).to_hex().to_string();
+    assert!(line.contains(&format!("(BLAKE3 `{hash}`)")), "{line}");
+    let date = line
+        .split(" on ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .unwrap();
+    let when = humantime::parse_rfc3339(date).unwrap_or_else(|e| panic!("{date}: {e}"));
+    let age = std::time::SystemTime::now().duration_since(when).unwrap();
+    assert!(age.as_secs() < 6 * 3600, "{date} is not this run's date");
+    let threads: usize = line
+        .split(" with ")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(threads >= 1, "{line}");
+}
+
 /// The browser: Debian's `chromium` (scripts/install-deps.sh installs it). A missing browser fails.
 fn chromium() -> PathBuf {
     let found = ["chromium", "chromium-browser"].iter().find_map(|b| {
@@ -261,11 +317,23 @@ window.addEventListener("load", function () {
   var dangling = links.filter(function (a) {
     return !document.getElementById(decodeURIComponent(a.getAttribute("href").slice(1)));
   });
+  // Nothing may reach past the body's content box (a wide table scrolls inside its own box), and no
+  // figure is drawn smaller than its preview (whose text is sized for the page's display width).
+  var body = document.body.getBoundingClientRect();
+  var pad = parseFloat(getComputedStyle(document.body).paddingRight);
+  var boxes = Array.from(document.querySelectorAll("body > *, .wide, table, figure, img, p"));
+  var overflow = boxes.filter(function (e) {
+    return e.closest(".wide") !== e.parentElement && !e.closest(".wide table") &&
+      e.getBoundingClientRect().right > body.right - pad + 1;
+  });
+  var shrunk = imgs.filter(function (i) { return i.width < 0.95 * i.naturalWidth; });
   var pre = document.createElement("pre");
   pre.id = "browser-check";
   pre.textContent = "images=" + imgs.length + " broken=" + broken.length + " links=" +
     links.length + " dangling=" + dangling.length + " nav=" +
-    document.querySelectorAll("nav a").length;
+    document.querySelectorAll("nav a").length + " overflow=" + overflow.length + " page_scrolls=" +
+    (document.documentElement.scrollWidth > document.documentElement.clientWidth ? 1 : 0) +
+    " shrunk=" + shrunk.length;
   document.body.appendChild(pre);
 });
 </script>"##;
@@ -281,7 +349,12 @@ fn report_html_renders_in_headless_chromium() {
     let profile = tempfile::tempdir().expect("profile");
     let url = format!("file://{}", page.display());
     let dom = headless(profile.path())
-        .args(["--virtual-time-budget=10000", "--dump-dom", &url])
+        .args([
+            "--virtual-time-budget=10000",
+            "--window-size=1280,2000",
+            "--dump-dom",
+            &url,
+        ])
         .output()
         .expect("running chromium");
     let dom = String::from_utf8_lossy(&dom.stdout);
@@ -310,6 +383,9 @@ fn report_html_renders_in_headless_chromium() {
         "{check}"
     );
     assert_eq!(field("dangling"), 0, "{check}");
+    assert_eq!(field("overflow"), 0, "{check}");
+    assert_eq!(field("page_scrolls"), 0, "{check}");
+    assert_eq!(field("shrunk"), 0, "{check}");
 
     let shot = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("report_screenshot.png");
     let _ = std::fs::remove_file(&shot);
