@@ -69,12 +69,17 @@ fn summary(target: &str, trans: f64) -> RegistrationSummaryRow {
         piercing_px: 0.0,
         trials: 3,
         failed: 0,
+        n: 3,
+        deterministic: true,
         rot_err_deg_mean: 0.1,
         rot_err_deg_sd: 0.0,
+        rot_err_deg_ci95: 0.0,
         trans_err_mm_mean: trans,
         trans_err_mm_sd: 0.0,
+        trans_err_mm_ci95: 0.0,
         residual_px_mean: 0.0,
         residual_px_sd: 0.0,
+        residual_px_ci95: 0.0,
     }
 }
 

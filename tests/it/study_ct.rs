@@ -96,7 +96,7 @@ fn spinedrr(cfg: &str, dir: &Path) -> (Output, PathBuf) {
 const GRID: &str = "[geometry]\nbinning = 2\n\
 [perturbations]\ndf_px = [100.0, 500.0]\npiercing_px = [0.0, 50.0]\n\
 [registration]\nmethods = [\"kabsch\", \"direct-ap+lat\"]\ndf_px = [0.0, 100.0, 500.0]\n\
-piercing_px = [0.0]\ntrials = 2\n";
+piercing_px = [0.0]\ntrials = 2\nnoise_px = 0.0\n";
 
 fn study_out() -> &'static Path {
     static OUT: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();

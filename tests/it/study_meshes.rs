@@ -71,7 +71,7 @@ fn box_study_named(dir: &Path, names: &[&str; 5]) -> std::path::PathBuf {
         "[anatomy]\nlevels = []\nsegment = false\nmarker_radius_mm = 5.0\n\
 [[anatomy.meshes]]\nname = \"box\"\nfiles = [{:?}]\nlandmarks = {:?}\n\
 [geometry]\nbinning = 2\n[perturbations]\ndf_px = [100.0, 500.0]\npiercing_px = [0.0, 20.0]\n\
-[registration]\nmethods = [\"kabsch\"]\ndf_px = [0.0, 300.0]\npiercing_px = [0.0]\ntrials = 2\n",
+[registration]\nmethods = [\"kabsch\"]\ndf_px = [0.0, 300.0]\npiercing_px = [0.0]\ntrials = 2\nnoise_px = 0.0\n",
         stl.to_str().unwrap(),
         lm_path.to_str().unwrap()
     );
@@ -109,6 +109,75 @@ fn mesh_target_study_obeys_the_homography_law() {
         .find(|r| r.df_px == 0.0)
         .expect("Δf 0");
     assert!(zero.rot_err_deg_mean < 1e-6);
+    // Without observation noise every trial of a cell converges to one answer: one value in the report.
+    assert!(tables.registration_summary.iter().all(|r| r.deterministic));
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        md.contains("(all 2 agree)"),
+        "no one-value cell in the report"
+    );
+    let pm: Vec<&str> = md.lines().filter(|l| l.contains('±')).collect();
+    assert!(
+        pm.is_empty(),
+        "a ± in a report over identical trials: {pm:?}"
+    );
+}
+
+/// With landmark noise the trials of a cell differ; the 95 % CI of the mean is Student's, shrinks with
+/// more trials, and the report shows it (never the one-value form).
+#[test]
+fn observation_noise_gives_each_cell_a_confidence_interval_that_shrinks_with_n() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let base = std::fs::read_to_string(box_study(dir.path())).unwrap();
+    let mut half = Vec::new();
+    for n in [5usize, 40] {
+        let cfg = dir.path().join(format!("noise{n}.toml"));
+        let text = format!("experiments = [\"registration\"]\n{base}").replace(
+            "trials = 2\nnoise_px = 0.0\n",
+            &format!("trials = {n}\nnoise_px = 0.5\n"),
+        );
+        std::fs::write(&cfg, text).unwrap();
+        let out = dir.path().join(format!("out{n}"));
+        let o = run_study(&cfg, &out, &[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let t = StudyTables::load(&out).expect("tables");
+        let trials = &t.registration;
+        for s in &t.registration_summary {
+            let v: Vec<f64> = trials
+                .iter()
+                .filter(|r| r.df_px == s.df_px && r.piercing_px == s.piercing_px)
+                .map(|r| r.trans_err_mm)
+                .collect();
+            assert_eq!((s.n, v.len()), (n, n));
+            assert!(!s.deterministic, "{s:?}");
+            // Recomputed here: mean, sample sd, and t(0.975, n − 1) from the standard table.
+            let mean = v.iter().sum::<f64>() / n as f64;
+            let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
+            let t975 = if n == 5 { 2.776 } else { 2.023 };
+            assert!((s.trans_err_mm_mean - mean).abs() < 1e-9);
+            assert!(sd > 1e-3, "noise σ 0.5 px left the trials equal: {v:?}");
+            let h = t975 * sd / (n as f64).sqrt();
+            assert!(
+                (s.trans_err_mm_ci95 - h).abs() < 1e-3 * h,
+                "{} vs {h}",
+                s.trans_err_mm_ci95
+            );
+        }
+        let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+        assert!(!md.contains(" agree)"), "a noisy cell shown as one value");
+        half.push(
+            t.registration_summary
+                .iter()
+                .map(|s| s.trans_err_mm_ci95)
+                .collect::<Vec<_>>(),
+        );
+    }
+    for (a, b) in half[0].iter().zip(&half[1]) {
+        assert!(
+            b < a,
+            "CI with 40 trials ({b}) not narrower than with 5 ({a})"
+        );
+    }
 }
 
 #[test]

@@ -17,8 +17,18 @@ fn quick_out() -> &'static Path {
     &OUT.get_or_init(|| {
         let dir = tempfile::tempdir().expect("temp dir");
         let out = dir.path().join("study");
+        // The quick study without landmark noise: the registration laws below are exact at σ = 0.
+        let cfg = dir.path().join("study.toml");
+        std::fs::write(
+            &cfg,
+            "[anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.0\nmarker_radius_mm = 4.0\n\
+             [registration]\nnoise_px = 0.0\n",
+        )
+        .unwrap();
         let st = Spinedrr::new()
-            .args(["study", "--quick", "--out"])
+            .args(["study", "--quick", "--config"])
+            .arg(&cfg)
+            .arg("--out")
             .arg(&out)
             .status();
         assert!(st.success(), "spinedrr study --quick failed");

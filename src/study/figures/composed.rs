@@ -39,7 +39,10 @@ impl Conditions {
                 g.binning,
                 g.backend_name()
             ),
-            trials: format!("{} trials per cell", cfg.registration.trials),
+            trials: format!(
+                "{} trials per cell, landmarks observed with Gaussian noise σ = {} px",
+                cfg.registration.trials, cfg.registration.noise_px
+            ),
         }
     }
 
@@ -162,7 +165,8 @@ arrow) and the homography prediction H·x at the same magnification (blue cross)
         let title = format!("{target}: registration error, Kabsch beside direct AP+LAT");
         let what = format!(
             "rotation (top) and translation (bottom) error of the recovered pose vs the focal offset Δf, \
-a line per piercing shift (p, p), mean ± sd over {}; grey bands are the paper's reported ranges",
+a line per piercing shift (p, p), mean over {}, whiskers the 95 % confidence interval of the mean \
+where trials vary; grey bands are the paper's reported ranges",
             c.trials
         );
         let file = format!("registration_paper_{target}.png");

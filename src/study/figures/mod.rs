@@ -167,7 +167,8 @@ pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<
                 &file,
                 &title,
                 &format!(
-                    "a panel per method, a line per piercing shift, mean ± sd over {}",
+                    "a panel per method, a line per piercing shift, mean over {}, whiskers the 95 % \
+confidence interval of the mean where trials vary",
                     conditions.trials
                 ),
                 false,

@@ -1,6 +1,6 @@
 //! Registration figures: for every target and error quantity, one figure with a panel per method; in
-//! each panel the mean error over the trials vs Δf, one line per piercing shift, ± one standard deviation
-//! as whiskers. And per target the paper's comparison: rotation and translation error of Kabsch beside
+//! each panel the mean error over the trials vs Δf, one line per piercing shift, its 95 % confidence
+//! interval as whiskers where the trials vary (none for a deterministic cell or a single trial). And per target the paper's comparison: rotation and translation error of Kabsch beside
 //! direct AP+LAT, the paper's reported ranges as shaded bands.
 
 use std::path::Path;
@@ -14,23 +14,32 @@ use crate::study::config::RegistrationMethod;
 use crate::study::paper::PaperResults;
 use crate::study::schema::RegistrationSummaryRow;
 
-/// (mean, sd) of one error quantity of a summary row.
+/// (mean, 95 % CI half-width) of one error quantity of a summary row.
 type Quantity = fn(&RegistrationSummaryRow) -> (f64, f64);
 
-/// The error quantities: (mean and sd, axis label, file tag).
+/// The whisker of a cell: its CI half-width where the trials vary, else none.
+fn whisker(r: &RegistrationSummaryRow, ci95: f64) -> f64 {
+    if r.deterministic || !ci95.is_finite() {
+        0.0
+    } else {
+        ci95
+    }
+}
+
+/// The error quantities: (mean and CI, axis label, file tag).
 const QUANTITIES: [(Quantity, &str, &str); 3] = [
     (
-        |r| (r.rot_err_deg_mean, r.rot_err_deg_sd),
+        |r| (r.rot_err_deg_mean, whisker(r, r.rot_err_deg_ci95)),
         "rotation error (deg)",
         "rot",
     ),
     (
-        |r| (r.trans_err_mm_mean, r.trans_err_mm_sd),
+        |r| (r.trans_err_mm_mean, whisker(r, r.trans_err_mm_ci95)),
         "translation error (mm)",
         "trans",
     ),
     (
-        |r| (r.residual_px_mean, r.residual_px_sd),
+        |r| (r.residual_px_mean, whisker(r, r.residual_px_ci95)),
         "reprojection residual (px)",
         "residual",
     ),
@@ -46,14 +55,14 @@ pub fn registration_figures(rows: &[RegistrationSummaryRow], figs: &Path) -> Res
                 .map(|&m| panel(rows, target, m, quantity))
                 .collect();
             let file = figs.join(format!("registration_{target}_{tag}.png"));
-            let title = format!("{target}: {label} vs focal offset, mean ± sd over trials");
+            let title = format!("{target}: {label} vs focal offset, mean and 95 % CI over trials");
             panel_chart(&file, &title, "focal offset Δf (px)", label, panels, 3)?;
         }
     }
     Ok(())
 }
 
-/// (Δf, mean, sd) of one summary cell.
+/// (Δf, mean, CI half-width) of one summary cell.
 type CellMean = (f64, f64, f64);
 
 /// One method's panel: a line per piercing shift.
@@ -128,7 +137,8 @@ pub fn paper_figures(
                 panels.push(p);
             }
         }
-        let title = format!("{target}: registration error vs focal offset, mean ± sd over trials");
+        let title =
+            format!("{target}: registration error vs focal offset, mean and 95 % CI over trials");
         let fig = PanelChart {
             title: &title,
             x_label: "focal offset Δf (px)",

@@ -189,7 +189,7 @@ fn registration(t: &StudyTables, first: &str) -> Option<String> {
     (!parts.is_empty()).then(|| {
         format!(
             "Registration bias over Δf > 0 (means over trials, every target and piercing shift): {} \
-({}, {}).",
+({}, {}; each cell's 95 % confidence interval is in the registration section).",
             parts.join("; "),
             table::<RegistrationSummaryRow>(),
             figure(&format!("registration_{first}_rot.png"))

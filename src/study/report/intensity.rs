@@ -9,7 +9,7 @@ use super::layout::num;
 use crate::registration::intensity::{CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
 use crate::study::config::{FixedScope, StudyConfig};
 use crate::study::figures::{FigureEntry, Section, distinct};
-use crate::study::schema::{IntensitySummaryRow, StudyTables};
+use crate::study::schema::{IntensitySummaryRow, StudyTables, ci95_half_width};
 
 /// The section heading.
 pub const HEADING: &str = "Intensity-based registration: DRR against radiograph";
@@ -79,15 +79,36 @@ fn list(v: &[f64]) -> String {
         .join(", ")
 }
 
+/// The final mTRE of a cell's successful starts: mean and 95 % CI where they vary, one value where there
+/// is one success or they all agree (within 1 µm), "no success" where none succeeded.
+fn successes_mtre(r: &IntensitySummaryRow) -> String {
+    let n = r.successes;
+    if n == 0 || !r.final_mtre_mean_mm.is_finite() {
+        "no success".into()
+    } else if n == 1 {
+        format!("{} (n = 1)", num(r.final_mtre_mean_mm, 3))
+    } else if r.final_mtre_sd_mm <= 1e-3 {
+        format!("{} (all {n} agree)", num(r.final_mtre_mean_mm, 3))
+    } else {
+        let h = ci95_half_width(r.final_mtre_sd_mm, n);
+        format!(
+            "{} [{}, {}] (n = {n})",
+            num(r.final_mtre_mean_mm, 3),
+            num((r.final_mtre_mean_mm - h).max(0.0), 3),
+            num(r.final_mtre_mean_mm + h, 3)
+        )
+    }
+}
+
 fn summary_table(md: &mut String, rows: &[IntensitySummaryRow]) {
     let _ = writeln!(
         md,
-        "| target | views | Δf (px) | piercing (px) | starts | success | capture (mm) | final mTRE of successes, mean ± sd (mm) | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        "| target | views | Δf (px) | piercing (px) | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     );
     for r in rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {:.0} % | {} | {} ± {} | {} | {} | {:.0} % | {} | {}, {} | {:.0} |",
+            "| {} | {} | {} | {} | {} | {:.0} % | {} | {} | {} | {} | {:.0} % | {} | {}, {} | {:.0} |",
             r.target,
             r.views,
             r.df_px,
@@ -95,8 +116,7 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow]) {
             r.trials,
             100.0 * r.success_rate,
             num(r.capture_range_mm, 1),
-            num(r.final_mtre_mean_mm, 3),
-            num(r.final_mtre_sd_mm, 3),
+            successes_mtre(r),
             num(r.final_mtre_median_mm, 3),
             num(r.optimum_mtre_mm, 3),
             100.0 * r.reached_optimum_rate,

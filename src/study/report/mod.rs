@@ -9,6 +9,7 @@ mod findings;
 mod intensity;
 pub mod latex;
 mod layout;
+mod registration;
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -92,7 +93,13 @@ configuration is `study.toml`.\n",
     if !tables.registration_summary.is_empty() {
         let _ = writeln!(md, "## {REGISTRATION}\n");
         layout::figures(&mut md, &figs, Section::Registration, &mut n);
-        registration_section(&mut md, &tables.registration_summary, &paper, &first);
+        registration_section(
+            &mut md,
+            &tables.registration_summary,
+            &paper,
+            &first,
+            cfg.registration.noise_px,
+        );
     }
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
@@ -301,9 +308,13 @@ fn registration_section(
     rows: &[RegistrationSummaryRow],
     paper: &PaperResults,
     first: &str,
+    noise_px: f64,
 ) {
     let t = comparison::registration_table(rows, paper, first);
     let _ = writeln!(md, "### {}\n", t.caption);
+    let _ = write!(md, "{}", t.to_markdown());
+    let t = registration::cells_table(rows, first, noise_px);
+    let _ = writeln!(md, "\n### {}\n", t.caption);
     let _ = write!(md, "{}", t.to_markdown());
     let _ = writeln!(
         md,

@@ -20,7 +20,9 @@ pub use calibration::{
     CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, TOLERANCE_THRESHOLDS_PX,
 };
 pub use intensity::{IntensityBinRow, IntensityRow, IntensitySummaryRow};
-pub use tables::{StudyTables, TableRow, mean_sd, read_rows, write_rows};
+pub use tables::{
+    SOLVER_SPREAD, StudyTables, TableRow, ci95_half_width, mean_sd, read_rows, write_rows,
+};
 
 /// Whole-object silhouette, contour and image-similarity metrics (table `projection.csv`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -136,8 +138,11 @@ pub struct RegistrationRow {
     pub converged: bool,
 }
 
-/// Mean and sample standard deviation over the trials of one registration cell (table
-/// `registration_summary.csv`); NaN trials (failed solves) are counted in `failed` and left out.
+/// Mean, sample standard deviation and 95 % confidence half-width over the trials of one registration
+/// cell (table `registration_summary.csv`); NaN trials (failed solves) are counted in `failed` and left
+/// out of `n` and the statistics. `deterministic`: every error's spread is below [`SOLVER_SPREAD`]
+/// (trials that differ only in their starting pose, without observation noise, converge to one
+/// answer); such a cell is one value, and the report prints it as one.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RegistrationSummaryRow {
     pub target: String,
@@ -148,18 +153,33 @@ pub struct RegistrationSummaryRow {
     pub piercing_px: f64,
     pub trials: usize,
     pub failed: usize,
+    /// Trials with finite errors (`trials − failed`): the n of the statistics.
+    pub n: usize,
+    pub deterministic: bool,
     #[serde(with = "num")]
     pub rot_err_deg_mean: f64,
     #[serde(with = "num")]
     pub rot_err_deg_sd: f64,
+    /// Half-width of the 95 % confidence interval of the mean (Student t, n − 1 degrees of freedom;
+    /// NaN for n < 2).
+    #[serde(with = "num")]
+    pub rot_err_deg_ci95: f64,
     #[serde(with = "num")]
     pub trans_err_mm_mean: f64,
     #[serde(with = "num")]
     pub trans_err_mm_sd: f64,
+    /// Half-width of the 95 % confidence interval of the mean (Student t, n − 1 degrees of freedom;
+    /// NaN for n < 2).
+    #[serde(with = "num")]
+    pub trans_err_mm_ci95: f64,
     #[serde(with = "num")]
     pub residual_px_mean: f64,
     #[serde(with = "num")]
     pub residual_px_sd: f64,
+    /// Half-width of the 95 % confidence interval of the mean (Student t, n − 1 degrees of freedom;
+    /// NaN for n < 2).
+    #[serde(with = "num")]
+    pub residual_px_ci95: f64,
 }
 
 /// Everything one unit produced (the content of its `units/<id>.json`).

@@ -175,6 +175,19 @@ pub fn mean_sd(v: &[f64]) -> (f64, f64) {
     (m, var.sqrt())
 }
 
+/// The 95 % confidence half-width of a mean of `n` values with sample standard deviation `sd`:
+/// t(0.975, n − 1)·sd/√n (NaN for n < 2).
+pub fn ci95_half_width(sd: f64, n: usize) -> f64 {
+    if n < 2 {
+        return f64::NAN;
+    }
+    distrs::StudentsT::ppf(0.975, (n - 1) as f64) * sd / (n as f64).sqrt()
+}
+
+/// Spread (sample sd, in the error's unit: deg, mm, px) below which a registration cell's trials count
+/// as one value: the solver's convergence tolerance, far below any observation noise worth modelling.
+pub const SOLVER_SPREAD: f64 = 1e-4;
+
 /// Per (target, method, Δf, piercing) the mean and spread over trials, in the order the cells first
 /// appear in `rows`.
 fn summarize_registration(rows: &[RegistrationRow]) -> Vec<RegistrationSummaryRow> {
@@ -202,19 +215,27 @@ fn summarize_registration(rows: &[RegistrationRow]) -> Vec<RegistrationSummaryRo
                 stat(|r| r.trans_err_mm),
                 stat(|r| r.residual_px),
             );
+            let failed = c.iter().filter(|r| !r.rot_err_deg.is_finite()).count();
+            let n = c.len() - failed;
+            let ci = |sd: f64| ci95_half_width(sd, n);
             RegistrationSummaryRow {
                 target: c[0].target.clone(),
                 method: c[0].method,
                 df_px: c[0].df_px,
                 piercing_px: c[0].piercing_px,
                 trials: c.len(),
-                failed: c.iter().filter(|r| !r.rot_err_deg.is_finite()).count(),
+                failed,
+                n,
+                deterministic: n > 0 && [rot.1, trans.1, res.1].iter().all(|s| *s <= SOLVER_SPREAD),
                 rot_err_deg_mean: rot.0,
                 rot_err_deg_sd: rot.1,
+                rot_err_deg_ci95: ci(rot.1),
                 trans_err_mm_mean: trans.0,
                 trans_err_mm_sd: trans.1,
+                trans_err_mm_ci95: ci(trans.1),
                 residual_px_mean: res.0,
                 residual_px_sd: res.1,
+                residual_px_ci95: ci(res.1),
             }
         })
         .collect()
@@ -233,6 +254,16 @@ mod tests {
         assert_eq!(m, 2.5);
         assert!((s - (5.0f64 / 3.0).sqrt()).abs() < 1e-15);
         assert!(mean_sd(&[f64::NAN]).0.is_nan());
+    }
+
+    #[test]
+    fn ci_half_width_uses_tabulated_student_t_quantiles() {
+        // t(0.975, ν) from the standard tables: ν = 1: 12.706, 4: 2.776, 19: 2.093, ∞: 1.960.
+        for (n, t) in [(2, 12.706), (5, 2.776), (20, 2.093), (100_001, 1.960)] {
+            let h = ci95_half_width(2.0, n);
+            assert!((h * (n as f64).sqrt() / 2.0 - t).abs() < 1e-3, "n {n}: {h}");
+        }
+        assert!(ci95_half_width(1.0, 1).is_nan());
     }
 
     fn trial(trial: usize, rot: f64) -> RegistrationRow {
