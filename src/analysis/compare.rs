@@ -6,8 +6,9 @@ use std::path::Path;
 use serde::Serialize;
 
 use super::{
-    ContourDistances, Landmark, LandmarkShift, contour_points, dice_iou, edge_distance,
-    gradient_correlation, landmark_shifts, mutual_information, ncc, ssim, subpixel_boundary,
+    ContourDistances, Landmark, LandmarkShift, Region, contour_points, dice_iou, edge_distance,
+    gradient_correlation_in, landmark_shifts, mutual_information_in, ncc_in, ssim_in,
+    subpixel_boundary,
 };
 use crate::geometry::View;
 use crate::io::ImageF32;
@@ -68,12 +69,27 @@ pub struct Comparison {
 
 /// NCC, SSIM, MI ([`MI_BINS`] bins), gradient correlation and the absolute-difference summary.
 pub fn image_metrics(reference: &ImageF32, perturbed: &ImageF32) -> Result<ImageMetrics> {
+    image_metrics_in(reference, perturbed, None)
+}
+
+/// [`image_metrics`] with NCC, SSIM, MI and gradient correlation over `region` (all pixels when
+/// `None`); the absolute differences stay over the whole image.
+pub fn image_metrics_in(
+    reference: &ImageF32,
+    perturbed: &ImageF32,
+    region: Option<&Region>,
+) -> Result<ImageMetrics> {
     let ((n, s), (m, g)) = rayon::join(
-        || (ncc(reference, perturbed), ssim(reference, perturbed)),
         || {
             (
-                mutual_information(reference, perturbed, MI_BINS),
-                gradient_correlation(reference, perturbed),
+                ncc_in(reference, perturbed, region),
+                ssim_in(reference, perturbed, region),
+            )
+        },
+        || {
+            (
+                mutual_information_in(reference, perturbed, MI_BINS, region),
+                gradient_correlation_in(reference, perturbed, region),
             )
         },
     );

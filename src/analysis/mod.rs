@@ -12,11 +12,12 @@ mod distances;
 mod landmarks;
 mod markers;
 mod overlap;
+mod region;
 mod similarity;
 
 pub use compare::{
     Comparison, ImageMetrics, MI_BINS, MaskPair, SilhouetteMetrics, compare, image_metrics,
-    read_mask_png, silhouette_metrics, union_masks,
+    image_metrics_in, read_mask_png, silhouette_metrics, union_masks,
 };
 pub use contours::{border_pixels, contour_points, contours, subpixel_boundary};
 pub use difference::abs_difference;
@@ -26,7 +27,11 @@ pub use landmarks::{
 };
 pub use markers::marker_centroid;
 pub use overlap::dice_iou;
-pub use similarity::{gradient_correlation, mutual_information, ncc, ssim};
+pub use region::{REGION_MARGIN_PX, Region};
+pub use similarity::{
+    gradient_correlation, gradient_correlation_in, mutual_information, mutual_information_in, ncc,
+    ncc_in, ssim, ssim_in,
+};
 pub(crate) use similarity::{sobel_at, three_rows};
 
 /// Maps an OpenCV error to [`crate::Error::External`].

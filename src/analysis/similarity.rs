@@ -1,9 +1,34 @@
-//! Image similarity of two DRRs of the same size: NCC, SSIM, mutual information, gradient correlation.
+//! Image similarity of two DRRs of the same size: NCC, SSIM, mutual information, gradient correlation,
+//! over the whole image or over a [`Region`] (the `*_in` forms: a windowed measure counts the windows
+//! whose centre pixel is in the region).
 
 use rayon::prelude::*;
 
+use super::region::Region;
 use crate::io::ImageF32;
 use crate::{Error, Result};
+
+fn check_region(a: &ImageF32, region: Option<&Region>) -> Result<()> {
+    match region {
+        Some(r) if (r.width, r.height) != (a.width, a.height) || r.inside.len() != a.data.len() => {
+            Err(Error::invalid(
+                "region",
+                format!(
+                    "{}×{} for {}×{} images",
+                    r.width, r.height, a.width, a.height
+                ),
+            ))
+        }
+        Some(r) if r.is_empty() => Err(Error::invalid("region", "holds no pixel")),
+        _ => Ok(()),
+    }
+}
+
+/// Whether pixel `i` counts: every pixel without a region.
+#[inline]
+fn counts(region: Option<&Region>, i: usize) -> bool {
+    region.is_none_or(|r| r.inside[i])
+}
 
 fn check_pair(a: &ImageF32, b: &ImageF32) -> Result<()> {
     if (a.width, a.height) != (b.width, b.height) || a.data.len() != b.data.len() {
@@ -58,11 +83,26 @@ fn pearson(
 
 /// Normalised cross-correlation `Σ (a − ā)(b − b̄) / sqrt(Σ (a − ā)² Σ (b − b̄)²)` over all pixels.
 pub fn ncc(a: &ImageF32, b: &ImageF32) -> Result<f64> {
+    ncc_in(a, b, None)
+}
+
+/// [`ncc`] over the pixels of `region` (all pixels when `None`).
+pub fn ncc_in(a: &ImageF32, b: &ImageF32, region: Option<&Region>) -> Result<f64> {
     check_pair(a, b)?;
-    pearson(
-        a.data.iter().map(|&v| f64::from(v)),
-        b.data.iter().map(|&v| f64::from(v)),
-    )
+    check_region(a, region)?;
+    let pa = a
+        .data
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| counts(region, *i))
+        .map(|(_, &v)| f64::from(v));
+    let pb = b
+        .data
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| counts(region, *i))
+        .map(|(_, &v)| f64::from(v));
+    pearson(pa, pb)
 }
 
 /// The normalised 1D Gaussian of the SSIM window (11 taps, σ = 1.5).
@@ -83,7 +123,14 @@ fn gaussian_window() -> [f64; 11] {
 /// A window over zeros in both images has every moment exactly 0, so its SSIM is exactly
 /// `C1·C2 / (C1·C2) = 1`: output rows whose 11 input rows are all zero contribute exactly their width.
 pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
+    ssim_in(reference, other, None)
+}
+
+/// [`ssim`] averaged over the windows whose centre pixel is in `region` (every window when `None`);
+/// `L` is still the whole reference's data range.
+pub fn ssim_in(reference: &ImageF32, other: &ImageF32, region: Option<&Region>) -> Result<f64> {
     check_pair(reference, other)?;
+    check_region(reference, region)?;
     let (w, h) = (reference.width as usize, reference.height as usize);
     if w < 11 || h < 11 {
         return Err(Error::invalid(
@@ -102,13 +149,28 @@ pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
     let g = gaussian_window();
     let (wo, ho) = (w - 10, h - 10);
     let blank = blank_rows(reference, other);
+    // The windows of output row v are centred on image row v + 5, columns u + 5.
+    let centred = |v: usize, u: usize| counts(region, (v + 5) * w + u + 5);
+    let windows: Vec<usize> = (0..ho)
+        .map(|v| (0..wo).filter(|&u| centred(v, u)).count())
+        .collect();
+    let n: usize = windows.iter().sum();
+    if n == 0 {
+        return Err(Error::invalid(
+            "region",
+            "holds no pixel at least 5 px inside the image (SSIM's window)",
+        ));
+    }
     // Per output row: a vertical pass over the 11 input rows into five moment rows (a, b, a², b², ab),
     // then a horizontal pass; tap-outer loops over contiguous rows vectorise and stay in cache.
     let total: f64 = (0..ho)
         .into_par_iter()
         .map(|v| {
+            if windows[v] == 0 {
+                return 0.0;
+            }
             if blank[v..v + 11].iter().all(|&z| z) {
-                return wo as f64;
+                return windows[v] as f64;
             }
             let mut cols: [Vec<f64>; 5] = std::array::from_fn(|_| vec![0.0; w]);
             for (j, gj) in g.iter().enumerate() {
@@ -133,6 +195,7 @@ pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
                 }
             }
             (0..wo)
+                .filter(|&u| centred(v, u))
                 .map(|u| {
                     let (ma, mb) = (m[0][u], m[1][u]);
                     let (va, vb, cab) = (m[2][u] - ma * ma, m[3][u] - mb * mb, m[4][u] - ma * mb);
@@ -146,7 +209,7 @@ pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
         // same images must give the same SSIM to the last bit on any machine.
         .iter()
         .sum();
-    Ok(total / (wo * ho) as f64)
+    Ok(total / n as f64)
 }
 
 /// Bin index of `v` among `bins` equal bins spanning `[lo, hi]` (the maximum goes in the last bin).
@@ -162,7 +225,19 @@ fn bin_of(v: f32, lo: f32, hi: f32, bins: usize) -> usize {
 /// bins` equal-width bins, each image binned over its own [min, max]. 64 bins is the usual choice for
 /// DRRs of ~1 Mpx.
 pub fn mutual_information(a: &ImageF32, b: &ImageF32, bins: usize) -> Result<f64> {
+    mutual_information_in(a, b, bins, None)
+}
+
+/// [`mutual_information`] of the pixels of `region` (all pixels when `None`), each image binned over
+/// its own [min, max] within the region.
+pub fn mutual_information_in(
+    a: &ImageF32,
+    b: &ImageF32,
+    bins: usize,
+    region: Option<&Region>,
+) -> Result<f64> {
     check_pair(a, b)?;
+    check_region(a, region)?;
     if !(2..=4096).contains(&bins) {
         return Err(Error::invalid(
             "bins",
@@ -172,16 +247,22 @@ pub fn mutual_information(a: &ImageF32, b: &ImageF32, bins: usize) -> Result<f64
     let range = |img: &ImageF32| {
         img.data
             .iter()
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+            .enumerate()
+            .filter(|(i, _)| counts(region, *i))
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), (_, &v)| {
                 (l.min(v), h.max(v))
             })
     };
     let ((la, ha), (lb, hb)) = (range(a), range(b));
     let mut joint = vec![0u64; bins * bins];
-    for (&x, &y) in a.data.iter().zip(&b.data) {
-        joint[bin_of(x, la, ha, bins) * bins + bin_of(y, lb, hb, bins)] += 1;
+    let mut n = 0u64;
+    for (i, (&x, &y)) in a.data.iter().zip(&b.data).enumerate() {
+        if counts(region, i) {
+            joint[bin_of(x, la, ha, bins) * bins + bin_of(y, lb, hb, bins)] += 1;
+            n += 1;
+        }
     }
-    let n = a.data.len() as f64;
+    let n = n as f64;
     let mut pa = vec![0.0; bins];
     let mut pb = vec![0.0; bins];
     for i in 0..bins {
@@ -244,7 +325,13 @@ fn correlation(m: &Moments) -> Result<f64> {
 
 /// Gradient correlation (Penney et al. 1998): the mean of the NCCs of the Sobel x and y gradient images.
 pub fn gradient_correlation(a: &ImageF32, b: &ImageF32) -> Result<f64> {
+    gradient_correlation_in(a, b, None)
+}
+
+/// [`gradient_correlation`] over the Sobel responses centred on pixels of `region` (all when `None`).
+pub fn gradient_correlation_in(a: &ImageF32, b: &ImageF32, region: Option<&Region>) -> Result<f64> {
     check_pair(a, b)?;
+    check_region(a, region)?;
     if a.width < 3 || a.height < 3 {
         return Err(Error::invalid(
             "images",
@@ -261,13 +348,16 @@ pub fn gradient_correlation(a: &ImageF32, b: &ImageF32) -> Result<f64> {
         .into_par_iter()
         .map(|v| {
             let (mut mx, mut my) = ([0.0; 6], [0.0; 6]);
+            // The responses of row v are centred on image row v + 1, columns u + 1.
+            let centred = |u: usize| counts(region, (v + 1) * w + u + 1);
             if blank[v..v + 3].iter().all(|&z| z) {
-                mx[0] = (w - 2) as f64;
-                my[0] = (w - 2) as f64;
+                let n = (0..w - 2).filter(|&u| centred(u)).count() as f64;
+                mx[0] = n;
+                my[0] = n;
                 return (mx, my);
             }
             let ((a0, a1, a2), (b0, b1, b2)) = (three_rows(a, v, w), three_rows(b, v, w));
-            for u in 0..w - 2 {
+            for u in (0..w - 2).filter(|&u| centred(u)) {
                 let (ax, ay) = sobel_at(a0, a1, a2, u);
                 let (bx, by) = sobel_at(b0, b1, b2, u);
                 add_moments(&mut mx, ax, bx);

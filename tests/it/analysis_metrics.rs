@@ -210,7 +210,13 @@ fn identical_and_negative_images() {
 
 /// SSIM by direct 11×11 window sums (no separable filtering), straight from Wang et al.'s definition.
 fn ssim_brute(a: &ImageF32, b: &ImageF32) -> f64 {
+    ssim_brute_in(a, b, None)
+}
+
+/// The windowed SSIM averaged over the windows centred in `region` (all when `None`).
+fn ssim_brute_in(a: &ImageF32, b: &ImageF32, region: Option<&[bool]>) -> f64 {
     let (w, h) = (a.width as usize, a.height as usize);
+    let mut windows = 0usize;
     let g: Vec<f64> = (0..11)
         .map(|i| (-((i as f64 - 5.0).powi(2)) / 4.5).exp())
         .collect();
@@ -224,6 +230,10 @@ fn ssim_brute(a: &ImageF32, b: &ImageF32) -> f64 {
     let mut total = 0.0;
     for v in 0..h - 10 {
         for u in 0..w - 10 {
+            if region.is_some_and(|r| !r[(v + 5) * w + u + 5]) {
+                continue;
+            }
+            windows += 1;
             let (mut ma, mut mb) = (0.0, 0.0);
             for j in 0..11 {
                 for i in 0..11 {
@@ -247,7 +257,7 @@ fn ssim_brute(a: &ImageF32, b: &ImageF32) -> f64 {
                 / ((ma * ma + mb * mb + c1) * (va + vb + c2));
         }
     }
-    total / ((w - 10) * (h - 10)) as f64
+    total / windows as f64
 }
 
 #[test]
@@ -402,12 +412,21 @@ fn heatmap_png_and_landmark_json() {
 /// Penney's gradient correlation from explicit Sobel images and two-pass Pearson correlations.
 #[allow(clippy::needless_range_loop)] // explicit kernel indices are the point of this oracle
 fn gradient_correlation_brute(a: &ImageF32, b: &ImageF32) -> f64 {
+    gradient_correlation_brute_in(a, b, None)
+}
+
+/// [`gradient_correlation_brute`] over the Sobel responses centred in `region` (all when `None`).
+#[allow(clippy::needless_range_loop)]
+fn gradient_correlation_brute_in(a: &ImageF32, b: &ImageF32, region: Option<&[bool]>) -> f64 {
     let (w, h) = (a.width as usize, a.height as usize);
     let sobel = |img: &ImageF32, dx: bool| -> Vec<f64> {
         let p = |u: usize, v: usize| f64::from(img.data[v * w + u]);
         let mut out = Vec::new();
         for v in 1..h - 1 {
             for u in 1..w - 1 {
+                if region.is_some_and(|r| !r[v * w + u]) {
+                    continue;
+                }
                 let (k, kt) = ([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], dx);
                 let mut s = 0.0;
                 for j in 0..3 {
@@ -430,6 +449,70 @@ fn gradient_correlation_brute(a: &ImageF32, b: &ImageF32) -> f64 {
         sxy / (sxx * syy).sqrt()
     };
     0.5 * (pearson(&sobel(a, true), &sobel(b, true)) + pearson(&sobel(a, false), &sobel(b, false)))
+}
+
+/// The pixels of `img` in `region`, as a one-row image (an independent path to the region NCC and MI).
+fn pixels_in(img: &ImageF32, region: &[bool]) -> ImageF32 {
+    let data: Vec<f32> = img
+        .data
+        .iter()
+        .zip(region)
+        .filter(|(_, r)| **r)
+        .map(|(v, _)| *v)
+        .collect();
+    let mut out = ImageF32::zeros(data.len() as u32, 1);
+    out.data = data;
+    out
+}
+
+#[test]
+fn region_similarities_are_the_definitions_restricted_to_the_region() {
+    // Two images with background bands, and a region around two offset discs.
+    let bands = || (0..8).chain(52..61);
+    let a = with_blank_rows(&random_image(48, 61, 31), bands());
+    let b = with_blank_rows(&random_image(48, 61, 32), bands().chain(30..33));
+    let region = Region::around(
+        &disc(48, 61, DVec2::new(20.0, 28.0), 9.0),
+        &disc(48, 61, DVec2::new(26.0, 31.0), 9.0),
+        48,
+        61,
+        4,
+    )
+    .unwrap();
+    let r = Some(&region);
+    let inside = Some(region.inside.as_slice());
+    let (fast, brute) = (ssim_in(&a, &b, r).unwrap(), ssim_brute_in(&a, &b, inside));
+    assert!((fast - brute).abs() < 1e-9, "SSIM {fast} vs {brute}");
+    let (fast, brute) = (
+        gradient_correlation_in(&a, &b, r).unwrap(),
+        gradient_correlation_brute_in(&a, &b, inside),
+    );
+    assert!((fast - brute).abs() < 1e-10, "GC {fast} vs {brute}");
+    let (pa, pb) = (pixels_in(&a, &region.inside), pixels_in(&b, &region.inside));
+    assert_eq!(pa.data.len(), region.len());
+    let (fast, other) = (ncc_in(&a, &b, r).unwrap(), ncc(&pa, &pb).unwrap());
+    assert!((fast - other).abs() < 1e-12, "NCC {fast} vs {other}");
+    let fast = mutual_information_in(&a, &b, 16, r).unwrap();
+    let other = mutual_information(&pa, &pb, 16).unwrap();
+    assert!((fast - other).abs() < 1e-12, "MI {fast} vs {other}");
+    // The whole image as a region is the whole-image measure; an empty or mis-sized region is an error.
+    let all = Region {
+        width: 48,
+        height: 61,
+        inside: vec![true; 48 * 61],
+    };
+    assert_eq!(ssim_in(&a, &b, Some(&all)).unwrap(), ssim(&a, &b).unwrap());
+    let none = Region {
+        inside: vec![false; 48 * 61],
+        ..all.clone()
+    };
+    assert!(ssim_in(&a, &b, Some(&none)).is_err());
+    let small = Region {
+        width: 47,
+        inside: vec![true; 47 * 61],
+        ..all
+    };
+    assert!(ncc_in(&a, &b, Some(&small)).is_err());
 }
 
 #[test]

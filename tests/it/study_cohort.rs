@@ -36,6 +36,12 @@ fn projection(target: &str, dice: f64) -> ProjectionRow {
         ssim: 0.9,
         mutual_information_nats: 1.0,
         gradient_correlation: 0.8,
+        region_margin_px: 10,
+        region_px: 100,
+        ncc_detector: 0.95,
+        ssim_detector: 0.95,
+        mutual_information_nats_detector: 1.0,
+        gradient_correlation_detector: 0.9,
         mean_abs_diff: 0.1,
     }
 }

@@ -190,6 +190,32 @@ fn lat_is_more_sensitive_than_ap() {
     }
 }
 
+/// Where a piercing shift halves the overlap, the similarities over the anatomy's region say so, while
+/// the whole detector's (mostly empty background on both sides) still looks similar.
+#[test]
+fn region_similarity_sees_what_the_whole_detector_hides() {
+    let rows: Vec<_> = tables()
+        .projection
+        .iter()
+        .filter(|r| r.family == Family::Piercing && r.dice <= 0.5)
+        .collect();
+    assert!(
+        !rows.is_empty(),
+        "no piercing cell halves Dice in the quick study"
+    );
+    for r in rows {
+        assert!(r.ssim < 0.8 && r.ssim_detector > 0.85, "{r:?}");
+        assert!(r.ncc < r.ncc_detector, "{r:?}");
+        assert!(r.region_px > 0 && r.region_margin_px > 0, "{r:?}");
+    }
+    let ap = tables()
+        .projection
+        .iter()
+        .find(|r| r.view == "ap" && r.family == Family::Piercing && r.dice <= 0.5)
+        .expect("an AP piercing cell");
+    assert!(ap.ssim_detector > 0.9, "{ap:?}");
+}
+
 #[test]
 fn registration_is_exact_at_zero_perturbation_and_degrades_with_focal_offset() {
     let t = &tables().registration_summary;

@@ -8,7 +8,8 @@
 use super::{Context, Reference, Target};
 use crate::Result;
 use crate::analysis::{
-    MaskPair, abs_difference, image_metrics, marker_centroid, silhouette_metrics,
+    MaskPair, REGION_MARGIN_PX, Region, abs_difference, image_metrics, image_metrics_in,
+    marker_centroid, silhouette_metrics,
 };
 use crate::anatomy::Structure;
 use crate::geometry::{Perturbation, View, apply_homography};
@@ -180,7 +181,20 @@ fn whole_object(
         perturbed: b.masks()?.union(),
     };
     let s = silhouette_metrics(&pair)?;
-    let im = ctx.isolated_metrics(|| image_metrics(images.0, images.1))?;
+    let region = Region::around(
+        &pair.reference,
+        &pair.perturbed,
+        k.width,
+        k.height,
+        REGION_MARGIN_PX,
+    )?;
+    let (im, det) = ctx.isolated_metrics(|| {
+        rayon::join(
+            || image_metrics_in(images.0, images.1, Some(&region)),
+            || image_metrics(images.0, images.1),
+        )
+    });
+    let (im, det) = (im?, det?);
     let q = &np.perturbation;
     Ok(ProjectionRow {
         target: t.name.clone(),
@@ -201,7 +215,13 @@ fn whole_object(
         ssim: im.ssim,
         mutual_information_nats: im.mutual_information_nats,
         gradient_correlation: im.gradient_correlation,
-        mean_abs_diff: im.mean_abs_diff,
+        region_margin_px: REGION_MARGIN_PX,
+        region_px: region.len(),
+        ncc_detector: det.ncc,
+        ssim_detector: det.ssim,
+        mutual_information_nats_detector: det.mutual_information_nats,
+        gradient_correlation_detector: det.gradient_correlation,
+        mean_abs_diff: det.mean_abs_diff,
     })
 }
 

@@ -73,8 +73,12 @@ const PROJECTION_FIGURES: [ProjectionMetric; 5] = [
         "mean Chamfer distance (px)",
         "chamfer_vs_perturbation.png",
     ),
-    (|r| r.ssim, "SSIM", "ssim_vs_perturbation.png"),
-    (|r| r.ncc, "NCC", "ncc_vs_perturbation.png"),
+    (
+        |r| r.ssim,
+        "SSIM (anatomy region)",
+        "ssim_vs_perturbation.png",
+    ),
+    (|r| r.ncc, "NCC (anatomy region)", "ncc_vs_perturbation.png"),
 ];
 
 /// Writes every figure of the non-empty `tables` to `out/figures` (PNG and SVG) and their manifest;

@@ -125,6 +125,12 @@ mod tests {
             ssim: 1.0,
             mutual_information_nats: 1.0,
             gradient_correlation: 1.0,
+            region_margin_px: 10,
+            region_px: 100,
+            ncc_detector: 1.0,
+            ssim_detector: 1.0,
+            mutual_information_nats_detector: 1.0,
+            gradient_correlation_detector: 1.0,
             mean_abs_diff: 0.0,
         }
     }

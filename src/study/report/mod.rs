@@ -189,7 +189,16 @@ centroid measured, in the reference and the perturbed view; the homography predi
         md,
         "- Phantom levels and mesh targets: silhouettes, contours and image metrics (NCC, SSIM, MI, GC, \
 heatmaps) all come from the thickness DRR. `mean_abs_diff` is the mean |a − b| of the two DRRs, in \
-their units (unitless line integrals)."
+their units (unitless line integrals), over the whole detector."
+    );
+    let _ = writeln!(
+        md,
+        "- NCC, SSIM, MI and gradient correlation in `projection.csv` are taken over the anatomy's region: \
+the union of the reference and perturbed silhouettes dilated by {} px (`region_margin_px`; `region_px` \
+pixels), SSIM and GC counting the windows centred there. The whole detector's values are the \
+`*_detector` columns: its empty background, identical in both images, pulls them toward 1 (SSIM) \
+whatever the anatomy does.",
+        crate::analysis::REGION_MARGIN_PX
     );
     if !cfg.anatomy.ct.is_empty() {
         let names: Vec<&str> = cfg.anatomy.ct.iter().map(|c| c.name.as_str()).collect();

@@ -52,6 +52,8 @@ pub struct ProjectionRow {
     pub hd95_px: f64,
     #[serde(with = "num")]
     pub edge_distance_mean_px: f64,
+    /// The image similarities over the anatomy's region: the union of the two silhouettes dilated by
+    /// `region_margin_px` (`region_px` pixels), so the empty detector does not dominate them.
     #[serde(with = "num")]
     pub ncc: f64,
     #[serde(with = "num")]
@@ -60,7 +62,19 @@ pub struct ProjectionRow {
     pub mutual_information_nats: f64,
     #[serde(with = "num")]
     pub gradient_correlation: f64,
-    /// Mean |a − b| of the two images: unitless line integrals (or intensities), not per mm.
+    pub region_margin_px: usize,
+    pub region_px: usize,
+    /// The same similarities over the whole detector (background included).
+    #[serde(with = "num")]
+    pub ncc_detector: f64,
+    #[serde(with = "num")]
+    pub ssim_detector: f64,
+    #[serde(with = "num")]
+    pub mutual_information_nats_detector: f64,
+    #[serde(with = "num")]
+    pub gradient_correlation_detector: f64,
+    /// Mean |a − b| of the two images over the whole detector: unitless line integrals (or
+    /// intensities), not per mm.
     #[serde(with = "num")]
     pub mean_abs_diff: f64,
 }
