@@ -123,6 +123,42 @@ fn mesh_target_study_obeys_the_homography_law() {
     );
 }
 
+/// The report's *Setup* flags a target whose silhouette the detector cuts: the box moved 100 mm to the
+/// patient's right reaches past the AP detector's edge (u = 255.5 + 2250·x/1000 > 511 for x > 114 mm on
+/// the 2× binned detector), and stays whole in LAT, where x is depth.
+#[test]
+fn a_target_cut_by_the_detector_edge_is_flagged_in_the_setup() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let base = std::fs::read_to_string(box_study(dir.path())).unwrap();
+    let (lo, hi) = (
+        DVec3::new(80.0, -15.0, -12.0),
+        DVec3::new(120.0, 15.0, 12.0),
+    );
+    write_mesh(&dir.path().join("box.stl"), &TriMesh::cuboid("box", lo, hi)).unwrap();
+    let cfg = dir.path().join("shifted.toml");
+    std::fs::write(
+        &cfg,
+        format!("experiments = [\"projection\", \"landmarks\"]\n{base}"),
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let o = run_study(&cfg, &out, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let row = |view: &str| {
+        md.lines()
+            .find(|l| l.starts_with(&format!("| box | {view} |")))
+            .unwrap_or_else(|| panic!("no Setup row for box {view}"))
+            .to_string()
+    };
+    assert!(
+        row("AP").ends_with("| **cut by the edge** |"),
+        "{}",
+        row("AP")
+    );
+    assert!(row("LAT").ends_with("| whole |"), "{}", row("LAT"));
+}
+
 /// With landmark noise the trials of a cell differ; the 95 % CI of the mean is Student's, shrinks with
 /// more trials, and the report shows it (never the one-value form).
 #[test]

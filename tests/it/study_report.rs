@@ -289,6 +289,45 @@ fn the_report_states_its_provenance() {
     assert!(threads >= 1, "{line}");
 }
 
+/// *Setup* states the built-in geometry's numbers (its comments: magnification 1.35 AP, 1.8 LAT; SDD
+/// 1350 mm; 0.3 mm pixels, here binned 2× to 0.6 mm and fx 2250 px) and every target and view.
+#[test]
+fn the_setup_states_the_geometry_before_the_findings() {
+    let md = read(&quick_out().join("report.md"));
+    let (setup, findings) = (
+        md.find("## Setup").unwrap(),
+        md.find("## Findings").unwrap(),
+    );
+    assert!(setup < findings);
+    let view = |v: &str| {
+        let l = md
+            .lines()
+            .find(|l| l.starts_with(&format!("| {v} | (")))
+            .unwrap();
+        l.split('|')
+            .map(|c| c.trim().to_string())
+            .collect::<Vec<_>>()
+    };
+    let (ap, lat) = (view("AP"), view("LAT"));
+    assert_eq!(
+        (ap[4].as_str(), ap[5].as_str(), ap[6].as_str()),
+        ("1000", "1350", "1.350")
+    );
+    assert_eq!(
+        (lat[4].as_str(), lat[5].as_str(), lat[6].as_str()),
+        ("750", "1350", "1.800")
+    );
+    assert_eq!(ap[7], "0.6 × 0.6");
+    assert!(
+        ap[10].starts_with("2250.0, 2250.0, 255.5, 255.5"),
+        "{}",
+        ap[10]
+    );
+    for v in ["AP", "LAT"] {
+        assert!(md.contains(&format!("| L1 | {v} | (")), "no L1 {v} row");
+    }
+}
+
 /// The browser: Debian's `chromium` (scripts/install-deps.sh installs it). A missing browser fails.
 fn chromium() -> PathBuf {
     let found = ["chromium", "chromium-browser"].iter().find_map(|b| {

@@ -321,6 +321,13 @@ impl StudyConfig {
 
     /// The C-arm: the geometry file (or the built-in one) with the detector binned.
     pub fn carm(&self) -> Result<CArm> {
+        let (g, origin) = self.geometry_config()?;
+        g.build().map_err(|e| Error::format(&origin, e.to_string()))
+    }
+
+    /// The geometry file (or the built-in one) as written, with the detector binned, and where it came
+    /// from (for messages and the report's *Setup*).
+    pub fn geometry_config(&self) -> Result<(GeometryConfig, String)> {
         let (text, origin) = match &self.geometry.file {
             Some(path) => (
                 std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?,
@@ -361,7 +368,7 @@ impl StudyConfig {
                 .map(|c| c.map(|c| (c + 0.5) / bf - 0.5));
             d.skew_px = d.skew_px.map(|s| s / bf);
         }
-        g.build().map_err(|e| Error::format(&origin, e.to_string()))
+        Ok((g, origin))
     }
 
     /// Whether experiment `e` runs.

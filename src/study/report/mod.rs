@@ -10,6 +10,7 @@ mod intensity;
 pub mod latex;
 mod layout;
 mod registration;
+mod setup;
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -70,13 +71,14 @@ configuration is `study.toml`.\n",
         (!tables.calibration.is_empty(), calibration::HEADING),
         (!tables.intensity_summary.is_empty(), intensity::HEADING),
     ];
-    let mut headings = vec!["Findings".to_string()];
+    let mut headings = vec![setup::HEADING.to_string(), "Findings".to_string()];
     if !cfg.anatomy.dataset.is_empty() {
         headings.push(cohort::HEADING.to_string());
     }
     headings.extend(experiments.iter().filter(|e| e.0).map(|e| e.1.to_string()));
     headings.extend([MEASUREMENT, "Products", TIMINGS].map(String::from));
     layout::contents(&mut md, &headings);
+    setup::section(&mut md, out, cfg, &targets);
     findings::section(&mut md, tables, &paper, &first);
     cohort::section(&mut md, out, cfg, tables);
     let mut n = 0;
