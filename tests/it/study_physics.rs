@@ -190,6 +190,54 @@ fn lat_is_more_sensitive_than_ap() {
     }
 }
 
+/// The law behind LAT > AP: on the landmarks measured in every focal cell, the LAT/AP ratio of RMS
+/// shifts equals the ratio of RMS distances from the piercing point (255.5, 255.5 on the binned
+/// detector) within 1 %, and the report's table prints both.
+#[test]
+fn lat_over_ap_shift_ratio_is_the_ratio_of_distances_from_the_piercing_point() {
+    let rows: Vec<&LandmarkRow> = tables()
+        .landmarks
+        .iter()
+        .filter(|r| r.family == Family::Focal && r.target == "L1")
+        .collect();
+    let df = rows.iter().map(|r| r.df_px).fold(0.0, f64::max);
+    let names: std::collections::BTreeSet<&str> =
+        rows.iter().map(|r| r.landmark.as_str()).collect();
+    let fixed: Vec<&str> = names
+        .into_iter()
+        .filter(|n| {
+            rows.iter()
+                .filter(|r| r.landmark == *n)
+                .all(|r| r.shift_px.is_finite() && r.ref_u_px.is_finite())
+        })
+        .collect();
+    assert!(fixed.len() >= 5, "{fixed:?}");
+    let rms = |view: &str, f: &dyn Fn(&LandmarkRow) -> f64| {
+        let v: Vec<f64> = rows
+            .iter()
+            .filter(|r| r.view == view && r.df_px == df && fixed.contains(&r.landmark.as_str()))
+            .map(|r| f(r))
+            .collect();
+        (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+    };
+    let shift = |r: &LandmarkRow| r.shift_px;
+    let dist = |r: &LandmarkRow| (r.ref_u_px - 255.5).hypot(r.ref_v_px - 255.5);
+    let measured = rms("lat", &shift) / rms("ap", &shift);
+    let predicted = rms("lat", &dist) / rms("ap", &dist);
+    assert!(
+        (measured / predicted - 1.0).abs() < 0.01,
+        "{measured} vs {predicted}"
+    );
+    let md = std::fs::read_to_string(quick_out().join("report.md")).unwrap();
+    let row = md
+        .lines()
+        .find(|l| l.starts_with("| L1 | ") && l.contains(" | 500 | "))
+        .expect("L1 ratio row");
+    let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+    assert_eq!(cells[6], format!("{measured:.3}"), "{row}");
+    assert_eq!(cells[10], format!("{predicted:.3}"), "{row}");
+}
+
 /// Where a piercing shift halves the overlap, the similarities over the anatomy's region say so, while
 /// the whole detector's (mostly empty background on both sides) still looks similar.
 #[test]

@@ -11,6 +11,7 @@ pub mod latex;
 mod layout;
 mod registration;
 mod setup;
+mod shift_ratio;
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -79,7 +80,24 @@ configuration is `study.toml`.\n",
     headings.extend([MEASUREMENT, "Products", TIMINGS].map(String::from));
     layout::contents(&mut md, &headings);
     setup::section(&mut md, out, cfg, &targets);
-    findings::section(&mut md, tables, &paper, &first);
+    let piercing: std::collections::BTreeMap<String, (f64, f64)> = cfg
+        .carm()
+        .map(|c| {
+            c.views
+                .iter()
+                .map(|v| (v.name.clone(), (v.intrinsics.cx, v.intrinsics.cy)))
+                .collect()
+        })
+        .unwrap_or_default();
+    let ratios = shift_ratio::ratios(&tables.landmarks, &piercing);
+    findings::section(
+        &mut md,
+        tables,
+        &paper,
+        &first,
+        shift_ratio::finding(&ratios),
+    );
+    shift_ratio::table(&mut md, &ratios);
     cohort::section(&mut md, out, cfg, tables);
     let mut n = 0;
     if !tables.projection.is_empty() {

@@ -1,0 +1,258 @@
+//! Why LAT landmarks move more than AP ones, computed per target. With the extrinsics fixed a focal
+//! scale α moves every point by (α − 1)·|x − c| (c the piercing point), so on a fixed landmark set the
+//! RMS shift is (α − 1)·d with d² = mean |x − c|² = o² + s²: o the distance of the landmarks' centroid
+//! from the piercing point (where the anatomy sits), s their RMS spread about it (how large it is drawn:
+//! size × magnification). The LAT/AP ratio of RMS shifts is then d_LAT / d_AP, whatever α.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+use crate::study::config::SEGMENT_TARGET;
+use crate::study::figures::distinct;
+use crate::study::schema::{Family, LandmarkRow};
+
+/// Offset, spread and RMS distance (px) of a landmark set from the piercing point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spread {
+    pub offset: f64,
+    pub spread: f64,
+}
+
+impl Spread {
+    /// The RMS distance from the piercing point: √(o² + s²).
+    pub fn rms_distance(&self) -> f64 {
+        self.offset.hypot(self.spread)
+    }
+}
+
+/// One target's ratio on its fixed landmark set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TargetRatio {
+    pub target: String,
+    /// The landmarks measured (finite) in both views at every focal Δf.
+    pub landmarks: Vec<String>,
+    /// The others (off the detector or not measured in some cell).
+    pub left_out: Vec<String>,
+    /// The largest focal Δf (px), where the shifts are compared.
+    pub df_px: f64,
+    pub rms_shift_ap: f64,
+    pub rms_shift_lat: f64,
+    pub ap: Spread,
+    pub lat: Spread,
+}
+
+impl TargetRatio {
+    pub fn measured(&self) -> f64 {
+        self.rms_shift_lat / self.rms_shift_ap
+    }
+    pub fn predicted(&self) -> f64 {
+        self.lat.rms_distance() / self.ap.rms_distance()
+    }
+}
+
+fn spread(points: &[(f64, f64)], c: (f64, f64)) -> Spread {
+    let n = points.len() as f64;
+    let (mu, mv) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), p| (a + p.0 / n, b + p.1 / n));
+    let s2 = points
+        .iter()
+        .map(|p| (p.0 - mu).powi(2) + (p.1 - mv).powi(2))
+        .sum::<f64>()
+        / n;
+    Spread {
+        offset: (mu - c.0).hypot(mv - c.1),
+        spread: s2.sqrt(),
+    }
+}
+
+/// Per target with AP and LAT focal rows: the ratio on its fixed landmark set; `piercing` maps a view
+/// to its piercing point (cx, cy).
+pub fn ratios(rows: &[LandmarkRow], piercing: &BTreeMap<String, (f64, f64)>) -> Vec<TargetRatio> {
+    let focal: Vec<&LandmarkRow> = rows.iter().filter(|r| r.family == Family::Focal).collect();
+    let (Some(&c_ap), Some(&c_lat)) = (piercing.get("ap"), piercing.get("lat")) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for target in distinct(focal.iter().map(|r| r.target.as_str())) {
+        let mine: Vec<&&LandmarkRow> = focal.iter().filter(|r| r.target == target).collect();
+        let dfs = distinct(mine.iter().map(|r| r.df_px));
+        let Some(df) = dfs.iter().copied().reduce(f64::max) else {
+            continue;
+        };
+        let ok = |r: &LandmarkRow| {
+            [r.ref_u_px, r.ref_v_px, r.meas_u_px, r.meas_v_px, r.shift_px]
+                .iter()
+                .all(|x| x.is_finite())
+        };
+        let (mut keep, mut left_out) = (Vec::new(), Vec::new());
+        for name in distinct(mine.iter().map(|r| r.landmark.as_str())) {
+            let every = ["ap", "lat"].iter().all(|v| {
+                dfs.iter().all(|&d| {
+                    mine.iter()
+                        .any(|r| r.view == *v && r.df_px == d && r.landmark == name && ok(r))
+                })
+            });
+            if every {
+                keep.push(name.to_string());
+            } else {
+                left_out.push(name.to_string());
+            }
+        }
+        if keep.is_empty() {
+            continue;
+        }
+        let at = |view: &str| -> Vec<&LandmarkRow> {
+            mine.iter()
+                .filter(|r| r.view == view && r.df_px == df && keep.contains(&r.landmark))
+                .map(|r| **r)
+                .collect()
+        };
+        let (ap, lat) = (at("ap"), at("lat"));
+        let rms = |v: &[&LandmarkRow]| {
+            (v.iter().map(|r| r.shift_px.powi(2)).sum::<f64>() / v.len() as f64).sqrt()
+        };
+        let refs = |v: &[&LandmarkRow]| -> Vec<(f64, f64)> {
+            v.iter().map(|r| (r.ref_u_px, r.ref_v_px)).collect()
+        };
+        out.push(TargetRatio {
+            target: target.to_string(),
+            landmarks: keep,
+            left_out,
+            df_px: df,
+            rms_shift_ap: rms(&ap),
+            rms_shift_lat: rms(&lat),
+            ap: spread(&refs(&ap), c_ap),
+            lat: spread(&refs(&lat), c_lat),
+        });
+    }
+    out
+}
+
+/// The finding: per target the measured ratio, the distances it follows from, and the range over the
+/// single levels (a segment is reported on its own, never pooled with them).
+pub fn finding(r: &[TargetRatio]) -> Option<String> {
+    if r.is_empty() {
+        return None;
+    }
+    // The phantom's segment, and `<name>-segment` of CT targets and datasets.
+    let is_segment =
+        |t: &&TargetRatio| t.target == SEGMENT_TARGET || t.target.ends_with("-segment");
+    let levels: Vec<&TargetRatio> = r.iter().filter(|t| !is_segment(t)).collect();
+    let mut s = String::from(
+        "Landmark shift under a pure focal error, per target on its fixed landmark set (measured in both \
+         views at every focal Δf), RMS over the set at the largest Δf: ",
+    );
+    if levels.len() > 1 {
+        let (lo, hi) = levels
+            .iter()
+            .map(|t| t.measured())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                (a.min(x), b.max(x))
+            });
+        let _ = write!(
+            s,
+            "LAT/AP is {lo:.2}–{hi:.2} over the {} single levels",
+            levels.len()
+        );
+    } else if let Some(t) = levels.first() {
+        let _ = write!(s, "LAT/AP is {:.2} for {}", t.measured(), t.target);
+    }
+    for (i, t) in r.iter().filter(is_segment).enumerate() {
+        let _ = write!(
+            s,
+            "{}{:.2} for {} (a segment: {} of its {} landmarks measured in every cell)",
+            if levels.is_empty() && i == 0 {
+                "LAT/AP is "
+            } else {
+                "; "
+            },
+            t.measured(),
+            t.target,
+            t.landmarks.len(),
+            t.landmarks.len() + t.left_out.len()
+        );
+    }
+    let _ = write!(
+        s,
+        ". The ratio is the geometry's, not the anatomy's response: a focal scale moves a point by \
+         (α − 1)·|x − c|, so the ratio equals that of the landmarks' RMS distances from the piercing \
+         point, √(o² + s²), where o is how far off the piercing point the anatomy sits and s how large \
+         it is drawn (the table below gives both per view; the predicted ratio multiplies back to the \
+         measured one)."
+    );
+    if let Some(t) = levels.first().copied().or(r.first()) {
+        let share = |v: &Spread| 100.0 * v.offset.powi(2) / v.rms_distance().powi(2);
+        let _ = write!(
+            s,
+            " For {}: LAT d = {:.1} px, of whose d² the offset is {:.0} % and the spread {:.0} %; AP d = \
+             {:.1} px, the offset {:.0} %. So {:.3} = {:.1} / {:.1} against the measured {:.3}.",
+            t.target,
+            t.lat.rms_distance(),
+            share(&t.lat),
+            100.0 - share(&t.lat),
+            t.ap.rms_distance(),
+            share(&t.ap),
+            t.predicted(),
+            t.lat.rms_distance(),
+            t.ap.rms_distance(),
+            t.measured()
+        );
+    }
+    Some(s)
+}
+
+/// The decomposition table.
+pub fn table(md: &mut String, r: &[TargetRatio]) {
+    if r.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "| target | landmarks (left out) | Δf (px) | RMS shift AP (px) | RMS shift LAT (px) | LAT/AP \
+         measured | AP offset o, spread s (px) | LAT offset o, spread s (px) | √(o² + s²) AP, LAT (px) | \
+         LAT/AP predicted |\n|---|---|---|---|---|---|---|---|---|---|"
+    );
+    for t in r {
+        let left = if t.left_out.is_empty() {
+            String::new()
+        } else {
+            format!(" ({}: {})", t.left_out.len(), t.left_out.join(", "))
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {}{left} | {} | {:.3} | {:.3} | {:.3} | {:.1}, {:.1} | {:.1}, {:.1} | {:.1}, {:.1} | {:.3} |",
+            t.target,
+            t.landmarks.len(),
+            t.df_px,
+            t.rms_shift_ap,
+            t.rms_shift_lat,
+            t.measured(),
+            t.ap.offset,
+            t.ap.spread,
+            t.lat.offset,
+            t.lat.spread,
+            t.ap.rms_distance(),
+            t.lat.rms_distance(),
+            t.predicted()
+        );
+    }
+    let _ = writeln!(md);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn offset_and_spread_make_up_the_rms_distance() {
+        // Points (0, 0), (4, 0), (2, 2), (2, −2) about (2, 0); piercing point (5, 4): o = √(9 + 16) = 5,
+        // s² = (4 + 4 + 4 + 4)/4 = 4; mean |x − c|² = (41 + 17 + 13 + 45)/4 = 29 = 25 + 4.
+        let s = spread(
+            &[(0.0, 0.0), (4.0, 0.0), (2.0, 2.0), (2.0, -2.0)],
+            (5.0, 4.0),
+        );
+        assert!((s.offset - 5.0).abs() < 1e-12 && (s.spread - 2.0).abs() < 1e-12);
+        assert!((s.rms_distance() - 29f64.sqrt()).abs() < 1e-12);
+    }
+}
