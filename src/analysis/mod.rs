@@ -17,7 +17,7 @@ mod similarity;
 
 pub use compare::{
     Comparison, ImageMetrics, MI_BINS, MaskPair, SilhouetteMetrics, compare, image_metrics,
-    image_metrics_in, read_mask_png, silhouette_metrics, union_masks,
+    image_metrics_in, image_metrics_whole_and_in, read_mask_png, silhouette_metrics, union_masks,
 };
 pub use contours::{border_pixels, contour_points, contours, subpixel_boundary};
 pub use difference::abs_difference;
@@ -29,8 +29,8 @@ pub use markers::marker_centroid;
 pub use overlap::dice_iou;
 pub use region::{REGION_MARGIN_PX, Region};
 pub use similarity::{
-    gradient_correlation, gradient_correlation_in, mutual_information, mutual_information_in, ncc,
-    ncc_in, ssim, ssim_in,
+    gradient_correlation, gradient_correlation_in, gradient_correlation_whole_and_in,
+    mutual_information, mutual_information_in, ncc, ncc_in, ssim, ssim_in, ssim_whole_and_in,
 };
 pub(crate) use similarity::{sobel_at, three_rows};
 

@@ -129,6 +129,38 @@ pub fn ssim(reference: &ImageF32, other: &ImageF32) -> Result<f64> {
 /// [`ssim`] averaged over the windows whose centre pixel is in `region` (every window when `None`);
 /// `L` is still the whole reference's data range.
 pub fn ssim_in(reference: &ImageF32, other: &ImageF32, region: Option<&Region>) -> Result<f64> {
+    let [whole, inside] = ssim_sums(reference, other, region)?;
+    mean_of(if region.is_some() { inside } else { whole })
+}
+
+/// [`ssim`] over the whole image and over `region`, from one pass over the SSIM map.
+pub fn ssim_whole_and_in(
+    reference: &ImageF32,
+    other: &ImageF32,
+    region: &Region,
+) -> Result<(f64, f64)> {
+    let [whole, inside] = ssim_sums(reference, other, Some(region))?;
+    Ok((mean_of(whole)?, mean_of(inside)?))
+}
+
+/// The mean of a (sum, count) pair; an error for no windows.
+fn mean_of((sum, n): (f64, usize)) -> Result<f64> {
+    if n == 0 {
+        return Err(Error::invalid(
+            "region",
+            "holds no pixel at least 5 px inside the image (SSIM's window)",
+        ));
+    }
+    Ok(sum / n as f64)
+}
+
+/// (sum, count) of the SSIM map over every window and over the windows centred in `region` (every
+/// window when `None`).
+fn ssim_sums(
+    reference: &ImageF32,
+    other: &ImageF32,
+    region: Option<&Region>,
+) -> Result<[(f64, usize); 2]> {
     check_pair(reference, other)?;
     check_region(reference, region)?;
     let (w, h) = (reference.width as usize, reference.height as usize);
@@ -154,23 +186,13 @@ pub fn ssim_in(reference: &ImageF32, other: &ImageF32, region: Option<&Region>) 
     let windows: Vec<usize> = (0..ho)
         .map(|v| (0..wo).filter(|&u| centred(v, u)).count())
         .collect();
-    let n: usize = windows.iter().sum();
-    if n == 0 {
-        return Err(Error::invalid(
-            "region",
-            "holds no pixel at least 5 px inside the image (SSIM's window)",
-        ));
-    }
     // Per output row: a vertical pass over the 11 input rows into five moment rows (a, b, a², b², ab),
     // then a horizontal pass; tap-outer loops over contiguous rows vectorise and stay in cache.
-    let total: f64 = (0..ho)
+    let rows: Vec<(f64, f64)> = (0..ho)
         .into_par_iter()
         .map(|v| {
-            if windows[v] == 0 {
-                return 0.0;
-            }
             if blank[v..v + 11].iter().all(|&z| z) {
-                return windows[v] as f64;
+                return (wo as f64, windows[v] as f64);
             }
             let mut cols: [Vec<f64>; 5] = std::array::from_fn(|_| vec![0.0; w]);
             for (j, gj) in g.iter().enumerate() {
@@ -194,22 +216,27 @@ pub fn ssim_in(reference: &ImageF32, other: &ImageF32, region: Option<&Region>) 
                     }
                 }
             }
-            (0..wo)
-                .filter(|&u| centred(v, u))
-                .map(|u| {
-                    let (ma, mb) = (m[0][u], m[1][u]);
-                    let (va, vb, cab) = (m[2][u] - ma * ma, m[3][u] - mb * mb, m[4][u] - ma * mb);
-                    ((2.0 * ma * mb + c1) * (2.0 * cab + c2))
-                        / ((ma * ma + mb * mb + c1) * (va + vb + c2))
-                })
-                .sum::<f64>()
+            let (mut all, mut inside) = (0.0, 0.0);
+            #[allow(clippy::needless_range_loop)] // u indexes five moment rows and the region
+            for u in 0..wo {
+                let (ma, mb) = (m[0][u], m[1][u]);
+                let (va, vb, cab) = (m[2][u] - ma * ma, m[3][u] - mb * mb, m[4][u] - ma * mb);
+                let s = ((2.0 * ma * mb + c1) * (2.0 * cab + c2))
+                    / ((ma * ma + mb * mb + c1) * (va + vb + c2));
+                all += s;
+                if centred(v, u) {
+                    inside += s;
+                }
+            }
+            (all, inside)
         })
-        .collect::<Vec<f64>>()
-        // Rows summed in row order: a parallel reduction's order depends on thread scheduling, and the
-        // same images must give the same SSIM to the last bit on any machine.
+        .collect();
+    // Rows summed in row order: a parallel reduction's order depends on thread scheduling, and the
+    // same images must give the same SSIM to the last bit on any machine.
+    let (all, inside) = rows
         .iter()
-        .sum();
-    Ok(total / n as f64)
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+    Ok([(all, wo * ho), (inside, windows.iter().sum())])
 }
 
 /// Bin index of `v` among `bins` equal bins spanning `[lo, hi]` (the maximum goes in the last bin).
@@ -330,6 +357,33 @@ pub fn gradient_correlation(a: &ImageF32, b: &ImageF32) -> Result<f64> {
 
 /// [`gradient_correlation`] over the Sobel responses centred on pixels of `region` (all when `None`).
 pub fn gradient_correlation_in(a: &ImageF32, b: &ImageF32, region: Option<&Region>) -> Result<f64> {
+    let [whole, inside] = gradient_moments(a, b, region)?;
+    moments_correlation(if region.is_some() { &inside } else { &whole })
+}
+
+/// [`gradient_correlation`] over the whole image and over `region`, from one pass of Sobel responses.
+pub fn gradient_correlation_whole_and_in(
+    a: &ImageF32,
+    b: &ImageF32,
+    region: &Region,
+) -> Result<(f64, f64)> {
+    let [whole, inside] = gradient_moments(a, b, Some(region))?;
+    Ok((moments_correlation(&whole)?, moments_correlation(&inside)?))
+}
+
+/// The x and y gradient moments of a pass.
+type GradientMoments = (Moments, Moments);
+
+fn moments_correlation((mx, my): &GradientMoments) -> Result<f64> {
+    Ok(0.5 * (correlation(mx)? + correlation(my)?))
+}
+
+/// The gradient moments over every interior pixel and over those in `region` (all when `None`).
+fn gradient_moments(
+    a: &ImageF32,
+    b: &ImageF32,
+    region: Option<&Region>,
+) -> Result<[GradientMoments; 2]> {
     check_pair(a, b)?;
     check_region(a, region)?;
     if a.width < 3 || a.height < 3 {
@@ -344,38 +398,44 @@ pub fn gradient_correlation_in(a: &ImageF32, b: &ImageF32, region: Option<&Regio
     // other moments changes nothing), so they are counted without being filtered.
     let w = a.width as usize;
     let blank = blank_rows(a, b);
-    let rows: Vec<([f64; 6], [f64; 6])> = (0..a.height as usize - 2)
+    let rows: Vec<[GradientMoments; 2]> = (0..a.height as usize - 2)
         .into_par_iter()
         .map(|v| {
-            let (mut mx, mut my) = ([0.0; 6], [0.0; 6]);
+            let mut all: GradientMoments = ([0.0; 6], [0.0; 6]);
+            let mut inside: GradientMoments = ([0.0; 6], [0.0; 6]);
             // The responses of row v are centred on image row v + 1, columns u + 1.
             let centred = |u: usize| counts(region, (v + 1) * w + u + 1);
             if blank[v..v + 3].iter().all(|&z| z) {
                 let n = (0..w - 2).filter(|&u| centred(u)).count() as f64;
-                mx[0] = n;
-                my[0] = n;
-                return (mx, my);
+                (all.0[0], all.1[0]) = ((w - 2) as f64, (w - 2) as f64);
+                (inside.0[0], inside.1[0]) = (n, n);
+                return [all, inside];
             }
             let ((a0, a1, a2), (b0, b1, b2)) = (three_rows(a, v, w), three_rows(b, v, w));
-            for u in (0..w - 2).filter(|&u| centred(u)) {
+            for u in 0..w - 2 {
                 let (ax, ay) = sobel_at(a0, a1, a2, u);
                 let (bx, by) = sobel_at(b0, b1, b2, u);
-                add_moments(&mut mx, ax, bx);
-                add_moments(&mut my, ay, by);
+                add_moments(&mut all.0, ax, bx);
+                add_moments(&mut all.1, ay, by);
+                if centred(u) {
+                    add_moments(&mut inside.0, ax, bx);
+                    add_moments(&mut inside.1, ay, by);
+                }
             }
-            (mx, my)
+            [all, inside]
         })
         .collect();
     // Row moments summed in row order, so the result does not depend on thread scheduling.
-    let (mut mx, mut my) = ([0.0; 6], [0.0; 6]);
-    for (rx, ry) in &rows {
-        for k in 0..6 {
-            mx[k] += rx[k];
-            my[k] += ry[k];
+    let mut total: [GradientMoments; 2] = [([0.0; 6], [0.0; 6]); 2];
+    for row in &rows {
+        for (t, r) in total.iter_mut().zip(row) {
+            for k in 0..6 {
+                t.0[k] += r.0[k];
+                t.1[k] += r.1[k];
+            }
         }
     }
-    let (cx, cy) = (correlation(&mx)?, correlation(&my)?);
-    Ok(0.5 * (cx + cy))
+    Ok(total)
 }
 
 #[cfg(test)]

@@ -495,6 +495,21 @@ fn region_similarities_are_the_definitions_restricted_to_the_region() {
     let fast = mutual_information_in(&a, &b, 16, r).unwrap();
     let other = mutual_information(&pa, &pb, 16).unwrap();
     assert!((fast - other).abs() < 1e-12, "MI {fast} vs {other}");
+    // One pass gives both, bit for bit.
+    assert_eq!(
+        ssim_whole_and_in(&a, &b, &region).unwrap(),
+        (ssim(&a, &b).unwrap(), ssim_in(&a, &b, r).unwrap())
+    );
+    assert_eq!(
+        gradient_correlation_whole_and_in(&a, &b, &region).unwrap(),
+        (
+            gradient_correlation(&a, &b).unwrap(),
+            gradient_correlation_in(&a, &b, r).unwrap()
+        )
+    );
+    let (whole, inside) = image_metrics_whole_and_in(&a, &b, &region).unwrap();
+    assert_eq!(whole, image_metrics(&a, &b).unwrap());
+    assert_eq!(inside, image_metrics_in(&a, &b, r).unwrap());
     // The whole image as a region is the whole-image measure; an empty or mis-sized region is an error.
     let all = Region {
         width: 48,

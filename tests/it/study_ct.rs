@@ -298,13 +298,18 @@ fn ct_registration_is_exact_with_the_true_k_and_degrades_with_focal_offset() {
 fn ct_level_agrees_with_the_phantom_level_it_was_voxelized_from() {
     // Two renderers on one anatomy: the label surface vs the phantom's mesh for silhouettes, the CT
     // volume DRR (Siddon) vs the thickness DRR for image similarity. They differ by the 1 mm voxels only.
+    // Over the whole detector SSIM agrees within 0.03; over the anatomy's region (`ssim`) the voxels'
+    // texture shows: measured 0.03–0.07 lower for the CT, so its bound is 0.1 (NCC agrees within 0.01
+    // in both).
     let t = &tables().projection;
     type Col = fn(&ProjectionRow) -> f64;
-    let cols: [(&str, f64, Col); 4] = [
+    let cols: [(&str, f64, Col); 6] = [
         ("dice", 0.02, |r| r.dice),
         ("iou", 0.03, |r| r.iou),
         ("ncc", 0.03, |r| r.ncc),
-        ("ssim", 0.03, |r| r.ssim),
+        ("ncc_detector", 0.03, |r| r.ncc_detector),
+        ("ssim_detector", 0.03, |r| r.ssim_detector),
+        ("ssim", 0.1, |r| r.ssim),
     ];
     for view in ["ap", "lat"] {
         for df in [100.0, 500.0] {

@@ -8,7 +8,7 @@
 use super::{Context, Reference, Target};
 use crate::Result;
 use crate::analysis::{
-    MaskPair, REGION_MARGIN_PX, Region, abs_difference, image_metrics, image_metrics_in,
+    MaskPair, REGION_MARGIN_PX, Region, abs_difference, image_metrics_whole_and_in,
     marker_centroid, silhouette_metrics,
 };
 use crate::anatomy::Structure;
@@ -188,13 +188,8 @@ fn whole_object(
         k.height,
         REGION_MARGIN_PX,
     )?;
-    let (im, det) = ctx.isolated_metrics(|| {
-        rayon::join(
-            || image_metrics_in(images.0, images.1, Some(&region)),
-            || image_metrics(images.0, images.1),
-        )
-    });
-    let (im, det) = (im?, det?);
+    let (det, im) =
+        ctx.isolated_metrics(|| image_metrics_whole_and_in(images.0, images.1, &region))?;
     let q = &np.perturbation;
     Ok(ProjectionRow {
         target: t.name.clone(),

@@ -4,7 +4,7 @@
 use std::fmt::Write as _;
 
 use super::{ap_joint_dice_min, paper_ranges, projection_row, summary_range};
-use crate::study::config::RegistrationMethod;
+use crate::study::config::{RegistrationMethod, SEGMENT_TARGET};
 use crate::study::figures::distinct;
 use crate::study::paper::PaperResults;
 use crate::study::schema::{
@@ -31,50 +31,94 @@ fn mean(v: impl IntoIterator<Item = f64>) -> Option<f64> {
     (n > 0).then(|| s / n as f64)
 }
 
-/// Δf values of the focal family in `rows`, ascending.
-fn focal_dfs(dfs: impl IntoIterator<Item = f64>) -> Vec<f64> {
-    let mut v = distinct(dfs);
-    v.sort_by(f64::total_cmp);
-    v
-}
+/// A perturbation family as the Dice finding names it: (family, wording, its step along the grid).
+type FamilyStep = (Family, &'static str, fn(&ProjectionRow) -> f64);
 
-/// "AP a, LAT b (LAT/AP r)" at each Δf, for a per-(view, Δf) mean `of`.
-fn lat_over_ap(dfs: &[f64], of: impl Fn(&str, f64) -> Option<f64>, unit: &str) -> Option<String> {
-    let parts: Vec<String> = dfs
-        .iter()
-        .filter_map(|&df| {
-            let (ap, lat) = (of("ap", df)?, of("lat", df)?);
-            let ratio = if ap > 0.0 {
-                format!("{:.2}", lat / ap)
-            } else {
-                "∞".into()
+/// Silhouette loss 1 − Dice per perturbation family at its largest step, both views: the single levels
+/// as a range, which view loses more in how many of them (the direction where it flips), and each
+/// segment apart.
+fn dice_by_family(rows: &[ProjectionRow]) -> Option<String> {
+    let families: [FamilyStep; 3] = [
+        (Family::Focal, "a focal error alone", |r| r.df_px),
+        (Family::Piercing, "a piercing shift alone", |r| r.dcx_px),
+        (Family::Joint, "the paper's joint schedule", |r| r.df_px),
+    ];
+    let mut parts = Vec::new();
+    for (family, what, step) in families {
+        let fam: Vec<&ProjectionRow> = rows.iter().filter(|r| r.family == family).collect();
+        let Some(top) = fam.iter().map(|r| step(r)).reduce(f64::max) else {
+            continue;
+        };
+        let at: Vec<&ProjectionRow> = fam.into_iter().filter(|r| step(r) == top).collect();
+        let loss = |target: &str, view: &str| {
+            at.iter()
+                .find(|r| r.target == target && r.view == view)
+                .map(|r| 1.0 - r.dice)
+        };
+        let targets = distinct(at.iter().map(|r| r.target.as_str()));
+        let pairs: Vec<(&str, f64, f64)> = targets
+            .iter()
+            .filter_map(|t| Some((*t, loss(t, "ap")?, loss(t, "lat")?)))
+            .collect();
+        let levels: Vec<&(&str, f64, f64)> = pairs
+            .iter()
+            .filter(|p| !super::shift_ratio::is_segment(p.0))
+            .collect();
+        let where_ = match family {
+            Family::Piercing => format!("p = {top} px"),
+            Family::Joint => format!(
+                "Δf = {top} px with piercing ({p}, {p}) px",
+                p = at.first().map_or(0.0, |r| r.dcx_px)
+            ),
+            _ => format!("Δf = {top} px"),
+        };
+        let mut text = format!("Under {what} ({where_})");
+        if !levels.is_empty() {
+            let range = |f: fn(&(&str, f64, f64)) -> f64| {
+                levels
+                    .iter()
+                    .map(|p| f(p))
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                        (a.min(x), b.max(x))
+                    })
             };
-            Some(format!(
-                "Δf {df} px: AP {ap:.3}{unit}, LAT {lat:.3}{unit} (LAT/AP {ratio})"
-            ))
-        })
-        .collect();
-    (!parts.is_empty()).then(|| parts.join("; "))
-}
-
-fn dice_ratio(rows: &[ProjectionRow]) -> Option<String> {
-    let focal: Vec<&ProjectionRow> = rows.iter().filter(|r| r.family == Family::Focal).collect();
-    let dfs = focal_dfs(focal.iter().map(|r| r.df_px));
-    let of = |view: &str, df: f64| {
-        mean(
-            focal
-                .iter()
-                .filter(|r| r.view == view && r.df_px == df)
-                .map(|r| 1.0 - r.dice),
+            let (ap, lat) = (range(|p| p.1), range(|p| p.2));
+            let lat_more = levels.iter().filter(|p| p.2 > p.1).count();
+            let direction = match lat_more {
+                0 => "AP loses more in every level".to_string(),
+                n if n == levels.len() => "LAT loses more in every level".to_string(),
+                n => format!(
+                    "LAT loses more in {n} of {} levels, AP in the others",
+                    levels.len()
+                ),
+            };
+            text.push_str(&format!(
+                " the {} single levels lose AP {:.3}–{:.3}, LAT {:.3}–{:.3}: {direction}",
+                levels.len(),
+                ap.0,
+                ap.1,
+                lat.0,
+                lat.1
+            ));
+        }
+        for (t, ap, lat) in pairs.iter().filter(|p| super::shift_ratio::is_segment(p.0)) {
+            let name = if *t == SEGMENT_TARGET {
+                String::new()
+            } else {
+                format!(" {t}")
+            };
+            text.push_str(&format!("; the segment{name} AP {ap:.3}, LAT {lat:.3}"));
+        }
+        parts.push(text);
+    }
+    (!parts.is_empty()).then(|| {
+        format!(
+            "Silhouette loss 1 − Dice, per family at its largest step. {} ({}, {}).",
+            parts.join(". "),
+            table::<ProjectionRow>(),
+            figure("dice_vs_perturbation.png")
         )
-    };
-    let text = lat_over_ap(&dfs, of, "")?;
-    Some(format!(
-        "Silhouette loss 1 − Dice under a pure focal error, mean over targets — {text} ({}; the joint \
-schedule in {}).",
-        table::<ProjectionRow>(),
-        figure("dice_vs_perturbation.png")
-    ))
+    })
 }
 
 fn structures_finding(rows: &[StructureRow], first: &str) -> Option<String> {
@@ -271,7 +315,7 @@ pub fn section(
 ) {
     let items: Vec<String> = [
         landmark_ratio,
-        dice_ratio(&t.projection),
+        dice_by_family(&t.projection),
         structures_finding(&t.structures, first),
         registration(t, first),
     ]

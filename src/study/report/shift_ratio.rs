@@ -25,6 +25,12 @@ impl Spread {
     }
 }
 
+/// Whether `target` is a segment (several levels together): the phantom's, or `<name>-segment` of CT
+/// targets and datasets. Segments are reported apart, never pooled with single levels.
+pub fn is_segment(target: &str) -> bool {
+    target == SEGMENT_TARGET || target.ends_with("-segment")
+}
+
 /// One target's ratio on its fixed landmark set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TargetRatio {
@@ -135,9 +141,7 @@ pub fn finding(r: &[TargetRatio]) -> Option<String> {
     if r.is_empty() {
         return None;
     }
-    // The phantom's segment, and `<name>-segment` of CT targets and datasets.
-    let is_segment =
-        |t: &&TargetRatio| t.target == SEGMENT_TARGET || t.target.ends_with("-segment");
+    let is_segment = |t: &&TargetRatio| is_segment(&t.target);
     let levels: Vec<&TargetRatio> = r.iter().filter(|t| !is_segment(t)).collect();
     let mut s = String::from(
         "Landmark shift under a pure focal error, per target on its fixed landmark set (measured in both \
