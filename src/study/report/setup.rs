@@ -37,6 +37,12 @@ fn spacing(g: &GeometryConfig) -> Option<[f64; 2]> {
         .then_some(g.detector.pixel_spacing_mm)
 }
 
+/// `x` to one decimal, without a sign on a value that rounds to zero.
+fn one_decimal(x: f64) -> String {
+    let s = format!("{x:.1}");
+    if s == "-0.0" { "0.0".into() } else { s }
+}
+
 fn mm(v: DVec3) -> String {
     // + 0.0 turns −0 into 0.
     let r = |x: f64| x.round() + 0.0;
@@ -85,7 +91,7 @@ pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, targets: &[String
     let sp = spacing(&g);
     let _ = writeln!(
         md,
-        "Geometry: {origin}, detector binning {} (world frame: mm, RAS+; the *aim* is the point of the \
+        "Geometry: {origin}, detector binning {} (world frame: mm, RAS+; the aim is the point of the \
          central ray nearest the world origin). The magnification at the aim is SDD / (source–aim \
          distance): an object there is drawn that many times its size on the detector.\n",
         cfg.geometry.binning
@@ -184,10 +190,10 @@ pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, targets: &[String
             };
             let _ = writeln!(
                 md,
-                "| {t} | {} | ({:.1}, {:.1}) | {:.1} | {} | {} × {} | {} | {} |",
+                "| {t} | {} | ({}, {}) | {:.1} | {} | {} × {} | {} | {} |",
                 view.name.to_uppercase(),
-                du,
-                dv,
+                one_decimal(du),
+                one_decimal(dv),
                 d,
                 sp.map_or("n/a".into(), |s| num(du.hypot(dv * s[1] / s[0]) * s[0], 1)),
                 f.size_px.0,
