@@ -93,21 +93,27 @@ pub fn image_metrics_in(
             )
         },
     );
-    let diffs = reference
-        .data
-        .iter()
-        .zip(&perturbed.data)
-        .map(|(a, b)| f64::from((a - b).abs()));
-    let (sum, max) = diffs.fold((0.0, 0.0f64), |(s, m), d| (s + d, m.max(d)));
+    let (mean_abs_diff, max_abs_diff) = abs_diffs(reference, perturbed);
     Ok(ImageMetrics {
         ncc: n?,
         ssim: s?,
         mutual_information_nats: m?,
         mutual_information_bins: MI_BINS,
         gradient_correlation: g?,
-        mean_abs_diff: sum / reference.data.len().max(1) as f64,
-        max_abs_diff: max,
+        mean_abs_diff,
+        max_abs_diff,
     })
+}
+
+/// Mean and maximum |a − b| over every pixel.
+fn abs_diffs(reference: &ImageF32, perturbed: &ImageF32) -> (f64, f64) {
+    let (sum, max) = reference
+        .data
+        .iter()
+        .zip(&perturbed.data)
+        .map(|(a, b)| f64::from((a - b).abs()))
+        .fold((0.0, 0.0f64), |(s, m), d| (s + d, m.max(d)));
+    (sum / reference.data.len().max(1) as f64, max)
 }
 
 /// [`image_metrics`] over the whole image and over `region` (NCC, SSIM, MI, gradient correlation; the
@@ -135,20 +141,15 @@ pub fn image_metrics_whole_and_in(
         },
     );
     let ((s_all, s_in), (g_all, g_in), (n_all, m_all), (n_in, m_in)) = (s?, g?, n?, m?);
-    let (sum, max) = reference
-        .data
-        .iter()
-        .zip(&perturbed.data)
-        .map(|(a, b)| f64::from((a - b).abs()))
-        .fold((0.0, 0.0f64), |(s, m), d| (s + d, m.max(d)));
+    let (mean_abs_diff, max_abs_diff) = abs_diffs(reference, perturbed);
     let metrics = |ncc, ssim, mi, gc| ImageMetrics {
         ncc,
         ssim,
         mutual_information_nats: mi,
         mutual_information_bins: MI_BINS,
         gradient_correlation: gc,
-        mean_abs_diff: sum / reference.data.len().max(1) as f64,
-        max_abs_diff: max,
+        mean_abs_diff,
+        max_abs_diff,
     };
     Ok((
         metrics(n_all, s_all, m_all, g_all),

@@ -24,6 +24,18 @@ fn check_region(a: &ImageF32, region: Option<&Region>) -> Result<()> {
     }
 }
 
+/// The values of `img` at the pixels of `region` (every pixel when `None`), in row order.
+fn pixels<'a>(
+    img: &'a ImageF32,
+    region: Option<&'a Region>,
+) -> impl Iterator<Item = f32> + Clone + 'a {
+    img.data
+        .iter()
+        .enumerate()
+        .filter(move |(i, _)| counts(region, *i))
+        .map(|(_, &v)| v)
+}
+
 /// Whether pixel `i` counts: every pixel without a region.
 #[inline]
 fn counts(region: Option<&Region>, i: usize) -> bool {
@@ -90,19 +102,10 @@ pub fn ncc(a: &ImageF32, b: &ImageF32) -> Result<f64> {
 pub fn ncc_in(a: &ImageF32, b: &ImageF32, region: Option<&Region>) -> Result<f64> {
     check_pair(a, b)?;
     check_region(a, region)?;
-    let pa = a
-        .data
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| counts(region, *i))
-        .map(|(_, &v)| f64::from(v));
-    let pb = b
-        .data
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| counts(region, *i))
-        .map(|(_, &v)| f64::from(v));
-    pearson(pa, pb)
+    pearson(
+        pixels(a, region).map(f64::from),
+        pixels(b, region).map(f64::from),
+    )
 }
 
 /// The normalised 1D Gaussian of the SSIM window (11 taps, σ = 1.5).
@@ -183,9 +186,12 @@ fn ssim_sums(
     let blank = blank_rows(reference, other);
     // The windows of output row v are centred on image row v + 5, columns u + 5.
     let centred = |v: usize, u: usize| counts(region, (v + 5) * w + u + 5);
-    let windows: Vec<usize> = (0..ho)
-        .map(|v| (0..wo).filter(|&u| centred(v, u)).count())
-        .collect();
+    let windows: Vec<usize> = match region {
+        None => vec![wo; ho],
+        Some(_) => (0..ho)
+            .map(|v| (0..wo).filter(|&u| centred(v, u)).count())
+            .collect(),
+    };
     // Per output row: a vertical pass over the 11 input rows into five moment rows (a, b, a², b², ab),
     // then a horizontal pass; tap-outer loops over contiguous rows vectorise and stay in cache.
     let rows: Vec<(f64, f64)> = (0..ho)
@@ -272,22 +278,16 @@ pub fn mutual_information_in(
         ));
     }
     let range = |img: &ImageF32| {
-        img.data
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| counts(region, *i))
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), (_, &v)| {
-                (l.min(v), h.max(v))
-            })
+        pixels(img, region).fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), v| {
+            (l.min(v), h.max(v))
+        })
     };
     let ((la, ha), (lb, hb)) = (range(a), range(b));
     let mut joint = vec![0u64; bins * bins];
     let mut n = 0u64;
-    for (i, (&x, &y)) in a.data.iter().zip(&b.data).enumerate() {
-        if counts(region, i) {
-            joint[bin_of(x, la, ha, bins) * bins + bin_of(y, lb, hb, bins)] += 1;
-            n += 1;
-        }
+    for (x, y) in pixels(a, region).zip(pixels(b, region)) {
+        joint[bin_of(x, la, ha, bins) * bins + bin_of(y, lb, hb, bins)] += 1;
+        n += 1;
     }
     let n = n as f64;
     let mut pa = vec![0.0; bins];

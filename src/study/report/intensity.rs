@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 
 use super::layout;
-use super::layout::num;
+use super::layout::{mean_text, num};
 use crate::registration::intensity::{CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
 use crate::study::config::{FixedScope, StudyConfig};
 use crate::study::figures::{FigureEntry, Section, distinct};
@@ -82,21 +82,16 @@ fn list(v: &[f64]) -> String {
 /// The final mTRE of a cell's successful starts: mean and 95 % CI where they vary, one value where there
 /// is one success or they all agree (within 1 µm), "no success" where none succeeded.
 fn successes_mtre(r: &IntensitySummaryRow) -> String {
-    let n = r.successes;
-    if n == 0 || !r.final_mtre_mean_mm.is_finite() {
-        "no success".into()
-    } else if n == 1 {
-        format!("{} (n = 1)", num(r.final_mtre_mean_mm, 3))
-    } else if r.final_mtre_sd_mm <= 1e-3 {
-        format!("{} (all {n} agree)", num(r.final_mtre_mean_mm, 3))
+    let (n, mean, sd) = (r.successes, r.final_mtre_mean_mm, r.final_mtre_sd_mm);
+    if n == 0 || !mean.is_finite() {
+        return "no success".into();
+    }
+    let agree = n > 1 && sd <= 1e-3;
+    let text = mean_text(mean, ci95_half_width(sd, n), n, agree);
+    if n > 1 && !agree {
+        format!("{text} (n = {n})")
     } else {
-        let h = ci95_half_width(r.final_mtre_sd_mm, n);
-        format!(
-            "{} [{}, {}] (n = {n})",
-            num(r.final_mtre_mean_mm, 3),
-            num((r.final_mtre_mean_mm - h).max(0.0), 3),
-            num(r.final_mtre_mean_mm + h, 3)
-        )
+        text
     }
 }
 

@@ -18,6 +18,24 @@ pub fn num(v: f64, digits: usize) -> String {
     }
 }
 
+/// A mean of `n` non-negative values (errors, distances) as the report prints it, three decimals:
+/// `value (all n agree)` where the values agree, `value (n = 1)` for one value, else `mean [lo, hi]`
+/// with its 95 % confidence half-width `ci95` (a lower bound below 0 is shown as 0).
+pub fn mean_text(mean: f64, ci95: f64, n: usize, agree: bool) -> String {
+    if agree {
+        return format!("{} (all {n} agree)", num(mean, 3));
+    }
+    if n < 2 || !ci95.is_finite() {
+        return format!("{} (n = {n})", num(mean, 3));
+    }
+    format!(
+        "{} [{}, {}]",
+        num(mean, 3),
+        num((mean - ci95).max(0.0), 3),
+        num(mean + ci95, 3)
+    )
+}
+
 /// The anchor of a heading: lower case, letters and digits kept, runs of anything else one `-`
 /// (GitHub's rule for ASCII headings; `report.html` gives each `h2` this id).
 pub fn slug(heading: &str) -> String {

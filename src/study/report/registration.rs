@@ -4,32 +4,15 @@
 use crate::study::schema::RegistrationSummaryRow;
 
 use super::latex::PaperTable;
+use super::layout::mean_text;
 
-/// Three decimals (deg, mm, px), as the report's other tables.
-fn num(v: f64) -> String {
-    super::layout::num(v, 3)
-}
-
-/// One error quantity of a cell as text: `mean [lo, hi]` (95 % CI of the mean) where the trials vary,
-/// `value (all n agree)` for a deterministic cell, `value (n = 1)` for a single trial, `failed` when no
-/// trial gave a finite error.
+/// One error quantity of a cell as text ([`mean_text`]: the deterministic flag says whether the
+/// trials agree), `failed` when no trial gave a finite error.
 pub fn cell_text(r: &RegistrationSummaryRow, mean: f64, ci95: f64) -> String {
     if r.n == 0 || !mean.is_finite() {
         return "failed".into();
     }
-    if r.deterministic {
-        return format!("{} (all {} agree)", num(mean), r.n);
-    }
-    if r.n < 2 || !ci95.is_finite() {
-        return format!("{} (n = {})", num(mean), r.n);
-    }
-    // The errors are magnitudes (≥ 0): a lower bound below 0 is shown as 0.
-    format!(
-        "{} [{}, {}]",
-        num(mean),
-        num((mean - ci95).max(0.0)),
-        num(mean + ci95)
-    )
+    mean_text(mean, ci95, r.n, r.deterministic)
 }
 
 /// The cells of `target` at piercing 0, Δf 0 (noise only) and the largest Δf, every method.
