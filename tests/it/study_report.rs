@@ -231,6 +231,14 @@ fn the_quick_report_is_small_and_self_contained() {
         assert!(md.contains(&format!("](figures/{f})")), "{f}");
         assert!(quick_out().join("figures").join(f).is_file(), "{f}");
     }
+    // The products list names every table the first run wrote, the LaTeX ones included.
+    for e in std::fs::read_dir(quick_out().join("tables")).unwrap() {
+        let name = e.unwrap().file_name().into_string().unwrap();
+        assert!(
+            md.contains(&format!("](tables/{name})")),
+            "{name} not listed"
+        );
+    }
 }
 
 /// The provenance line names this build's version and commit (as git says), the BLAKE3 of the

@@ -124,9 +124,10 @@ configuration is `study.toml`.\n",
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
     renderers_section(&mut md, cfg);
+    // The .tex tables first: the products list names what is on disk.
+    write_latex_tables(out, tables, &paper, &first)?;
     layout::products(&mut md, out)?;
     timings_section(&mut md, rows, run);
-    write_latex_tables(out, tables, &paper, &first)?;
     write_atomic_bytes(&out.join("report.md"), md.as_bytes())
 }
 
