@@ -33,7 +33,7 @@ pub struct Args {
     #[arg(long)]
     noise_px: f64,
     /// Number of Monte-Carlo calibrations.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 100, value_parser = super::values::whole::<usize>)]
     trials: usize,
     /// C-arm geometry TOML (default: the built-in AP + LAT geometry; `spinedrr geometry` prints it).
     #[arg(long)]
@@ -42,13 +42,13 @@ pub struct Args {
     #[arg(long, default_value_t = 30.0)]
     tilt_deg: f64,
     /// Plate poses per view.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = super::values::whole::<usize>)]
     poses_per_view: usize,
     /// Measure BBs from rendered spheres of this radius (mm) instead of their exact projections.
     #[arg(long)]
     bb_radius_mm: Option<f64>,
     /// Master seed (trial i draws from a seed derived from it).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = super::values::whole::<u64>)]
     seed: u64,
     /// Output folder (created; calibrations.csv and phantom.json are replaced atomically).
     #[arg(long)]

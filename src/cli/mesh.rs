@@ -25,10 +25,10 @@ pub struct Args {
     labels: String,
     /// Taubin λ|μ smoothing iterations (0 = none: the exact 0.5-isosurface of the voxel mask; at most
     /// 500).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = super::values::whole::<usize>)]
     smooth: usize,
     /// Decimate to this many triangles (quadric edge collapse; the surface stays closed).
-    #[arg(long)]
+    #[arg(long, value_parser = super::values::whole::<usize>)]
     target_triangles: Option<usize>,
     /// `auto`: also write the landmarks derived from the surface, beside the mesh as
     /// `<stem>_landmarks.json` (or `<stem>_landmarks.mrk.json` for Slicer), or to --landmarks-out.

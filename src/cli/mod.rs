@@ -2,7 +2,7 @@
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 mod calibrate;
 mod compare;
@@ -15,6 +15,7 @@ mod render_checks;
 mod render_ct;
 mod render_timing;
 mod study;
+mod values;
 
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of
 /// vertebrae under ground-truth and perturbed C-arm intrinsics and measures what changes.
@@ -52,9 +53,27 @@ enum Command {
     Calibrate(calibrate::Args),
 }
 
+/// The command line's grammar, with every flag that takes a value accepting a negative number as that
+/// value: `--repeat -1` then reaches the flag's parser, which says what the value must be, instead of
+/// being refused as an unknown flag `-1`; a flag whose value may be negative (an offset) takes it.
+fn command() -> clap::Command {
+    fn negatives(cmd: clap::Command) -> clap::Command {
+        cmd.mut_args(|a| {
+            if a.get_action().takes_values() && !a.is_positional() {
+                a.allow_negative_numbers(true)
+            } else {
+                a
+            }
+        })
+        .mut_subcommands(negatives)
+    }
+    negatives(Cli::command())
+}
+
 /// Parses the command line, runs the subcommand, prints errors with their context chain.
 pub fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let matches = command().get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     let result = match cli.command {
         Command::Geometry(a) => geometry::run(a),
         Command::Phantom(a) => phantom::run(a),

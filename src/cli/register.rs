@@ -34,7 +34,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0.0)]
     noise_px: f64,
     /// Seed of the noise and of the initial-pose perturbation.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = super::values::whole::<u64>)]
     seed: u64,
     /// Start from the truth rotated by this angle (deg) about a random axis (needs "truth").
     #[arg(long)]
@@ -43,7 +43,7 @@ pub struct Args {
     #[arg(long)]
     init_trans_mm: Option<f64>,
     /// Iteration cap of the direct solver.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 100, value_parser = super::values::whole::<usize>)]
     max_iterations: usize,
     /// Output JSON: {"R", "t", "residual_px", "iterations", "converged"} (+ errors when truth is known).
     #[arg(long)]

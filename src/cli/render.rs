@@ -90,13 +90,13 @@ pub struct Args {
     )]
     blur_px: f64,
     /// With --photons: seed of the Poisson noise (the same seed gives the same image).
-    #[arg(long, default_value_t = 0, value_name = "S", requires = "photons")]
+    #[arg(long, default_value_t = 0, value_name = "S", requires = "photons", value_parser = super::values::whole::<u64>)]
     seed: u64,
     /// With --photons: write the log-converted image −ln(N/I0) (a noisy line integral).
     #[arg(long, requires = "photons")]
     log: bool,
     /// Render N times and print timing statistics as one JSON line on stderr (meshes, phantom and CT).
-    #[arg(long, default_value_t = 1, value_name = "N")]
+    #[arg(long, default_value_t = 1, value_name = "N", value_parser = super::values::whole::<u32>)]
     repeat: u32,
     /// Write the image even when every pixel is 0 (nothing of the anatomy on the detector), which is
     /// otherwise an error.

@@ -25,10 +25,10 @@ pub struct Args {
     #[arg(long, default_value = "study-out")]
     out: PathBuf,
     /// Worker threads (default: all cores; at most 4 × the cores, and never fewer than 256).
-    #[arg(long)]
+    #[arg(long, value_parser = super::values::whole::<usize>)]
     threads: Option<usize>,
     /// Stop after running this many work units (the rest run on the next invocation).
-    #[arg(long)]
+    #[arg(long, value_parser = super::values::whole::<usize>)]
     max_units: Option<usize>,
     /// Print where the time went (also written to OUT/timings.csv and the report).
     #[arg(long)]
@@ -55,10 +55,10 @@ pub struct Args {
     #[arg(long, requires = "slurm")]
     time: Option<String>,
     /// CPUs of each array task (also its worker threads).
-    #[arg(long, requires = "slurm", default_value_t = 2)]
+    #[arg(long, requires = "slurm", default_value_t = 2, value_parser = super::values::whole::<usize>)]
     cpus_per_task: usize,
     /// Number of shards (array tasks).
-    #[arg(long, requires = "slurm", default_value_t = 8)]
+    #[arg(long, requires = "slurm", default_value_t = 8, value_parser = super::values::whole::<usize>)]
     array_size: usize,
     /// Submit the jobs with sbatch and print their ids (else only write the scripts).
     #[arg(long, requires = "slurm")]

@@ -355,3 +355,99 @@ fn an_output_folder_that_is_a_file_is_named_not_file_exists() {
     }
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
 }
+
+/// A negative number given to a flag is that flag's value, not an unknown flag `-1`: a count says it must
+/// be a whole number ≥ 0 (naming the flag and the value), and a value that may be negative is taken.
+#[test]
+fn negative_numbers_are_values_that_the_flag_judges() {
+    let d = tempfile::tempdir().unwrap();
+    let out = s(&d.path().join("o"));
+    let tiff = s(&d.path().join("o.tiff"));
+    for (args, flag) in [
+        (
+            vec![
+                "render",
+                "--phantom",
+                "L3",
+                "--repeat",
+                "-1",
+                "--out",
+                &tiff,
+            ],
+            "--repeat",
+        ),
+        (
+            vec![
+                "calibrate",
+                "--phantom",
+                "plate",
+                "--noise-px",
+                "0.1",
+                "--trials",
+                "-5",
+                "--out",
+                &out,
+            ],
+            "--trials",
+        ),
+        (
+            vec!["study", "--quick", "--threads", "-2", "--out", &out],
+            "--threads",
+        ),
+        (
+            vec!["study", "--quick", "--max-units", "-3", "--out", &out],
+            "--max-units",
+        ),
+        (
+            vec![
+                "register",
+                "--problem",
+                "p.json",
+                "--seed",
+                "-7",
+                "--out",
+                &out,
+            ],
+            "--seed",
+        ),
+        (
+            vec![
+                "mesh", "--seg", "x.nii", "--labels", "1", "--smooth", "-1", "--out", &out,
+            ],
+            "--smooth",
+        ),
+    ] {
+        let err = refused(
+            &args,
+            &[flag, "is negative", "must be a whole number from 0 to"],
+        );
+        assert!(!err.contains("unexpected argument"), "{err}");
+    }
+    // A fraction for a count is named as such.
+    refused(
+        &[
+            "render",
+            "--phantom",
+            "L3",
+            "--repeat",
+            "2.5",
+            "--out",
+            &tiff,
+        ],
+        &["--repeat", "2.5 is not whole"],
+    );
+    // A negative value where the flag's own rule refuses it reaches that rule.
+    refused(
+        &[
+            "calibrate",
+            "--phantom",
+            "plate",
+            "--noise-px",
+            "-1",
+            "--out",
+            &out,
+        ],
+        &["noise-px", "≥ 0"],
+    );
+    assert!(!Path::new(&out).exists() && !Path::new(&tiff).exists());
+}
