@@ -83,3 +83,25 @@ impl From<opencv::Error> for Error {
         }
     }
 }
+
+/// A number as a message shows it: plainly between 10⁻³ and 10⁶ (and 0), in scientific notation beyond,
+/// so that an absurd value reads `1e308`, not three hundred digits.
+pub fn shown(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-3..1e6).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
+#[cfg(test)]
+mod shown_tests {
+    #[test]
+    fn huge_and_tiny_values_read_in_scientific_notation() {
+        assert_eq!(super::shown(1e308), "1e308");
+        assert_eq!(super::shown(-2.5e-7), "-2.5e-7");
+        assert_eq!(super::shown(12345.5), "12345.5");
+        assert_eq!(super::shown(0.0), "0");
+        assert_eq!(super::shown(f64::NAN), "NaN");
+    }
+}

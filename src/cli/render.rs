@@ -18,7 +18,8 @@ use spinedrr::render::{
 };
 
 use super::render_checks::{
-    RenderRun, check_not_empty, check_not_negative, check_source_outside, split_mesh_spec,
+    RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
+    mesh_mu_cause, split_mesh_spec,
 };
 use super::render_timing::{median_min, peak_rss_mb};
 
@@ -195,6 +196,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .collect();
     check_source_outside(&rendered, &named)?;
     let corners = scene_corners(&scene);
+    let mu_cause = mesh_mu_cause(&scene);
     let renderer = a.backend.renderer(scene)?;
     let mut times = Vec::with_capacity(a.repeat as usize);
     let opts = ThicknessOptions {
@@ -218,6 +220,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.repeat > 1 {
         eprintln!("{}", timing_json(&a, &renderer, &drr, &mut times));
     }
+    check_finite(&drr.line_integral, &mu_cause)?;
     check_not_empty(
         &drr.line_integral,
         &rendered,

@@ -10,6 +10,7 @@ use glam::DVec3;
 use spinedrr::anatomy::TriMesh;
 use spinedrr::geometry::{Perturbation, View};
 use spinedrr::io::{DrrValues, ImageF32};
+use spinedrr::render::RenderScene;
 
 /// What the mesh and the CT renders share: the view, the perturbation, the output and its checks.
 pub struct RenderRun<'a> {
@@ -116,6 +117,38 @@ pub fn check_not_empty(
         rendered.name,
         where_it_projects(rendered, corners)
     )
+}
+
+/// Refuses a line integral with a non-finite pixel: μ × path length overflowed the image's float32 range
+/// (≈ 3.4e38), which only an absurd attenuation can do; `cause` says which values made it. Nothing is
+/// written.
+pub fn check_finite(line_integral: &ImageF32, cause: &str) -> anyhow::Result<()> {
+    let count = line_integral.data.iter().filter(|v| !v.is_finite()).count();
+    if count == 0 {
+        return Ok(());
+    }
+    bail!(
+        "{count} of the {} × {} pixels of the line integral are not finite: μ × path length overflowed \
+         float32 (≈ 3.4e38); {cause}; nothing was written",
+        line_integral.width,
+        line_integral.height
+    )
+}
+
+/// What [`check_finite`] says of a mesh render: the mesh with the largest |μ|, beside what real
+/// materials attenuate (lead, about the densest in an X-ray room, ≈ 100 mm⁻¹ at 20 keV; bone < 1 mm⁻¹).
+pub fn mesh_mu_cause(scene: &RenderScene) -> String {
+    match scene
+        .meshes
+        .iter()
+        .max_by(|a, b| a.mu_per_mm.abs().total_cmp(&b.mu_per_mm.abs()))
+    {
+        Some(m) => format!(
+            "the largest μ is {:e} mm⁻¹ (mesh '{}'), where lead at 20 keV attenuates about 100 mm⁻¹",
+            m.mu_per_mm, m.mesh.name
+        ),
+        None => "there is no mesh".to_string(),
+    }
 }
 
 /// Refuses a line integral that is negative anywhere beyond rounding: a negative μ is the differential

@@ -7,14 +7,16 @@ use anyhow::{Context, bail};
 use glam::DVec3;
 use serde_json::json;
 use spinedrr::anatomy::MU_WATER_PER_MM;
-use spinedrr::anatomy::ct::{Placed, Placement, move_volume, place, read_ct, read_labels};
+use spinedrr::anatomy::ct::{
+    Placed, Placement, looks_like_label_map, move_volume, place, read_ct, read_labels,
+};
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::io::write_drr;
 use spinedrr::render::volume::{
     VolumeDetails, VolumeMethod, VolumeRenderOptions, VolumeRenderer, select_voxels,
 };
 
-use super::render_checks::{RenderRun, check_not_empty};
+use super::render_checks::{RenderRun, check_finite, check_not_empty};
 use super::render_timing::{median_min, peak_rss_mb};
 use spinedrr::geometry::box_corners;
 
@@ -68,6 +70,14 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
     let convention: LabelConvention = a.labels.parse()?;
     let placement = Placement::parse(&a.placement, a.label.is_some())?;
     let mut ct = read_ct(ct_path).with_context(|| format!("reading CT {}", ct_path.display()))?;
+    if looks_like_label_map(&ct.values) {
+        eprintln!(
+            "warning: every voxel of {} is a whole number from 0 to 255, with no air (−1000 HU) and no \
+             bone above 255 HU: it looks like a label map, not a CT; a segmentation goes to --seg with \
+             --label",
+            ct_path.display()
+        );
+    }
     let label = match (&a.seg, &a.label) {
         (Some(seg_path), Some(spec)) => {
             let id = convention.resolve(spec)?;
@@ -125,6 +135,13 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
             })
         );
     }
+    check_finite(
+        &img,
+        &format!(
+            "the CT's values reach {:e} HU",
+            ct.values.iter().fold(0f32, |m, v| m.max(v.abs()))
+        ),
+    )?;
     let (lo, hi) = match &mask {
         Some(m) => (m.bbox.0, m.bbox.1),
         None => ([0; 3], ct.dims.map(|n| n - 1)),

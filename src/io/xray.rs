@@ -47,13 +47,19 @@ impl XrayModel {
         if !(photons_i0.is_finite() && photons_i0 > 0.0 && photons_i0 <= MAX_PHOTONS) {
             return Err(Error::invalid(
                 "photons",
-                format!("I0 = {photons_i0} must be a positive number of at most {MAX_PHOTONS:e}"),
+                format!(
+                    "I0 = {} must be a positive number of at most {MAX_PHOTONS:e}",
+                    crate::error::shown(photons_i0)
+                ),
             ));
         }
         if !(blur_px.is_finite() && (0.0..=MAX_BLUR_PX).contains(&blur_px)) {
             return Err(Error::invalid(
                 "blur_px",
-                format!("σ = {blur_px} px must be between 0 and {MAX_BLUR_PX}"),
+                format!(
+                    "σ = {} px must be between 0 and {MAX_BLUR_PX}",
+                    crate::error::shown(blur_px)
+                ),
             ));
         }
         Ok(XrayModel {

@@ -451,3 +451,62 @@ fn negative_numbers_are_values_that_the_flag_judges() {
     );
     assert!(!Path::new(&out).exists() && !Path::new(&tiff).exists());
 }
+
+/// A 20 mm cube of `hu` in air, 1 mm voxels, written as `dir/name` (NIfTI).
+fn cube_ct(dir: &Path, name: &str, hu: f32, air: f32) -> String {
+    use spinedrr::anatomy::ct::{Volume, write_ct};
+    let mut v = Volume::filled([24, 24, 24], air, glam::DMat4::IDENTITY).unwrap();
+    for k in 2..22 {
+        for j in 2..22 {
+            for i in 2..22 {
+                let n = v.linear(i, j, k);
+                v.values[n] = hu;
+            }
+        }
+    }
+    let path = dir.join(name);
+    write_ct(&path, &v).unwrap();
+    s(&path)
+}
+
+/// No render writes a non-finite pixel: an attenuation so large that μ × path length overflows float32
+/// (a mesh's μ, the CT's μ of water) is refused naming the value, a file whose voxels are not Hounsfield
+/// units is refused on reading, and a label map given as a CT is rendered with a warning saying so.
+#[test]
+fn absurd_attenuations_are_refused_never_written_as_infinities() {
+    let d = tempfile::tempdir().unwrap();
+    let c = s(&cube(d.path(), "c.stl", DVec3::ZERO, 10.0));
+    let out = d.path().join("o.tiff");
+    let o = s(&out);
+    refused(
+        &["render", "--mesh", &format!("{c}:1e307"), "--out", &o],
+        &["not finite", "largest μ is 1e307 mm⁻¹"],
+    );
+    let ct = cube_ct(d.path(), "ct.nii", 1000.0, -1000.0);
+    refused(
+        &["render", "--ct", &ct, "--mu-water", "1e38", "--out", &o],
+        &["not finite", "HU"],
+    );
+    let absurd = cube_ct(d.path(), "absurd.nii", 3e38, -1000.0);
+    refused(
+        &["render", "--ct", &absurd, "--out", &o],
+        &["absurd.nii", "beyond ±100000 HU", "3e38"],
+    );
+    // An absurd photon count is quoted as a number a reader can read.
+    let err = refused(
+        &["render", "--mesh", &c, "--photons", "1e308", "--out", &o],
+        &["I0 = 1e308", "at most 1e12"],
+    );
+    assert!(!err.contains("10000000000"), "{err}");
+    assert!(!out.exists(), "a refused render wrote {o}");
+    // The same CT with sane values renders, without the label-map warning.
+    let (ok, err) = crate::common::run(&["render", "--ct", &ct, "--out", &o]);
+    assert!(ok && !err.contains("label map"), "{err}");
+    let labels = cube_ct(d.path(), "labels.nii", 22.0, 0.0);
+    let (ok, err) = crate::common::run(&["render", "--ct", &labels, "--out", &o]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("looks like a label map") && err.contains("--seg"),
+        "{err}"
+    );
+}

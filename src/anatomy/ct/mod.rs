@@ -18,8 +18,8 @@ use crate::{Error, Result};
 
 pub use mask::VoxelMask;
 pub use nifti::{
-    affine_from_header, read_ct, read_ct_from, read_labels, read_labels_from, write_ct,
-    write_labels,
+    MAX_ABS_HU, affine_from_header, looks_like_label_map, read_ct, read_ct_from, read_labels,
+    read_labels_from, write_ct, write_labels,
 };
 pub use nifti_header::MAX_VOXELS;
 pub use placement::{

@@ -30,7 +30,21 @@ pub fn read_ct(path: &Path) -> Result<CtVolume> {
 pub fn read_ct_from(source: impl Read, origin: &Path) -> Result<CtVolume> {
     let (header, values) = read_f32(source, origin)?;
     check_finite(&header, &values, origin)?;
+    check_hounsfield(&header, &values, origin)?;
     volume_from(origin, &header, values)
+}
+
+/// Largest |HU| a CT voxel may hold: far beyond the extended CT scale (≈ 30 000 HU, dense metal) and
+/// any padding value (−32 768), so only a file that does not hold Hounsfield units is refused.
+pub const MAX_ABS_HU: f32 = 100_000.0;
+
+/// True when every voxel is a whole number from 0 to 255 — a label map, not a CT: a CT's air is
+/// −1000 HU and its bone exceeds 255 HU.
+pub fn looks_like_label_map(values: &[f32]) -> bool {
+    !values.is_empty()
+        && values
+            .iter()
+            .all(|&v| (0.0..=255.0).contains(&v) && v.fract() == 0.0)
 }
 
 /// Reads a segmentation label map. Values must be integers in `0..=65535` (any datatype).
@@ -74,6 +88,27 @@ fn check_finite(h: &NiftiHeader, values: &[f32], origin: &Path) -> Result<()> {
             "{count} voxel(s) are not finite (NaN or infinite, after scl_slope/scl_inter); the \
              first is voxel {first} at (i, j, k) = ({i}, {j}, {k}) with value {}: replace them \
              with a Hounsfield value (e.g. -1000 for air) before rendering",
+            values[first]
+        ),
+    ))
+}
+
+/// Refuses voxels beyond ±[`MAX_ABS_HU`], naming how many and the first: such a file is not in
+/// Hounsfield units, and its μ would overflow every ray through it.
+fn check_hounsfield(h: &NiftiHeader, values: &[f32], origin: &Path) -> Result<()> {
+    let beyond = |v: &f32| v.abs() > MAX_ABS_HU;
+    let Some(first) = values.iter().position(beyond) else {
+        return Ok(());
+    };
+    let count = values.iter().filter(|v| beyond(v)).count();
+    let (nx, ny) = (h.dim[1].max(1) as usize, h.dim[2].max(1) as usize);
+    let (i, j, k) = (first % nx, first / nx % ny, first / (nx * ny));
+    Err(Error::format(
+        origin,
+        format!(
+            "{count} voxel(s) lie beyond ±{MAX_ABS_HU} HU (after scl_slope/scl_inter); the first is voxel \
+             {first} at (i, j, k) = ({i}, {j}, {k}) with value {:e}: a CT holds Hounsfield units, from \
+             −1000 (air) to about 30 000 (dense metal on an extended scale)",
             values[first]
         ),
     ))
