@@ -107,6 +107,18 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
         step_mm: a.step_mm,
     };
     let renderer = VolumeRenderer::new(&ct, &opts, mask.as_ref())?;
+    let source = run.rendered.source_world();
+    if renderer.attenuating_box_contains(source) {
+        bail!(
+            "the X-ray source of view '{}' (world [{:.1}, {:.1}, {:.1}] mm) lies inside the CT's anatomy \
+             (the box of its voxels above air, as placed): the anatomy must lie between the source and the \
+             detector (check the CT's voxel size and affine, --placement, or the geometry)",
+            run.rendered.name,
+            source.x,
+            source.y,
+            source.z
+        );
+    }
     let mut times = Vec::with_capacity(run.repeat as usize);
     let mut img = None;
     for _ in 0..run.repeat {

@@ -454,11 +454,24 @@ fn negative_numbers_are_values_that_the_flag_judges() {
 
 /// A 20 mm cube of `hu` in air, 1 mm voxels, written as `dir/name` (NIfTI).
 fn cube_ct(dir: &Path, name: &str, hu: f32, air: f32) -> String {
+    block_ct(dir, name, hu, air, 1.0, 2..22)
+}
+
+/// A 24³ grid of `voxel_mm` voxels holding `hu` in voxels `fill` along each axis and `air` elsewhere.
+fn block_ct(
+    dir: &Path,
+    name: &str,
+    hu: f32,
+    air: f32,
+    voxel_mm: f64,
+    fill: std::ops::Range<usize>,
+) -> String {
     use spinedrr::anatomy::ct::{Volume, write_ct};
-    let mut v = Volume::filled([24, 24, 24], air, glam::DMat4::IDENTITY).unwrap();
-    for k in 2..22 {
-        for j in 2..22 {
-            for i in 2..22 {
+    let affine = glam::DMat4::from_scale(DVec3::splat(voxel_mm));
+    let mut v = Volume::filled([24, 24, 24], air, affine).unwrap();
+    for k in fill.clone() {
+        for j in fill.clone() {
+            for i in fill.clone() {
                 let n = v.linear(i, j, k);
                 v.values[n] = hu;
             }
@@ -509,4 +522,29 @@ fn absurd_attenuations_are_refused_never_written_as_infinities() {
         err.contains("looks like a label map") && err.contains("--seg"),
         "{err}"
     );
+}
+
+/// A CT whose anatomy encloses the X-ray source is refused as a mesh around the source is; a source in the
+/// scan's air margin (μ = 0) is not.
+#[test]
+fn a_source_inside_the_cts_anatomy_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let o = s(&d.path().join("o.tiff"));
+    // 24 voxels of 100 mm of soft tissue: a 2.4 m block around the isocentre and the source.
+    let huge = block_ct(d.path(), "huge.nii", 40.0, 40.0, 100.0, 0..24);
+    for view in ["ap", "lat"] {
+        refused(
+            &["render", "--ct", &huge, "--view", view, "--out", &o],
+            &[
+                "X-ray source",
+                &format!("view '{view}'"),
+                "inside the CT's anatomy",
+            ],
+        );
+    }
+    assert!(!d.path().join("o.tiff").exists());
+    // The same 2.4 m grid with tissue only in its central 200 mm: the source is in air, which is fine.
+    let margin = block_ct(d.path(), "margin.nii", 40.0, -1000.0, 100.0, 11..13);
+    let (ok, err) = crate::common::run(&["render", "--ct", &margin, "--out", &o]);
+    assert!(ok, "{err}");
 }

@@ -173,6 +173,24 @@ impl VolumeRenderer {
         })
     }
 
+    /// Whether world point `p` lies inside the box of the voxels that attenuate (μ > 0, after the mask),
+    /// each voxel taken as its whole cell: an X-ray source there would sit inside the patient. Air
+    /// (−1000 HU, μ = 0) around the body does not count, so a source in the scan's empty margin is fine.
+    pub fn attenuating_box_contains(&self, p: DVec3) -> bool {
+        let x = self.world_to_index.transform_point3(p);
+        let [nx, ny, _] = self.dims;
+        let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
+        for (n, _) in self.mu.iter().enumerate().filter(|(_, m)| **m > 0.0) {
+            let ijk = [n % nx, n / nx % ny, n / (nx * ny)];
+            for a in 0..3 {
+                lo[a] = lo[a].min(ijk[a]);
+                hi[a] = hi[a].max(ijk[a]);
+            }
+        }
+        lo[0] != usize::MAX
+            && (0..3).all(|a| x[a] >= lo[a] as f64 - 0.5 && x[a] <= hi[a] as f64 + 0.5)
+    }
+
     /// The trilinear step actually used (mm).
     pub fn step_mm(&self) -> f64 {
         self.step_mm
