@@ -97,20 +97,38 @@ fn unconverged_summary(
     r: &spinedrr::registration::RegistrationResult,
     out: &serde_json::Value,
 ) -> String {
-    let mut s = format!(
-        "{} registration of {} did not converge after {} iteration(s) (--max-iterations {}): \
-         residual {:.3} px",
-        a.method,
-        a.problem.display(),
-        r.iterations,
-        a.max_iterations,
-        r.residual_px
-    );
+    // Three decimals, or scientific notation for a pose run off to 1e11 mm.
+    let three = |x: f64| {
+        if x.abs() < 1e6 {
+            format!("{x:.3}")
+        } else {
+            spinedrr::error::shown(x)
+        }
+    };
+    let mut s = match out["implausible"].as_str() {
+        Some(why) => format!(
+            "{} registration of {} stopped after {} iteration(s) at a pose that cannot be the observed \
+             anatomy ({why}; start nearer the truth, or add a view): residual {} px",
+            a.method,
+            a.problem.display(),
+            r.iterations,
+            three(r.residual_px)
+        ),
+        None => format!(
+            "{} registration of {} did not converge after {} iteration(s) (--max-iterations {}): \
+             residual {} px",
+            a.method,
+            a.problem.display(),
+            r.iterations,
+            a.max_iterations,
+            three(r.residual_px)
+        ),
+    };
     if let Some(e) = out["rot_err_deg"].as_f64() {
         s += &format!(", rotation error {e:.3}°");
     }
     if let Some(e) = out["trans_err_mm"].as_f64() {
-        s += &format!(", translation error {e:.3} mm");
+        s += &format!(", translation error {} mm", three(e));
     }
     s + &format!("; the pose was written to {}", a.out.display())
 }

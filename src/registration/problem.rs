@@ -331,3 +331,138 @@ impl LoadedProblem {
         Self::from_json_str(&text, &path.display().to_string())
     }
 }
+
+/// Ratio beyond which a pose's projected landmark spread disagrees with the observed one (see
+/// [`RegistrationProblem::implausible`]): a calibration error changes the scale by a few per cent, a pose
+/// run off towards infinity (or onto the source) by orders of magnitude.
+pub const MAX_SPREAD_RATIO: f64 = 4.0;
+
+/// Largest RMS reprojection residual, as a fraction of the observed landmarks' RMS spread, of a pose that
+/// registers the view (see [`RegistrationProblem::implausible`]): a fit whose residuals are a quarter of
+/// the anatomy's projected size has not matched it (a flipped local minimum), while a calibration error
+/// or detection noise leaves residuals of a few per cent of it.
+pub const MAX_RESIDUAL_OF_SPREAD: f64 = 0.25;
+
+impl RegistrationProblem {
+    /// Why `pose` cannot be the anatomy the views observed, or `None`: a landmark at or behind a view's
+    /// source (the pinhole's mirror solution projects the same pixels through the back of the source),
+    /// or the landmarks projected into a cloud whose RMS spread is more than [`MAX_SPREAD_RATIO`] times
+    /// larger or smaller than the observed one's (the pose ran off towards infinity, or onto the source).
+    /// or an RMS residual over [`MAX_RESIDUAL_OF_SPREAD`] of that spread (a flipped local minimum). A
+    /// solver may stop by its tolerances at such a pose; it has not registered.
+    pub fn implausible(&self, pose: &RigidTransform) -> Option<String> {
+        for v in &self.views {
+            let behind = v
+                .observed
+                .iter()
+                .filter(|(i, _)| v.view.depth(pose.apply(self.model_points[*i])) <= 0.0)
+                .count();
+            if behind > 0 {
+                return Some(format!(
+                    "{behind} landmark(s) lie at or behind the source of view '{}' at this pose (the \
+                     mirror solution)",
+                    v.view.name
+                ));
+            }
+            let spread = |pts: &[DVec2]| {
+                let c = pts.iter().fold(DVec2::ZERO, |a, &p| a + p) / pts.len().max(1) as f64;
+                (pts.iter().map(|p| (*p - c).length_squared()).sum::<f64>()
+                    / pts.len().max(1) as f64)
+                    .sqrt()
+            };
+            let observed: Vec<DVec2> = v.observed.iter().map(|(_, x)| *x).collect();
+            let projected: Vec<DVec2> = v
+                .observed
+                .iter()
+                .map(|(i, _)| v.view.project(pose.apply(self.model_points[*i])))
+                .collect();
+            let (so, sp) = (spread(&observed), spread(&projected));
+            if so > 0.0 && !(sp >= so / MAX_SPREAD_RATIO && sp <= so * MAX_SPREAD_RATIO) {
+                return Some(format!(
+                    "the landmarks project into a cloud of RMS spread {} px in view '{}' where the \
+                     observed one spans {so:.1} px (the pose ran off along the view's axis)",
+                    crate::error::shown(sp),
+                    v.view.name
+                ));
+            }
+            let rms = (observed
+                .iter()
+                .zip(&projected)
+                .map(|(o, p)| (*o - *p).length_squared())
+                .sum::<f64>()
+                / observed.len().max(1) as f64)
+                .sqrt();
+            if so > 0.0 && rms > MAX_RESIDUAL_OF_SPREAD * so {
+                return Some(format!(
+                    "its RMS residual in view '{}' is {rms:.1} px, {:.0} % of the observed landmarks' \
+                     spread of {so:.1} px (a flipped local minimum)",
+                    v.view.name,
+                    100.0 * rms / so
+                ));
+            }
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod implausible_tests {
+    use super::*;
+    use crate::geometry::CArm;
+
+    /// Eight corners of a 40 mm box at the isocentre observed without error in AP and LAT.
+    fn problem() -> RegistrationProblem {
+        let model_points: Vec<DVec3> =
+            crate::geometry::box_corners(DVec3::splat(-20.0), DVec3::splat(20.0)).to_vec();
+        let carm = CArm::default_paper();
+        let views = ["ap", "lat"]
+            .iter()
+            .map(|n| {
+                let view = carm.view(n).unwrap().clone();
+                let observed = model_points
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &p)| (i, view.project(p)))
+                    .collect();
+                ObservedView { view, observed }
+            })
+            .collect();
+        RegistrationProblem {
+            names: (0..8).map(|i| format!("c{i}")).collect(),
+            model_points,
+            views,
+        }
+    }
+
+    #[test]
+    fn the_truth_passes_and_mirrored_run_off_and_misfit_poses_are_named() {
+        let p = problem();
+        assert_eq!(p.implausible(&RigidTransform::IDENTITY), None);
+        // Behind the AP source: the box moved through the source to the far side.
+        let s = p.views[0].view.source_world();
+        let behind = RigidTransform {
+            translation: 2.0 * s,
+            ..RigidTransform::IDENTITY
+        };
+        let why = p.implausible(&behind).unwrap();
+        assert!(why.contains("behind the source of view 'ap'"), "{why}");
+        // Run off along the AP axis, away from the source, to 1e6 mm: the cloud shrinks to a point.
+        let off = RigidTransform {
+            translation: -1e6 * s.normalize(),
+            ..RigidTransform::IDENTITY
+        };
+        let why = p.implausible(&off).unwrap();
+        assert!(why.contains("RMS spread") && why.contains("'ap'"), "{why}");
+        // A half-turn about the AP axis keeps the cloud's size but not its points: all residual.
+        let turned = RigidTransform {
+            rotation: glam::DMat3::from_axis_angle(s.normalize(), 0.5),
+            ..RigidTransform::IDENTITY
+        };
+        let why = p.implausible(&turned);
+        assert!(
+            why.as_deref()
+                .is_some_and(|w| w.contains("% of the observed")),
+            "{why:?}"
+        );
+    }
+}

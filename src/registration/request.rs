@@ -29,7 +29,8 @@ pub struct RegisterRequest {
 }
 
 /// What a run produced: the solver's result and the `R.json` record (`R`, `t`, `residual_px`,
-/// `iterations`, `converged`, `method`, `views`, and `rot_err_deg`, `trans_err_mm` when the truth is
+/// `iterations`, `converged`, `method`, `views`, `implausible` (why a pose the solver stopped at cannot
+/// be the anatomy; `converged` is then false), and `rot_err_deg`, `trans_err_mm` when the truth is
 /// known).
 #[derive(Debug, Clone)]
 pub struct RegisterOutcome {
@@ -79,7 +80,14 @@ pub fn run_request(loaded: LoadedProblem, req: &RegisterRequest) -> Result<Regis
         max_iterations: req.max_iterations,
         ..Default::default()
     };
-    let result = register(&problem, method, &opts)?;
+    let mut result = register(&problem, method, &opts)?;
+    // A solver that stopped by its tolerances at a pose that cannot be the observed anatomy (a local
+    // minimum: the mirror solution, a run-off along the axis) has not registered.
+    let implausible = result
+        .converged
+        .then(|| problem.implausible(&result.pose))
+        .flatten();
+    result.converged &= implausible.is_none();
     let mut record = json!({
         "R": result.pose.rotation_rows(),
         "t": result.pose.translation.to_array(),
@@ -89,6 +97,9 @@ pub fn run_request(loaded: LoadedProblem, req: &RegisterRequest) -> Result<Regis
         "method": req.method,
         "views": problem.views.iter().map(|v| v.view.name.clone()).collect::<Vec<_>>(),
     });
+    if let Some(why) = implausible {
+        record["implausible"] = json!(why);
+    }
     if let Some(truth) = loaded.truth {
         let e = pose_errors(&result.pose, &truth);
         record["rot_err_deg"] = json!(e.rot_err_deg);

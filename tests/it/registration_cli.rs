@@ -259,3 +259,47 @@ fn landmark_flags_do_not_apply_to_intensity_registration() {
         );
     }
 }
+
+/// A solve that stops by its tolerances at a pose that cannot be the anatomy — here AP alone from a start
+/// rotated 175°, which settles in the flipped local minimum 162° from the truth — is not "converged":
+/// it fails naming why, and with --allow-unconverged R.json says `"converged": false` and the reason.
+/// Starts that reach the truth stay converged.
+#[test]
+fn a_flipped_local_minimum_is_not_reported_converged() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = problem_json(&landmarks(), &["ap"]).to_string();
+    let flipped = ["--init-rot-deg", "175", "--seed", "1"];
+    let (ok, err, out) = run(dir.path(), &text, &flipped);
+    assert!(!ok, "accepted a flipped pose: {err}");
+    assert!(
+        err.contains("cannot be the observed anatomy") && err.contains("'ap'"),
+        "{err}"
+    );
+    assert_eq!(out.as_ref().unwrap()["converged"], false);
+    let (ok, err, out) = run(
+        dir.path(),
+        &text,
+        &[&flipped[..], &["--allow-unconverged"]].concat(),
+    );
+    let out = out.unwrap();
+    assert!(ok, "{err}");
+    assert_eq!(out["converged"], false);
+    assert!(
+        out["implausible"].as_str().unwrap().contains("residual"),
+        "{out}"
+    );
+    assert!(out["rot_err_deg"].as_f64().unwrap() > 90.0, "{out}");
+    for seed in ["0", "2"] {
+        let (ok, err, out) = run(
+            dir.path(),
+            &text,
+            &["--init-rot-deg", "120", "--seed", seed],
+        );
+        let out = out.unwrap();
+        assert!(
+            ok && out["converged"] == true && out.get("implausible").is_none(),
+            "{err} {out}"
+        );
+        assert!(out["rot_err_deg"].as_f64().unwrap() < 1e-6, "{out}");
+    }
+}
