@@ -511,6 +511,21 @@ fn absurd_attenuations_are_refused_never_written_as_infinities() {
         &["I0 = 1e308", "at most 1e12"],
     );
     assert!(!err.contains("10000000000"), "{err}");
+    // A trilinear step that would sample each voxel a billion times is refused up front.
+    refused(
+        &[
+            "render",
+            "--ct",
+            &ct,
+            "--method",
+            "trilinear",
+            "--step-mm",
+            "1e-9",
+            "--out",
+            &o,
+        ],
+        &["step_mm", "1e-9 mm", "at least 0.01 mm"],
+    );
     assert!(!out.exists(), "a refused render wrote {o}");
     // The same CT with sane values renders, without the label-map warning.
     let (ok, err) = crate::common::run(&["render", "--ct", &ct, "--out", &o]);
