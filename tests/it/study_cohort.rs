@@ -229,6 +229,7 @@ fn truncated_dataset(dir: &Path, strict: bool) -> PathBuf {
         &config,
         format!(
             r#"experiments = ["projection"]
+heatmaps_df_px = [500.0]
 [anatomy]
 levels = []
 [[anatomy.dataset]]

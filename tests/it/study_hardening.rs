@@ -165,6 +165,14 @@ fn meaningless_lists_are_refused_naming_the_repeat() {
         "heatmaps_df_px = [500.0, 500.0]\n",
         &["heatmaps_df_px", "500 is listed twice"],
     );
+    // A heatmap at a Δf the focal family does not render would silently never be drawn.
+    bad_config(
+        "heatmaps_df_px = [250.0]\n[perturbations]\ndf_px = [100.0, 500.0]\n",
+        &[
+            "heatmaps_df_px",
+            "250 px is not in perturbations.df_px [100, 500]",
+        ],
+    );
     // Binning merges b × b pixels: 3 does not divide the 1024 px built-in detector.
     bad_config(
         "[geometry]\nbinning = 3\n",

@@ -88,6 +88,19 @@ impl StudyConfig {
                 .validate(&carm, &self.geometry.views)?;
         }
         self.validate_grid_intrinsics(&carm)?;
+        if self.runs(super::Experiment::Projection)
+            && let Some(df) = self.heatmaps_df_px.iter().find(|d| !p.df_px.contains(d))
+        {
+            let grid: Vec<String> = p.df_px.iter().map(|d| d.to_string()).collect();
+            return Err(Error::invalid(
+                "heatmaps_df_px",
+                format!(
+                    "{df} px is not in perturbations.df_px [{}]: a heatmap is drawn only at a Δf the \
+                     focal family renders; add {df} there or remove it here",
+                    grid.join(", ")
+                ),
+            ));
+        }
         self.check_work()
     }
 
