@@ -333,3 +333,51 @@ fn a_config_with_no_work_is_refused_not_reported_complete() {
     refused(&study(&cfg, &out, &[]), &["no work unit", "df_px"]);
     assert!(!out.exists());
 }
+
+/// Trials whose solve stops at a pose that cannot be the anatomy (AP alone from starts turned 175°: most
+/// settle in the flipped or mirrored minimum 180° away, one runs off to its iteration cap) are failures: `converged` is false in
+/// registration.csv, the summary counts them in `failed`, and its statistics are over the others only.
+#[test]
+fn failed_registration_trials_are_counted_never_averaged() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write(
+        dir.path(),
+        "study.toml",
+        "experiments = [\"registration\"]\nheatmaps_df_px = []\n\
+         [anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.5\n\
+         [registration]\nmethods = [\"direct-ap\"]\ndf_px = [0.0]\npiercing_px = [0.0]\n\
+         trials = 24\ntrials_per_unit = 24\ninit_rot_deg = 175.0\ninit_trans_mm = 0.0\nnoise_px = 0.0\n",
+    );
+    let out = dir.path().join("out");
+    let (ok, err) = outcome(&study(&cfg, &out, &[]));
+    assert!(ok, "{err}");
+    let read = |name: &str| -> Vec<std::collections::HashMap<String, String>> {
+        let mut r = csv::Reader::from_path(out.join("tables").join(name)).unwrap();
+        r.deserialize().map(|x| x.unwrap()).collect()
+    };
+    let trials = read("registration.csv");
+    let summary = read("registration_summary.csv");
+    assert_eq!((trials.len(), summary.len()), (24, 1));
+    let num = |r: &std::collections::HashMap<String, String>, k: &str| r[k].parse::<f64>().unwrap();
+    let (good, bad): (Vec<_>, Vec<_>) = trials.iter().partition(|r| r["converged"] == "true");
+    assert!(!bad.is_empty(), "no start settled in the flipped minimum");
+    assert!(!good.is_empty(), "no start reached the truth");
+    // The failures are far from the truth (flipped, mirrored behind the source, or run off along the
+    // axis to its iteration cap), the successes at it (noise-free: exact).
+    assert!(
+        bad.iter()
+            .all(|r| num(r, "rot_err_deg") > 10.0 || num(r, "trans_err_mm") > 100.0),
+        "{bad:?}"
+    );
+    assert!(
+        good.iter().all(|r| num(r, "rot_err_deg") < 1e-6),
+        "{good:?}"
+    );
+    let s = &summary[0];
+    assert_eq!(s["failed"], bad.len().to_string());
+    assert_eq!(s["n"], good.len().to_string());
+    assert!(
+        num(s, "rot_err_deg_mean") < 1e-6,
+        "failures averaged in: {s:?}"
+    );
+}

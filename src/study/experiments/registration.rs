@@ -75,7 +75,8 @@ pub fn run(ctx: &Context, unit: &Unit) -> Result<UnitRows> {
                     e.trans_err_mm,
                     res.residual_px,
                     res.iterations,
-                    res.converged,
+                    // Stopped by its tolerances at a pose that cannot be the anatomy: not converged.
+                    res.converged && assumed.implausible(&res.pose).is_none(),
                 )
             }
             // A failed solve is a measurement too: it shows up as NaN errors, not as a lost study.

@@ -153,8 +153,9 @@ pub struct RegistrationRow {
 }
 
 /// Mean, sample standard deviation and 95 % confidence half-width over the trials of one registration
-/// cell (table `registration_summary.csv`); NaN trials (failed solves) are counted in `failed` and left
-/// out of `n` and the statistics. `deterministic`: every error's spread is below [`SOLVER_SPREAD`]
+/// cell (table `registration_summary.csv`) over the trials that converged to finite errors; the others
+/// (a solve that errored, hit its cap or stopped at a pose that cannot be the anatomy) are counted in
+/// `failed` and left out of `n` and the statistics. `deterministic`: every error's spread is below [`SOLVER_SPREAD`]
 /// (trials that differ only in their starting pose, without observation noise, converge to one
 /// answer); such a cell is one value, and the report prints it as one.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -167,7 +168,7 @@ pub struct RegistrationSummaryRow {
     pub piercing_px: f64,
     pub trials: usize,
     pub failed: usize,
-    /// Trials with finite errors (`trials − failed`): the n of the statistics.
+    /// Trials that converged to finite errors (`trials − failed`): the n of the statistics.
     pub n: usize,
     pub deterministic: bool,
     #[serde(with = "num")]

@@ -207,16 +207,24 @@ fn summarize_registration(rows: &[RegistrationRow]) -> Vec<RegistrationSummaryRo
     cells
         .into_iter()
         .map(|c| {
+            // A trial succeeded when its solve converged to finite errors; the statistics are over
+            // those. A solve that errored (NaN) or stopped without converging (its cap, or a pose that
+            // cannot be the anatomy) is a failure, counted, never averaged in.
+            let ok: Vec<&RegistrationRow> = c
+                .iter()
+                .copied()
+                .filter(|r| r.converged && r.rot_err_deg.is_finite())
+                .collect();
             let stat = |f: fn(&RegistrationRow) -> f64| {
-                mean_sd(&c.iter().map(|r| f(r)).collect::<Vec<_>>())
+                mean_sd(&ok.iter().map(|r| f(r)).collect::<Vec<_>>())
             };
             let (rot, trans, res) = (
                 stat(|r| r.rot_err_deg),
                 stat(|r| r.trans_err_mm),
                 stat(|r| r.residual_px),
             );
-            let failed = c.iter().filter(|r| !r.rot_err_deg.is_finite()).count();
-            let n = c.len() - failed;
+            let n = ok.len();
+            let failed = c.len() - n;
             let ci = |sd: f64| ci95_half_width(sd, n);
             RegistrationSummaryRow {
                 target: c[0].target.clone(),
@@ -350,15 +358,22 @@ mod tests {
 
     #[test]
     fn summary_groups_cells_in_order_and_counts_failures() {
-        let mut rows = vec![trial(0, 1.0), trial(1, f64::NAN), trial(2, 3.0)];
+        let mut unconverged = trial(3, 100.0);
+        unconverged.converged = false;
+        let mut rows = vec![
+            trial(0, 1.0),
+            trial(1, f64::NAN),
+            trial(2, 3.0),
+            unconverged,
+        ];
         let mut other = trial(0, 5.0);
         other.method = RegistrationMethod::DirectAp;
         rows.insert(1, other);
         let s = summarize_registration(&rows);
         assert_eq!(s.len(), 2);
         assert_eq!(
-            (s[0].method, s[0].trials, s[0].failed),
-            (RegistrationMethod::Kabsch, 3, 1)
+            (s[0].method, s[0].trials, s[0].failed, s[0].n),
+            (RegistrationMethod::Kabsch, 4, 2, 2)
         );
         assert_eq!(s[0].rot_err_deg_mean, 2.0);
         assert_eq!(s[0].rot_err_deg_sd, 2f64.sqrt());
