@@ -95,25 +95,46 @@ struct LandmarkSet {
     landmarks: BTreeMap<String, [f64; 3]>,
 }
 
-#[derive(Deserialize)]
-#[serde(untagged)]
-enum LandmarkFile {
-    One(LandmarkSet),
-    Many(Vec<LandmarkSet>),
+/// What kind of JSON value `v` is, in words.
+fn json_kind(v: &serde_json::Value) -> &'static str {
+    match v {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Bool(_) => "a boolean",
+        serde_json::Value::Number(_) => "a number",
+        serde_json::Value::String(_) => "a string",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
+    }
 }
 
 /// Parses landmark JSON: `{"landmarks": {"name": [x, y, z], …}}` (other keys such as `level` are
 /// ignored), or an array of such objects, whose names are then prefixed `LEVEL/` when a level is given.
 pub fn parse_landmarks(text: &str, origin: &str) -> Result<Vec<Landmark>> {
-    let file: LandmarkFile = serde_json::from_str(text).map_err(|e| {
-        Error::format(
-            origin,
-            format!("expected {{\"landmarks\": {{\"name\": [x, y, z]}}}}: {e}"),
-        )
-    })?;
-    let (sets, prefix) = match file {
-        LandmarkFile::One(s) => (vec![s], false),
-        LandmarkFile::Many(v) => (v, true),
+    const EXPECTED: &str =
+        "expected {\"landmarks\": {\"name\": [x, y, z]}} or an array of such objects";
+    let value: serde_json::Value = serde_json::from_str(text)
+        .map_err(|e| Error::format(origin, format!("not JSON ({e}); {EXPECTED}")))?;
+    // One object, or an array of them: each parsed on its own, so an error says which and why.
+    let set = |v: &serde_json::Value, which: &str| -> Result<LandmarkSet> {
+        if !v.is_object() {
+            return Err(Error::format(
+                origin,
+                format!("{which} is {}, not an object; {EXPECTED}", json_kind(v)),
+            ));
+        }
+        LandmarkSet::deserialize(v)
+            .map_err(|e| Error::format(origin, format!("{which}: {e}; {EXPECTED}")))
+    };
+    let (sets, prefix) = match &value {
+        serde_json::Value::Array(items) => (
+            items
+                .iter()
+                .enumerate()
+                .map(|(i, v)| set(v, &format!("entry {i} of the array")))
+                .collect::<Result<Vec<_>>>()?,
+            true,
+        ),
+        v => (vec![set(v, "the file")?], false),
     };
     let mut out = Vec::new();
     for set in sets {

@@ -563,3 +563,48 @@ fn a_source_inside_the_cts_anatomy_is_refused() {
     let (ok, err) = crate::common::run(&["render", "--ct", &margin, "--out", &o]);
     assert!(ok, "{err}");
 }
+
+/// A landmark file of the wrong shape is described in the user's terms (which entry, which field, what
+/// it holds), never by the reader's internal type names.
+#[test]
+fn a_malformed_landmark_file_is_described_not_named_by_internal_types() {
+    let d = tempfile::tempdir().unwrap();
+    let c = s(&cube(d.path(), "c.stl", DVec3::ZERO, 10.0));
+    let drr = s(&d.path().join("r.tiff"));
+    let (ok, err) = crate::common::run(&["render", "--mesh", &c, "--out", &drr]);
+    assert!(ok, "{err}");
+    for (text, says) in [
+        ("{\"foo\": 1}", "missing field `landmarks`"),
+        ("[1, 2]", "entry 0 of the array is a number, not an object"),
+        ("{\"landmarks\": {\"a\": [1, 2]}}", "invalid length 2"),
+        ("{\"landmarks\": {\"a\": [1, 2, 3]}", "not JSON"),
+        ("\"L3\"", "the file is a string, not an object"),
+    ] {
+        let lm = d.path().join("lm.json");
+        std::fs::write(&lm, text).unwrap();
+        let out = s(&d.path().join("cmp"));
+        let err = refused(
+            &[
+                "compare",
+                "--reference",
+                &drr,
+                "--perturbed",
+                &drr,
+                "--landmarks",
+                &s(&lm),
+                "--out",
+                &out,
+            ],
+            &["lm.json", says],
+        );
+        for internal in [
+            "untagged",
+            "enum",
+            "LandmarkFile",
+            "LandmarkSet",
+            "Discriminant",
+        ] {
+            assert!(!err.contains(internal), "{internal} in: {err}");
+        }
+    }
+}
