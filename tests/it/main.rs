@@ -12,6 +12,7 @@ mod calibration_cli;
 mod calibration_study;
 mod cli_hardening;
 mod cli_render;
+mod cli_values;
 mod common;
 mod ct_structures;
 mod fuzz_regressions;
