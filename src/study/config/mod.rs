@@ -50,7 +50,9 @@ pub struct StudyConfig {
     pub calibration: CalibrationSection,
     /// `[intensity_registration]`: intensity-based 2D–3D registration under perturbed intrinsics.
     pub intensity_registration: IntensitySection,
-    /// Δf values (px, focal family) at which difference heatmaps are written.
+    /// Δf values (px, focal family) at which difference heatmaps are written. Each must be in
+    /// `perturbations.df_px` (else the config is refused); the default, [`DEFAULT_HEATMAPS_DF_PX`], draws
+    /// those of its values the focal grid renders.
     pub heatmaps_df_px: Vec<f64>,
 }
 
@@ -127,6 +129,9 @@ impl PerturbationGrid {
     }
 }
 
+/// The default `heatmaps_df_px` (px): the paper's two focal offsets.
+pub const DEFAULT_HEATMAPS_DF_PX: [f64; 2] = [100.0, 500.0];
+
 /// `[registration]`: the Monte-Carlo registration experiment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -158,7 +163,7 @@ impl Default for StudyConfig {
             registration: RegistrationConfig::default(),
             calibration: CalibrationSection::default(),
             intensity_registration: IntensitySection::default(),
-            heatmaps_df_px: vec![100.0, 500.0],
+            heatmaps_df_px: DEFAULT_HEATMAPS_DF_PX.to_vec(),
         }
     }
 }

@@ -88,7 +88,10 @@ impl StudyConfig {
                 .validate(&carm, &self.geometry.views)?;
         }
         self.validate_grid_intrinsics(&carm)?;
+        // A listed heatmap the focal grid never renders would silently never be drawn; the default list
+        // (not the user's) draws what the grid has of it.
         if self.runs(super::Experiment::Projection)
+            && self.heatmaps_df_px != super::DEFAULT_HEATMAPS_DF_PX
             && let Some(df) = self.heatmaps_df_px.iter().find(|d| !p.df_px.contains(d))
         {
             let grid: Vec<String> = p.df_px.iter().map(|d| d.to_string()).collect();
