@@ -150,8 +150,11 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
     check_finite(
         &img,
         &format!(
-            "the CT's values reach {:e} HU",
-            ct.values.iter().fold(0f32, |m, v| m.max(v.abs()))
+            "μ(HU) = μ_water · (1 + HU/1000) with --mu-water {} mm⁻¹ (water is ≈ 0.02) and HU up to {}",
+            spinedrr::error::shown(a.mu_water),
+            spinedrr::error::shown(f64::from(
+                ct.values.iter().fold(0f32, |m, v| m.max(v.abs()))
+            ))
         ),
     )?;
     let (lo, hi) = match &mask {

@@ -150,7 +150,7 @@ fn absurd_attenuations_are_refused_never_written_as_infinities() {
     let ct = cube_ct(d.path(), "ct.nii", 1000.0, -1000.0);
     refused(
         &["render", "--ct", &ct, "--mu-water", "1e38", "--out", &o],
-        &["not finite", "HU"],
+        &["not finite", "--mu-water 1e38 mm⁻¹", "HU up to 1000"],
     );
     let absurd = cube_ct(d.path(), "absurd.nii", 3e38, -1000.0);
     refused(
