@@ -220,7 +220,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.repeat > 1 {
         eprintln!("{}", timing_json(&a, &renderer, &drr, &mut times));
     }
-    check_finite(&drr.line_integral, &mu_cause)?;
+    check_finite(&drr.line_integral, || mu_cause)?;
     check_not_empty(
         &drr.line_integral,
         &rendered,

@@ -120,18 +120,22 @@ pub fn check_not_empty(
 }
 
 /// Refuses a line integral with a non-finite pixel: μ × path length overflowed the image's float32 range
-/// (≈ 3.4e38), which only an absurd attenuation can do; `cause` says which values made it. Nothing is
-/// written.
-pub fn check_finite(line_integral: &ImageF32, cause: &str) -> anyhow::Result<()> {
+/// (≈ 3.4e38), which only an absurd attenuation can do; `cause` says which values made it (asked only
+/// when a pixel is not finite). Nothing is written.
+pub fn check_finite(
+    line_integral: &ImageF32,
+    cause: impl FnOnce() -> String,
+) -> anyhow::Result<()> {
     let count = line_integral.data.iter().filter(|v| !v.is_finite()).count();
     if count == 0 {
         return Ok(());
     }
     bail!(
         "{count} of the {} × {} pixels of the line integral are not finite: μ × path length overflowed \
-         float32 (≈ 3.4e38); {cause}; nothing was written",
+         float32 (≈ 3.4e38); {}; nothing was written",
         line_integral.width,
-        line_integral.height
+        line_integral.height,
+        cause()
     )
 }
 

@@ -147,16 +147,15 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
             })
         );
     }
-    check_finite(
-        &img,
-        &format!(
+    check_finite(&img, || {
+        format!(
             "μ(HU) = μ_water · (1 + HU/1000) with --mu-water {} mm⁻¹ (water is ≈ 0.02) and HU up to {}",
             spinedrr::error::shown(a.mu_water),
             spinedrr::error::shown(f64::from(
                 ct.values.iter().fold(0f32, |m, v| m.max(v.abs()))
             ))
-        ),
-    )?;
+        )
+    })?;
     let (lo, hi) = match &mask {
         Some(m) => (m.bbox.0, m.bbox.1),
         None => ([0; 3], ct.dims.map(|n| n - 1)),

@@ -354,31 +354,26 @@ fn failed_registration_trials_are_counted_never_averaged() {
     let out = dir.path().join("out");
     let (ok, err) = outcome(&study(&cfg, &out, &[]));
     assert!(ok, "{err}");
-    let read = |name: &str| -> Vec<std::collections::HashMap<String, String>> {
-        let mut r = csv::Reader::from_path(out.join("tables").join(name)).unwrap();
-        r.deserialize().map(|x| x.unwrap()).collect()
-    };
-    let trials = read("registration.csv");
-    let summary = read("registration_summary.csv");
-    assert_eq!((trials.len(), summary.len()), (24, 1));
-    let num = |r: &std::collections::HashMap<String, String>, k: &str| r[k].parse::<f64>().unwrap();
-    let (good, bad): (Vec<_>, Vec<_>) = trials.iter().partition(|r| r["converged"] == "true");
+    let t = spinedrr::study::StudyTables::load(&out).unwrap();
+    assert_eq!(
+        (t.registration.len(), t.registration_summary.len()),
+        (24, 1)
+    );
+    let (good, bad): (Vec<_>, Vec<_>) = t.registration.iter().partition(|r| r.converged);
     assert!(!bad.is_empty(), "no start failed");
     assert!(!good.is_empty(), "no start converged");
     // The failures are far from the truth (mirrored behind the source, or run off to the cap).
     assert!(
         bad.iter()
-            .all(|r| num(r, "rot_err_deg") > 10.0 || num(r, "trans_err_mm") > 100.0),
+            .all(|r| r.rot_err_deg > 10.0 || r.trans_err_mm > 100.0),
         "{bad:?}"
     );
-    let s = &summary[0];
-    assert_eq!(s["failed"], bad.len().to_string());
-    assert_eq!(s["n"], good.len().to_string());
+    let s = &t.registration_summary[0];
+    assert_eq!((s.failed, s.n), (bad.len(), good.len()));
     // The mean is the converged trials' own, not pulled by the failures.
-    let mean = good.iter().map(|r| num(r, "rot_err_deg")).sum::<f64>() / good.len() as f64;
-    let got = num(s, "rot_err_deg_mean");
+    let mean = good.iter().map(|r| r.rot_err_deg).sum::<f64>() / good.len() as f64;
     assert!(
-        (got - mean).abs() <= 1e-9 * mean.max(1.0),
+        (s.rot_err_deg_mean - mean).abs() <= 1e-9 * mean.max(1.0),
         "{s:?} vs {mean}"
     );
 }

@@ -195,6 +195,13 @@ impl VolumeRenderer {
     /// (−1000 HU, μ = 0) around the body does not count, so a source in the scan's empty margin is fine.
     pub fn attenuating_box_contains(&self, p: DVec3) -> bool {
         let x = self.world_to_index.transform_point3(p);
+        let inside = |lo: [usize; 3], hi: [usize; 3]| {
+            (0..3).all(|a| x[a] >= lo[a] as f64 - 0.5 && x[a] <= hi[a] as f64 + 0.5)
+        };
+        // The attenuating voxels lie in the clip box: outside it (the usual case) nothing is scanned.
+        if !inside(self.lo, self.hi) {
+            return false;
+        }
         let [nx, ny, _] = self.dims;
         let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
         for (n, _) in self.mu.iter().enumerate().filter(|(_, m)| **m > 0.0) {
@@ -204,8 +211,7 @@ impl VolumeRenderer {
                 hi[a] = hi[a].max(ijk[a]);
             }
         }
-        lo[0] != usize::MAX
-            && (0..3).all(|a| x[a] >= lo[a] as f64 - 0.5 && x[a] <= hi[a] as f64 + 0.5)
+        lo[0] != usize::MAX && inside(lo, hi)
     }
 
     /// The trilinear step actually used (mm).
