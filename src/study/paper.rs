@@ -42,11 +42,23 @@ pub struct Registration {
     pub kabsch_translation_mm: [f64; 2],
     pub direct_rotation_deg: [f64; 2],
     pub direct_translation_mm: [f64; 2],
+    /// How the paper says each of the four errors changes as Δf grows ("rising" for all four).
+    pub trend_with_df: String,
+}
+
+/// The paper's geometry and perturbation grid.
+#[derive(Debug, Clone, Deserialize)]
+pub struct PaperGeometry {
+    pub focal_length_px: f64,
+    pub detector_px: [u32; 2],
+    pub focal_perturbation_px: Vec<f64>,
+    pub piercing_perturbation_px: Vec<f64>,
 }
 
 /// What the paper reports.
 #[derive(Debug, Clone, Deserialize)]
 pub struct PaperResults {
+    pub geometry: PaperGeometry,
     pub silhouette: Silhouette,
     /// Landmark → [AP, LAT] shift (px) under one (unstated) focal perturbation.
     pub landmark_shift_px: BTreeMap<String, [f64; 2]>,

@@ -21,7 +21,6 @@ pub use comparison::{landmark_table, registration_table, silhouette_table};
 pub use latex::PaperTable;
 pub use layout::slug;
 
-use comparison::{ap_joint_dice_min, paper_ranges, projection_row, summary_range};
 
 use super::config::StudyConfig;
 use super::figures::{self, Section};
@@ -90,13 +89,19 @@ configuration is `study.toml`.\n",
         })
         .unwrap_or_default();
     let ratios = shift_ratio::ratios(&tables.landmarks, &piercing);
+    let at = |v: &str| piercing.get(v).map_or([f64::NAN; 2], |c| [c.0, c.1]);
     findings::section(
         &mut md,
         tables,
-        &paper,
-        &first,
-        shift_ratio::finding(&ratios),
-    );
+        &findings::Context {
+            out,
+            paper: &paper,
+            first: &first,
+            ratios: &ratios,
+            piercing: [at("ap"), at("lat")],
+            noise_px: cfg.registration.noise_px,
+        },
+    )?;
     shift_ratio::table(&mut md, &ratios);
     cohort::section(&mut md, out, cfg, tables);
     let mut n = 0;

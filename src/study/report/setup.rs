@@ -57,6 +57,11 @@ struct Footprint {
     touches_edge: bool,
 }
 
+/// Whether `target`'s reference silhouette in `view` touches the detector edge (cut off).
+pub fn cut_by_edge(out: &Path, target: &str, view: &str) -> bool {
+    footprint(out, target, view).is_some_and(|f| f.touches_edge)
+}
+
 fn footprint(out: &Path, target: &str, view: &str) -> Option<Footprint> {
     let img = read_tiff_f32(&reference_image_path(out, target, view)).ok()?;
     let (w, h) = (img.width, img.height);

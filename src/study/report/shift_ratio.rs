@@ -56,7 +56,7 @@ impl TargetRatio {
     }
 }
 
-fn spread(points: &[(f64, f64)], c: (f64, f64)) -> Spread {
+pub(super) fn spread(points: &[(f64, f64)], c: (f64, f64)) -> Spread {
     let n = points.len() as f64;
     let (mu, mv) = points
         .iter()
@@ -133,77 +133,6 @@ pub fn ratios(rows: &[LandmarkRow], piercing: &BTreeMap<String, (f64, f64)>) -> 
         });
     }
     out
-}
-
-/// The finding: per target the measured ratio, the distances it follows from, and the range over the
-/// single levels (a segment is reported on its own, never pooled with them).
-pub fn finding(r: &[TargetRatio]) -> Option<String> {
-    if r.is_empty() {
-        return None;
-    }
-    let is_segment = |t: &&TargetRatio| is_segment(&t.target);
-    let levels: Vec<&TargetRatio> = r.iter().filter(|t| !is_segment(t)).collect();
-    let mut s = String::from(
-        "Landmark shift under a pure focal error, per target on its fixed landmark set (measured in both \
-         views at every focal Δf), RMS over the set at the largest Δf: ",
-    );
-    if levels.len() > 1 {
-        let (lo, hi) = levels
-            .iter()
-            .map(|t| t.measured())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
-                (a.min(x), b.max(x))
-            });
-        let _ = write!(
-            s,
-            "LAT/AP is {lo:.2}–{hi:.2} over the {} single levels",
-            levels.len()
-        );
-    } else if let Some(t) = levels.first() {
-        let _ = write!(s, "LAT/AP is {:.2} for {}", t.measured(), t.target);
-    }
-    for (i, t) in r.iter().filter(is_segment).enumerate() {
-        let _ = write!(
-            s,
-            "{}{:.2} for {} (a segment: {} of its {} landmarks measured in every cell)",
-            if levels.is_empty() && i == 0 {
-                "LAT/AP is "
-            } else {
-                "; "
-            },
-            t.measured(),
-            t.target,
-            t.landmarks.len(),
-            t.landmarks.len() + t.left_out.len()
-        );
-    }
-    let _ = write!(
-        s,
-        ". The ratio is the geometry's, not the anatomy's response: a focal scale moves a point by \
-         (α − 1)·|x − c|, so the ratio equals that of the landmarks' RMS distances from the piercing \
-         point, √(o² + s²), where o is how far off the piercing point the anatomy sits and s how large \
-         it is drawn (the table below gives both per view; the predicted ratio multiplies back to the \
-         measured one)."
-    );
-    if let Some(t) = levels.first().copied().or(r.first()) {
-        let share = |v: &Spread| 100.0 * v.offset.powi(2) / v.rms_distance().powi(2);
-        let _ = write!(
-            s,
-            " For {}: LAT d = {:.1} px, of whose d² the offset is {:.0} % and the spread {:.0} %; AP d = \
-             {:.1} px, the offset {:.0} %. So {:.3} = {:.1} / {:.1} against the measured {:.3}.",
-            t.target,
-            t.lat.rms_distance(),
-            share(&t.lat),
-            100.0 - share(&t.lat),
-            t.ap.rms_distance(),
-            share(&t.ap),
-            t.predicted(),
-            t.lat.rms_distance(),
-            t.ap.rms_distance(),
-            t.measured()
-        );
-    }
-    Some(s)
 }
 
 /// The decomposition table.

@@ -1,0 +1,492 @@
+//! The data behind each sentence of *Findings*: a [`Claim`] is one number with where it comes from
+//! (which table, which rows, which column, which statistic — or which other claims, or the paper's
+//! file), and a [`Fact`] one categorical word (a verdict against the paper, a trend, a tie) with the
+//! rule and claims that decide it. `tables/findings.json` holds them all, so a reader (and the pytest
+//! recomputation) can re-derive every number and word of the prose from the CSV tables alone.
+//!
+//! Row selection is the same in both places by construction: a table is held as the text of its CSV
+//! cells ([`Table`]), and a claim's `where` names the cell texts its rows must have.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::study::schema::TableRow;
+
+/// A table as its CSV cells' text, one map per data row (in file order).
+pub struct Table {
+    pub name: &'static str,
+    pub rows: Vec<BTreeMap<String, String>>,
+}
+
+impl Table {
+    /// The cells of `rows` as the CSV writer writes them (the same serde derive).
+    pub fn of<R: TableRow>(rows: &[R]) -> Table {
+        let rows = rows
+            .iter()
+            .map(|r| match serde_json::to_value(r) {
+                Ok(serde_json::Value::Object(m)) => m
+                    .into_iter()
+                    .map(|(k, v)| {
+                        let text = match v {
+                            serde_json::Value::String(s) => s,
+                            other => other.to_string(),
+                        };
+                        (k, text)
+                    })
+                    .collect(),
+                _ => BTreeMap::new(),
+            })
+            .collect();
+        Table {
+            name: R::TABLE,
+            rows,
+        }
+    }
+
+    /// The file name, `<name>.csv`.
+    pub fn file(&self) -> String {
+        format!("{}.csv", self.name)
+    }
+
+    /// Indices of the rows whose cells match every condition of `w`.
+    pub fn select(&self, w: &Where) -> Vec<usize> {
+        self.rows
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| {
+                w.0.iter()
+                    .all(|(k, allowed)| r.get(k).is_some_and(|v| allowed.contains(v)))
+            })
+            .map(|(i, _)| i)
+            .collect()
+    }
+
+    /// The cell `column` of row `i` as a number (NaN when absent or not a number).
+    pub fn number(&self, i: usize, column: &str) -> f64 {
+        self.rows[i]
+            .get(column)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(f64::NAN)
+    }
+
+    /// The distinct texts of `column` over the rows matching `w`, in order of first appearance.
+    pub fn distinct(&self, w: &Where, column: &str) -> Vec<String> {
+        let mut out: Vec<String> = Vec::new();
+        for i in self.select(w) {
+            if let Some(v) = self.rows[i].get(column)
+                && !out.contains(v)
+            {
+                out.push(v.clone());
+            }
+        }
+        out
+    }
+}
+
+/// Row conditions: column → the cell texts allowed.
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
+pub struct Where(pub BTreeMap<String, Vec<String>>);
+
+impl Where {
+    pub fn new() -> Where {
+        Where::default()
+    }
+    /// The cell of `column` is `value` (a number as the CSV writes it: Rust's `{}`).
+    pub fn is(mut self, column: &str, value: impl ToString) -> Where {
+        self.0.insert(column.into(), vec![value.to_string()]);
+        self
+    }
+    /// The cell of `column` is one of `values`.
+    pub fn any<S: ToString>(mut self, column: &str, values: impl IntoIterator<Item = S>) -> Where {
+        self.0.insert(
+            column.into(),
+            values.into_iter().map(|v| v.to_string()).collect(),
+        );
+        self
+    }
+}
+
+/// What is applied to each cell before the statistic.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+#[serde(rename_all = "snake_case")]
+pub enum Transform {
+    Identity,
+    /// `1 − x` (Dice → silhouette loss).
+    OneMinus,
+}
+
+/// The statistic over the selected cells (non-finite cells are skipped; NaN without any).
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+#[serde(rename_all = "snake_case")]
+pub enum Stat {
+    /// The one selected row's cell.
+    Value,
+    Mean,
+    Min,
+    Max,
+    /// √(mean x²).
+    Rms,
+}
+
+/// Where a claim's value comes from.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Source {
+    /// `stat` of `transform(column)` over the rows of `table` matching `where` (0-based data rows).
+    Column {
+        table: String,
+        column: String,
+        transform: Transform,
+        stat: Stat,
+        #[serde(rename = "where")]
+        filter: Where,
+        rows: Vec<usize>,
+    },
+    /// Of the points (`columns[0]`, `columns[1]`) of the selected rows: the distance of their centroid
+    /// from `about` (`offset`) or their RMS distance from their centroid (`spread`).
+    Points {
+        table: String,
+        columns: [String; 2],
+        about: [f64; 2],
+        geometry: Geometry,
+        #[serde(rename = "where")]
+        filter: Where,
+        rows: Vec<usize>,
+    },
+    /// A formula of other claims (by id): `ratio` a / b, `hypot` √(a² + b²), `share_pct` 100·a²/(a² + b²),
+    /// `min` and `max` of all, `value` the one claim's value (printed at another precision).
+    Formula { op: Op, of: Vec<String> },
+    /// How many of `items` there are.
+    Count { items: Vec<String> },
+    /// In how many of the pairs (a, b) of claims a > b.
+    CountGreater { pairs: Vec<[String; 2]> },
+    /// A value of the paper (`reference/paper-results.toml`): `key` a dotted path; `index` picks from a
+    /// list; `mean_of_index` the mean over a table's entries of their `index`-th value.
+    Paper {
+        key: String,
+        index: Option<usize>,
+        mean_over_entries: bool,
+    },
+    /// A constant of the report's rules, named.
+    Rule { name: String },
+    /// A value of the run's configuration (`study.toml`), `key` a dotted path.
+    Config { key: String },
+    /// How many of the facts (by id) have the word `word`.
+    CountWord { facts: Vec<String>, word: String },
+}
+
+/// Which of [`Source::Points`]'s two statistics.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+#[serde(rename_all = "snake_case")]
+pub enum Geometry {
+    Offset,
+    Spread,
+}
+
+/// A formula of [`Source::Formula`].
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+#[serde(rename_all = "snake_case")]
+pub enum Op {
+    Ratio,
+    Hypot,
+    SharePct,
+    Min,
+    Max,
+    Value,
+}
+
+impl Op {
+    /// The formula of `v` (two values for the first three).
+    pub fn apply(self, v: &[f64]) -> f64 {
+        let (a, b) = (v.first().copied().unwrap_or(f64::NAN), v.get(1).copied().unwrap_or(f64::NAN));
+        match self {
+            Op::Ratio => a / b,
+            Op::Hypot => a.hypot(b),
+            Op::SharePct => 100.0 * a * a / (a * a + b * b),
+            Op::Min => v.iter().copied().fold(f64::INFINITY, f64::min),
+            Op::Max => v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            Op::Value => a,
+        }
+    }
+}
+
+/// One number of the findings.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Claim {
+    pub id: String,
+    pub value: f64,
+    /// As the prose prints it; `None` for a building block of other claims or facts.
+    pub text: Option<String>,
+    pub decimals: usize,
+    pub unit: &'static str,
+    /// How many values it is computed over.
+    pub n: usize,
+    pub target: String,
+    pub view: String,
+    pub family: String,
+    /// The perturbation cell (its parameters, px).
+    pub cell: BTreeMap<String, f64>,
+    pub source: Source,
+}
+
+impl Claim {
+    pub fn new(id: impl Into<String>, value: f64, source: Source) -> Claim {
+        Claim {
+            id: id.into(),
+            value,
+            text: None,
+            decimals: 0,
+            unit: "",
+            n: 1,
+            target: String::new(),
+            view: String::new(),
+            family: String::new(),
+            cell: BTreeMap::new(),
+            source,
+        }
+    }
+    /// Printed with `decimals` decimals and `unit`.
+    pub fn shown(mut self, decimals: usize, unit: &'static str) -> Claim {
+        self.decimals = decimals;
+        self.unit = unit;
+        self
+    }
+    pub fn about(mut self, target: &str, view: &str, family: &str) -> Claim {
+        self.target = target.into();
+        self.view = view.into();
+        self.family = family.into();
+        self
+    }
+    pub fn cell(mut self, key: &str, value: f64) -> Claim {
+        self.cell.insert(key.into(), value);
+        self
+    }
+    pub fn count(mut self, n: usize) -> Claim {
+        self.n = n;
+        self
+    }
+    /// The value as printed.
+    pub fn printed(&self) -> String {
+        format!("{:.*}", self.decimals, self.value)
+    }
+}
+
+/// One categorical word of the prose and the rule that decides it from claims: `interval` (args: our
+/// low, our high, the paper's low, high → inside, overlapping or outside), `trend` (args: the first
+/// and last value and their confidence half-widths → rising, falling or flat), `tie` (args a, b and a tolerance claim in % → tied), `paper` (the word
+/// is the value of the paper's key `of[0]`).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Fact {
+    pub id: String,
+    pub word: String,
+    pub rule: &'static str,
+    pub of: Vec<String>,
+}
+
+/// `interval`: where [a, b] lies against the paper's [lo, hi].
+pub fn interval(a: f64, b: f64, lo: f64, hi: f64) -> &'static str {
+    if a >= lo && b <= hi {
+        "inside"
+    } else if b < lo || a > hi {
+        "outside"
+    } else {
+        "overlapping"
+    }
+}
+
+/// `trend`: from the first to the last value (each with its 95 % confidence half-width; NaN counts as
+/// 0), `rising` or `falling` when they differ by more than the two half-widths together, else `flat`.
+pub fn trend(first: f64, last: f64, ci_first: f64, ci_last: f64) -> &'static str {
+    let ci = |c: f64| if c.is_finite() { c } else { 0.0 };
+    let margin = ci(ci_first) + ci(ci_last);
+    if last - first > margin {
+        "rising"
+    } else if first - last > margin {
+        "falling"
+    } else {
+        "flat"
+    }
+}
+
+/// `tie`: a and b differ by at most `pct` % of the larger magnitude.
+pub fn tie(a: f64, b: f64, pct: f64) -> bool {
+    (a - b).abs() <= pct / 100.0 * a.abs().max(b.abs())
+}
+
+/// One bullet of *Findings*: its Markdown and the claims and facts behind it.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Finding {
+    pub id: String,
+    pub text: String,
+    pub claims: Vec<Claim>,
+    pub facts: Vec<Fact>,
+}
+
+impl Finding {
+    pub fn new(id: &str) -> Finding {
+        Finding {
+            id: id.into(),
+            text: String::new(),
+            claims: Vec::new(),
+            facts: Vec::new(),
+        }
+    }
+
+    /// Records `c` as printed and returns its text.
+    pub fn say(&mut self, mut c: Claim) -> String {
+        let t = c.printed();
+        c.text = Some(t.clone());
+        self.claims.push(c);
+        t
+    }
+
+    /// Records `c` as a building block (not printed); returns its value.
+    pub fn keep(&mut self, c: Claim) -> f64 {
+        let v = c.value;
+        self.claims.push(c);
+        v
+    }
+
+    /// Records a categorical word and returns it.
+    pub fn fact(&mut self, id: &str, word: &str, rule: &'static str, of: Vec<String>) -> String {
+        self.facts.push(Fact {
+            id: id.into(),
+            word: word.into(),
+            rule,
+            of,
+        });
+        word.to_string()
+    }
+
+    /// The value of the claim `id`.
+    pub fn value(&self, id: &str) -> Option<f64> {
+        self.claims.iter().find(|c| c.id == id).map(|c| c.value)
+    }
+}
+
+/// A column statistic of `table` over the rows matching `w` (`None` without any finite cell).
+pub fn column(
+    table: &Table,
+    w: Where,
+    column: &str,
+    transform: Transform,
+    stat: Stat,
+) -> Option<(f64, usize, Source)> {
+    let rows = table.select(&w);
+    let v: Vec<f64> = rows
+        .iter()
+        .map(|&i| table.number(i, column))
+        .map(|x| match transform {
+            Transform::Identity => x,
+            Transform::OneMinus => 1.0 - x,
+        })
+        .filter(|x| x.is_finite())
+        .collect();
+    if v.is_empty() || (stat == Stat::Value && rows.len() != 1) {
+        return None;
+    }
+    let n = v.len() as f64;
+    let value = match stat {
+        Stat::Value => v[0],
+        Stat::Mean => v.iter().sum::<f64>() / n,
+        Stat::Min => v.iter().copied().fold(f64::INFINITY, f64::min),
+        Stat::Max => v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        Stat::Rms => (v.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+    };
+    Some((
+        value,
+        v.len(),
+        Source::Column {
+            table: table.file(),
+            column: column.into(),
+            transform,
+            stat,
+            filter: w,
+            rows,
+        },
+    ))
+}
+
+/// The offset or spread of the points (`u`, `v`) of the rows matching `w` about `c`.
+pub fn points(
+    table: &Table,
+    w: Where,
+    [u, v]: [&str; 2],
+    c: [f64; 2],
+    geometry: Geometry,
+) -> Option<(f64, usize, Source)> {
+    let rows = table.select(&w);
+    let p: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|&i| (table.number(i, u), table.number(i, v)))
+        .collect();
+    if p.is_empty() || p.iter().any(|q| !q.0.is_finite() || !q.1.is_finite()) {
+        return None;
+    }
+    let s = crate::study::report::shift_ratio::spread(&p, (c[0], c[1]));
+    let value = match geometry {
+        Geometry::Offset => s.offset,
+        Geometry::Spread => s.spread,
+    };
+    Some((
+        value,
+        p.len(),
+        Source::Points {
+            table: table.file(),
+            columns: [u.into(), v.into()],
+            about: c,
+            geometry,
+            filter: w,
+            rows,
+        },
+    ))
+}
+
+/// A formula claim of the claims `of` of `f` (`None` when one is missing).
+pub fn formula<S: AsRef<str>>(f: &Finding, id: &str, op: Op, of: &[S]) -> Option<Claim> {
+    let v = of
+        .iter()
+        .map(|a| f.value(a.as_ref()))
+        .collect::<Option<Vec<f64>>>()?;
+    Some(
+        Claim::new(
+            id,
+            op.apply(&v),
+            Source::Formula {
+                op,
+                of: of.iter().map(|a| a.as_ref().to_string()).collect(),
+            },
+        )
+        .count(v.len()),
+    )
+}
+
+/// A count claim of `items`.
+pub fn count(id: &str, items: &[String]) -> Claim {
+    Claim::new(
+        id,
+        items.len() as f64,
+        Source::Count {
+            items: items.to_vec(),
+        },
+    )
+    .count(items.len())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_rules_decide_their_words() {
+        assert_eq!(interval(0.1, 0.3, 0.05, 0.37), "inside");
+        assert_eq!(interval(0.14, 0.7, 0.05, 0.37), "overlapping");
+        assert_eq!(interval(0.01, 0.7, 0.05, 0.37), "overlapping");
+        assert_eq!(interval(0.4, 0.7, 0.05, 0.37), "outside");
+        assert_eq!(trend(1.0, 3.0, 0.5, 0.5), "rising");
+        assert_eq!(trend(3.0, 1.0, 0.5, f64::NAN), "falling");
+        assert_eq!(trend(1.0, 1.8, 0.5, 0.5), "flat");
+        assert!(tie(0.289, 0.288, 2.0) && !tie(0.3, 0.2, 2.0));
+    }
+}
