@@ -159,8 +159,12 @@ pub enum Source {
     Formula { op: Op, of: Vec<String> },
     /// How many of `items` there are.
     Count { items: Vec<String> },
-    /// In how many of the pairs (a, b) of claims a > b.
-    CountGreater { pairs: Vec<[String; 2]> },
+    /// In how many of the pairs (a, b) of claims a > b by more than the printed precision: their
+    /// texts at `decimals` decimals differ (equal texts are a tie).
+    CountGreater {
+        pairs: Vec<[String; 2]>,
+        decimals: usize,
+    },
     /// A value of the paper (`reference/paper-results.toml`): `key` a dotted path; `index` picks from a
     /// list; `mean_of_index` the mean over a table's entries of their `index`-th value.
     Paper {
@@ -307,6 +311,24 @@ pub fn trend(first: f64, last: f64, ci_first: f64, ci_last: f64) -> &'static str
     } else {
         "flat"
     }
+}
+
+/// Whether `a > b` beyond `decimals` decimals: printed alike they are a tie, not an order.
+pub fn greater(a: f64, b: f64, decimals: usize) -> bool {
+    a > b && format!("{a:.decimals$}") != format!("{b:.decimals$}")
+}
+
+/// A [`Source::CountGreater`] claim over `pairs` of `f`'s claims.
+pub fn count_greater(f: &Finding, id: &str, pairs: Vec<[String; 2]>, decimals: usize) -> Claim {
+    let k = pairs
+        .iter()
+        .filter(|[a, b]| match (f.value(a), f.value(b)) {
+            (Some(a), Some(b)) => greater(a, b, decimals),
+            _ => false,
+        })
+        .count();
+    let n = pairs.len();
+    Claim::new(id, k as f64, Source::CountGreater { pairs, decimals }).count(n)
 }
 
 /// `tie`: a and b differ by at most `pct` % of the larger magnitude.

@@ -1,7 +1,9 @@
 //! Findings of the projection tables: silhouette loss per perturbation family, the most and least
 //! sensitive structures, and the first target's Dice against the paper's.
 
-use super::claim::{Claim, Finding, Source, Stat, Transform, Where, column, count, tie};
+use super::claim::{
+    Claim, Finding, Source, Stat, Transform, Where, column, count, count_greater, greater, tie,
+};
 use super::{Inputs, sources, split_targets};
 use crate::study::schema::{ProjectionRow, StructureRow};
 
@@ -58,7 +60,36 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
             _ => format!("Δf = {top} px"),
         };
         let mut text = format!("Under {what} ({where_})");
-        if !levels.is_empty() {
+        if let [level] = &levels[..] {
+            let mut one = |view: &str| {
+                let (v, _, src) = column(
+                    t,
+                    at.clone().is("view", view).is("target", level),
+                    "dice",
+                    Transform::OneMinus,
+                    Stat::Value,
+                )?;
+                Some((
+                    v,
+                    f.say(
+                        cell(Claim::new(format!("dice.{family}.{level}.{view}"), v, src))
+                            .shown(3, "")
+                            .about(level, view, family),
+                    ),
+                ))
+            };
+            let (Some(ap), Some(lat)) = (one("ap"), one("lat")) else {
+                continue;
+            };
+            let more = if greater(lat.0, ap.0, 3) {
+                "LAT loses more"
+            } else if greater(ap.0, lat.0, 3) {
+                "AP loses more"
+            } else {
+                "AP and LAT alike at the printed precision"
+            };
+            text.push_str(&format!(" {level} loses AP {}, LAT {}: {more}", ap.1, lat.1));
+        } else if !levels.is_empty() {
             let mut range = |view: &str, stat: Stat| {
                 let (v, n, src) = column(
                     t,
@@ -103,26 +134,34 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
                     pairs.push((ap, lat));
                 }
             }
-            let lat_more = pairs.iter().filter(|(a, l)| l.1 > a.1).count();
             let n = f.say(count(&format!("dice.{family}.levels"), &levels));
-            let k = f.say(
-                Claim::new(
-                    format!("dice.{family}.lat_more"),
-                    lat_more as f64,
-                    Source::CountGreater {
-                        pairs: pairs.iter().map(|(a, l)| [l.0.clone(), a.0.clone()]).collect(),
-                    },
-                )
-                .about(&levels.join(","), "lat>ap", family)
-                .count(pairs.len()),
-            );
-            let direction = match lat_more {
-                0 => "AP loses more in every level".to_string(),
-                m if m == pairs.len() => "LAT loses more in every level".to_string(),
-                _ => format!("LAT loses more in {k} of {n} levels, AP in the others"),
+            let ids = |first: bool| -> Vec<[String; 2]> {
+                pairs
+                    .iter()
+                    .map(|(a, l)| if first { [l.0.clone(), a.0.clone()] } else { [a.0.clone(), l.0.clone()] })
+                    .collect()
             };
+            let lat = count_greater(&f, &format!("dice.{family}.lat_more"), ids(true), 3)
+                .about(&levels.join(","), "lat>ap", family);
+            let ap = count_greater(&f, &format!("dice.{family}.ap_more"), ids(false), 3)
+                .about(&levels.join(","), "ap>lat", family);
+            let (kl, ka) = (lat.value as usize, ap.value as usize);
+            let (lat, ap) = (f.say(lat), f.say(ap));
+            let m = pairs.len();
+            let direction = if kl == m {
+                "LAT loses more in every level".to_string()
+            } else if ka == m {
+                "AP loses more in every level".to_string()
+            } else if kl + ka == 0 {
+                "AP and LAT alike (equal at the printed precision) in every level".to_string()
+            } else {
+                let equal = if kl + ka < m { ", equal at the printed precision in the others" } else { "" };
+                format!("LAT loses more in {lat} of {n} levels, AP in {ap}{equal}")
+            };
+            let span = |a: String, b: String| if a == b { a } else { format!("{a}–{b}") };
+            let (ap_r, lat_r) = (span(ap0, ap1), span(lat0, lat1));
             text.push_str(&format!(
-                " the {n} single levels lose AP {ap0}–{ap1}, LAT {lat0}–{lat1}: {direction}"
+                " the {n} single levels lose AP {ap_r}, LAT {lat_r}: {direction}"
             ));
         }
         for s in &segments {
@@ -333,7 +372,7 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
     f.text = format!(
         "{first} LAT Dice at focal Δf 100 / 500 px is {a} / {b} against the paper's {pa} / {pb}{ap}: a \
 focal change scales the silhouette about the piercing point by `(f + Δf)/f`, so overlap falls in every \
-view; the paper's near-1 AP Dice cannot come from this pinhole model, and we report what the model gives \
+view; the paper's near-unity AP Dice cannot come from this pinhole model, and we report what the model gives \
 {}.",
         sources::<ProjectionRow>("dice_vs_perturbation.png")
     );

@@ -3,7 +3,8 @@
 //! trends against the paper's.
 
 use super::claim::{
-    Claim, Finding, Source, Stat, Table, Transform, Where, column, count, interval, trend,
+    Claim, Finding, Source, Stat, Table, Transform, Where, column, count, count_greater, interval,
+    trend,
 };
 use super::{Inputs, sources, split_targets};
 use crate::study::schema::RegistrationSummaryRow;
@@ -19,7 +20,8 @@ fn grid(t: &Table, col: &str) -> Vec<String> {
     v.into_iter().map(|x| x.1).collect()
 }
 
-/// The range (min and max claims, printed) of `col` for `method` over the rows of `at`.
+/// The range of `col` for `method` over the rows of `at` (its min and max claims, printed as `a–b`), or
+/// the one value when `at` holds one target; `unit` follows.
 fn range(
     f: &mut Finding,
     t: &Table,
@@ -27,17 +29,30 @@ fn range(
     id: &str,
     (method, col, unit): (&str, &str, &'static str),
     (target, family): (&str, &str),
-) -> Option<(String, String)> {
+) -> Option<String> {
+    let w = at.clone().is("method", method);
+    let cells: Vec<(String, f64)> = w
+        .0
+        .iter()
+        .filter(|(k, v)| (k.as_str() == "df_px" || k.as_str() == "piercing_px") && v.len() == 1)
+        .filter_map(|(k, v)| Some((k.clone(), v[0].parse().ok()?)))
+        .collect();
     let mut one = |stat: Stat, name: &str| {
-        let (v, n, src) = column(t, at.clone().is("method", method), col, Transform::Identity, stat)?;
-        Some(f.say(
-            Claim::new(format!("{id}.{method}.{col}.{name}"), v, src)
-                .shown(3, unit)
-                .about(target, method, family)
-                .count(n),
-        ))
+        let (v, n, src) = column(t, w.clone(), col, Transform::Identity, stat)?;
+        let mut c = Claim::new(format!("{id}.{method}.{col}.{name}"), v, src)
+            .shown(3, unit)
+            .about(target, method, family)
+            .count(n);
+        for (k, x) in &cells {
+            c = c.cell(k, *x);
+        }
+        Some(f.say(c))
     };
-    Some((one(Stat::Min, "min")?, one(Stat::Max, "max")?))
+    let u = spaced(unit);
+    if t.distinct(&w, "target").len() == 1 {
+        return Some(format!("{}{u}", one(Stat::Value, "value")?));
+    }
+    Some(format!("{}–{}{u}", one(Stat::Min, "min")?, one(Stat::Max, "max")?))
 }
 
 /// Registration error at each family's largest step: Kabsch and two-view direct as ranges over the
@@ -84,13 +99,13 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
             if !has(m) {
                 continue;
             }
-            let (r0, r1) = range(&mut f, t, &at, &id, (m, "rot_err_deg_mean", "°"), who)?;
-            let (t0, t1) = range(&mut f, t, &at, &id, (m, "trans_err_mm_mean", "mm"), who)?;
-            said.push(format!("{m} {r0}–{r1}° and {t0}–{t1} mm"));
+            let r = range(&mut f, t, &at, &id, (m, "rot_err_deg_mean", "°"), who)?;
+            let tr = range(&mut f, t, &at, &id, (m, "trans_err_mm_mean", "mm"), who)?;
+            said.push(format!("{m} {r} and {tr}"));
         }
         if has("direct-ap") && has("direct-lat") {
-            let (a0, a1) = range(&mut f, t, &at, &id, ("direct-ap", "trans_err_mm_mean", "mm"), who)?;
-            let (l0, l1) = range(&mut f, t, &at, &id, ("direct-lat", "trans_err_mm_mean", "mm"), who)?;
+            let a = range(&mut f, t, &at, &id, ("direct-ap", "trans_err_mm_mean", "mm"), who)?;
+            let l = range(&mut f, t, &at, &id, ("direct-lat", "trans_err_mm_mean", "mm"), who)?;
             let mut pairs = Vec::new();
             for level in &levels {
                 let mut one = |m: &str| {
@@ -106,25 +121,24 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
                 }
             }
             let n = pairs.len();
-            let lat_smaller = f.say(
-                Claim::new(
-                    format!("{id}.lat_smaller"),
-                    pairs
-                        .iter()
-                        .filter(|[a, l]| f.value(l) < f.value(a))
-                        .count() as f64,
-                    Source::CountGreater { pairs: pairs.clone() },
-                )
-                .count(n),
-            );
-            let k: usize = lat_smaller.parse().unwrap_or(0);
-            let direction = match k {
-                0 => "AP smaller in every level".to_string(),
-                k if k == n => "LAT smaller in every level".to_string(),
-                _ => format!("LAT smaller in {lat_smaller} of them, AP in the others"),
+            let swapped: Vec<[String; 2]> = pairs.iter().map(|[a, l]| [l.clone(), a.clone()]).collect();
+            let lat = count_greater(&f, &format!("{id}.lat_smaller"), pairs.clone(), 3);
+            let ap = count_greater(&f, &format!("{id}.ap_smaller"), swapped, 3);
+            let (kl, ka) = (lat.value as usize, ap.value as usize);
+            let (lat, ap) = (f.say(lat), f.say(ap));
+            let every = if n == 1 { "" } else { " in every level" };
+            let direction = if kl == n {
+                format!("LAT smaller{every}")
+            } else if ka == n {
+                format!("AP smaller{every}")
+            } else if kl + ka == 0 {
+                format!("alike at the printed precision{every}")
+            } else {
+                let equal = if kl + ka < n { ", equal at the printed precision in the others" } else { "" };
+                format!("LAT smaller in {lat} of them, AP in {ap}{equal}")
             };
             said.push(format!(
-                "single-view translation direct-ap {a0}–{a1} mm against direct-lat {l0}–{l1} mm, {direction}"
+                "single-view translation direct-ap {a} against direct-lat {l}, {direction}"
             ));
         }
         parts.push(format!("under {what} ({cell}): {}", said.join("; ")));
@@ -142,11 +156,18 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
         )
         .shown(decimals(x.noise_px), "px"),
     );
-    let n = f.say(count("registration.levels", &levels));
+    let over = if levels.len() == 1 {
+        format!("for {}", levels[0])
+    } else {
+        format!(
+            "a range over the {} single levels",
+            f.say(count("registration.levels", &levels))
+        )
+    };
     f.text = format!(
         "Registration error at each family's largest step, as the mean over a cell's trials (landmarks \
-observed with Gaussian noise σ = {sigma} px), a range over the {n} single levels: {} {}; each cell's \
-confidence interval is in the registration section.",
+observed with Gaussian noise σ = {sigma} px), {over}: {} {}; each cell's confidence interval is in the \
+registration section.",
         parts.join("; "),
         sources::<RegistrationSummaryRow>(&format!("registration_{}_rot.png", x.first))
     );
