@@ -195,8 +195,11 @@ impl Default for PerturbationGrid {
         PerturbationGrid {
             df_px: vec![100.0, 200.0, 300.0, 400.0, 500.0],
             piercing_px: vec![0.0, 10.0, 20.0, 30.0, 40.0, 50.0],
-            skew_px: vec![],
-            pixel_scale: vec![],
+            // The paper's other two families, on scales a C-arm calibration can plausibly miss: a
+            // detector shear of atan(s/fy) = 0.03–0.13° and a v pixel spacing 0.5–2 % too small (as an
+            // SDD error of 7–27 mm at fy = 4500 px); the report's Setup states them so.
+            skew_px: vec![2.0, 5.0, 10.0],
+            pixel_scale: vec![1.005, 1.01, 1.02],
         }
     }
 }

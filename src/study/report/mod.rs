@@ -6,6 +6,7 @@ mod calibration;
 pub mod cohort;
 mod comparison;
 mod findings;
+mod grid;
 mod intensity;
 pub mod latex;
 mod layout;
@@ -20,7 +21,6 @@ use super::paper::PaperResults;
 pub use comparison::{landmark_table, registration_table, silhouette_table};
 pub use latex::PaperTable;
 pub use layout::slug;
-
 
 use super::config::StudyConfig;
 use super::figures::{self, Section};

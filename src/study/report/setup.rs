@@ -162,9 +162,18 @@ pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, targets: &[String
             big.to_uppercase()
         );
     }
+    if let Some(v) = carm
+        .views
+        .iter()
+        .find(|v| cfg.geometry.views.contains(&v.name))
+    {
+        let _ = writeln!(md);
+        let sdd = g.detector.k.is_none().then_some(g.detector.sdd_mm);
+        super::grid::table(md, &cfg.perturbations, &v.intrinsics, sp, sdd);
+    }
     let _ = writeln!(
         md,
-        "\nWhere each target's reference silhouette lies on the detector: its centroid's offset from the \
+        "Where each target's reference silhouette lies on the detector: its centroid's offset from the \
          piercing point (cx, cy) and its bounding box, in px and in mm at the detector. Under a focal \
          scale α every point moves by (α − 1)·|x − c|, so a target far from the piercing point, or large \
          on the detector, moves more.\n"

@@ -1,9 +1,8 @@
 //! Findings of the landmark table: the LAT/AP shift ratio per target on its fixed landmark set with
 //! its geometric decomposition, and the first target's shifts against the paper's.
 
-use super::claim::{
-    Claim, Finding, Geometry, Op, Source, Stat, Transform, Where, column, count, formula, points,
-};
+use super::claim::{Claim, Finding, Geometry, Op, Source, Stat, Transform, Where};
+use super::derive::{column, count, formula, points};
 use super::{Inputs, sources};
 use crate::study::schema::LandmarkRow;
 
@@ -40,9 +39,12 @@ pub fn ratio(x: &Inputs) -> Option<Finding> {
                     .count(n),
             );
             for g in [Geometry::Offset, Geometry::Spread] {
-                let (v, _, src) =
-                    points(t, at(view), ["ref_u_px", "ref_v_px"], x.piercing[i], g)?;
-                let name = if g == Geometry::Offset { "offset" } else { "spread" };
+                let (v, _, src) = points(t, at(view), ["ref_u_px", "ref_v_px"], x.piercing[i], g)?;
+                let name = if g == Geometry::Offset {
+                    "offset"
+                } else {
+                    "spread"
+                };
                 f.keep(
                     Claim::new(format!("ratio.{tg}.{name}_{view}"), v, src)
                         .shown(1, "px")
@@ -54,7 +56,10 @@ pub fn ratio(x: &Inputs) -> Option<Finding> {
                 &f,
                 &format!("ratio.{tg}.d_{view}"),
                 Op::Hypot,
-                &[format!("ratio.{tg}.offset_{view}"), format!("ratio.{tg}.spread_{view}")],
+                &[
+                    format!("ratio.{tg}.offset_{view}"),
+                    format!("ratio.{tg}.spread_{view}"),
+                ],
             )?;
             f.keep(d.shown(1, "px").about(tg, view, "focal"));
         }
@@ -70,12 +75,17 @@ pub fn ratio(x: &Inputs) -> Option<Finding> {
             Op::Ratio,
             &[format!("ratio.{tg}.d_lat"), format!("ratio.{tg}.d_ap")],
         )?;
-        f.keep(m.shown(3, "").about(tg, "lat/ap", "focal").cell("df_px", df));
+        f.keep(
+            m.shown(3, "")
+                .about(tg, "lat/ap", "focal")
+                .cell("df_px", df),
+        );
         f.keep(p.shown(3, "").about(tg, "lat/ap", "focal"));
         measured.push((r, format!("ratio.{tg}.measured")));
     }
-    let (levels, segments): (Vec<_>, Vec<_>) =
-        measured.iter().partition(|(r, _)| !super::is_segment(&r.target));
+    let (levels, segments): (Vec<_>, Vec<_>) = measured
+        .iter()
+        .partition(|(r, _)| !super::is_segment(&r.target));
     let mut s = String::from(
         "Landmark shift under a pure focal error, per target on its fixed landmark set (measured in both \
 views at every focal Δf), RMS over the set at the largest Δf: ",
@@ -90,20 +100,38 @@ views at every focal Δf), RMS over the set at the largest Δf: ",
         s.push_str(&format!("LAT/AP is {lo}–{hi} over the {n} single levels"));
     } else if let Some((r, id)) = levels.first() {
         let v = f.value(id)?;
-        let c = Claim::new(format!("{id}.2"), v, Source::Formula { op: Op::Value, of: vec![id.clone()] });
+        let c = Claim::new(
+            format!("{id}.2"),
+            v,
+            Source::Formula {
+                op: Op::Value,
+                of: vec![id.clone()],
+            },
+        );
         let m = f.say(c.shown(2, ""));
         s.push_str(&format!("LAT/AP is {m} for {}", r.target));
     }
     for (i, (r, id)) in segments.iter().enumerate() {
         let v = f.value(id)?;
-        let c = Claim::new(format!("{id}.2"), v, Source::Formula { op: Op::Value, of: vec![id.clone()] });
+        let c = Claim::new(
+            format!("{id}.2"),
+            v,
+            Source::Formula {
+                op: Op::Value,
+                of: vec![id.clone()],
+            },
+        );
         let m = f.say(c.shown(2, ""));
         let kept = f.say(count(&format!("ratio.{}.kept", r.target), &r.landmarks));
         let all: Vec<String> = r.landmarks.iter().chain(&r.left_out).cloned().collect();
         let total = f.say(count(&format!("ratio.{}.all", r.target), &all));
         s.push_str(&format!(
             "{}{m} for {} (a segment: {kept} of its {total} landmarks measured in every cell)",
-            if levels.is_empty() && i == 0 { "LAT/AP is " } else { "; " },
+            if levels.is_empty() && i == 0 {
+                "LAT/AP is "
+            } else {
+                "; "
+            },
             r.target,
         ));
     }
@@ -125,14 +153,19 @@ views at every focal Δf), RMS over the set at the largest Δf: ",
         };
         let copy = |f: &mut Finding, name: &str, d: usize| {
             let v = f.value(&id(name))?;
-            Some(f.say(
-                Claim::new(
-                    id(&format!("{name}.shown")),
-                    v,
-                    Source::Formula { op: Op::Value, of: vec![id(name)] },
-                )
-                .shown(d, ""),
-            ))
+            Some(
+                f.say(
+                    Claim::new(
+                        id(&format!("{name}.shown")),
+                        v,
+                        Source::Formula {
+                            op: Op::Value,
+                            of: vec![id(name)],
+                        },
+                    )
+                    .shown(d, ""),
+                ),
+            )
         };
         let (dl, da) = (copy(&mut f, "d_lat", 1)?, copy(&mut f, "d_ap", 1)?);
         let (ol, sl, oa) = (
@@ -179,29 +212,33 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
             Transform::Identity,
             Stat::Mean,
         )?;
-        ours.push(f.say(
-            Claim::new(format!("landmarks.{first}.{view}.mean"), v, src)
-                .shown(2, "px")
-                .about(first, view, "focal")
-                .cell("df_px", 100.0)
-                .count(n),
-        ));
+        ours.push(
+            f.say(
+                Claim::new(format!("landmarks.{first}.{view}.mean"), v, src)
+                    .shown(2, "px")
+                    .about(first, view, "focal")
+                    .cell("df_px", 100.0)
+                    .count(n),
+            ),
+        );
     }
     let mut paper = Vec::new();
     for (i, view) in ["ap", "lat"].iter().enumerate() {
-        paper.push(f.say(
-            Claim::new(
-                format!("paper.landmark_shift_px.{view}.mean"),
-                x.paper.mean_landmark_shift(i),
-                Source::Paper {
-                    key: "landmark_shift_px".into(),
-                    index: Some(i),
-                    mean_over_entries: true,
-                },
-            )
-            .shown(2, "px")
-            .count(theirs.len()),
-        ));
+        paper.push(
+            f.say(
+                Claim::new(
+                    format!("paper.landmark_shift_px.{view}.mean"),
+                    x.paper.mean_landmark_shift(i),
+                    Source::Paper {
+                        key: "landmark_shift_px".into(),
+                        index: Some(i),
+                        mean_over_entries: true,
+                    },
+                )
+                .shown(2, "px")
+                .count(theirs.len()),
+            ),
+        );
     }
     let k = f.say(count("landmarks.matched", &matched));
     let n = f.say(count("landmarks.paper", &theirs));

@@ -8,6 +8,7 @@
 //! are called ties; the paper is compared by interval logic and trends as trends.
 
 pub mod claim;
+mod derive;
 mod landmarks;
 mod projection;
 mod registration;

@@ -1,9 +1,8 @@
 //! Findings of the projection tables: silhouette loss per perturbation family, the most and least
 //! sensitive structures, and the first target's Dice against the paper's.
 
-use super::claim::{
-    Claim, Finding, Source, Stat, Transform, Where, column, count, count_greater, greater, tie,
-};
+use super::claim::{Claim, Finding, Source, Stat, Transform, Where};
+use super::derive::{column, count, count_greater, greater, tie};
 use super::{Inputs, sources, split_targets};
 use crate::study::schema::{ProjectionRow, StructureRow};
 
@@ -88,7 +87,10 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
             } else {
                 "AP and LAT alike at the printed precision"
             };
-            text.push_str(&format!(" {level} loses AP {}, LAT {}: {more}", ap.1, lat.1));
+            text.push_str(&format!(
+                " {level} loses AP {}, LAT {}: {more}",
+                ap.1, lat.1
+            ));
         } else if !levels.is_empty() {
             let mut range = |view: &str, stat: Stat| {
                 let (v, n, src) = column(
@@ -101,10 +103,14 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
                 let name = if stat == Stat::Min { "min" } else { "max" };
                 Some(
                     f.say(
-                        cell(Claim::new(format!("dice.{family}.levels.{view}.{name}"), v, src))
-                            .shown(3, "")
-                            .about(&levels.join(","), view, family)
-                            .count(n),
+                        cell(Claim::new(
+                            format!("dice.{family}.levels.{view}.{name}"),
+                            v,
+                            src,
+                        ))
+                        .shown(3, "")
+                        .about(&levels.join(","), view, family)
+                        .count(n),
                     ),
                 )
             };
@@ -138,13 +144,25 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
             let ids = |first: bool| -> Vec<[String; 2]> {
                 pairs
                     .iter()
-                    .map(|(a, l)| if first { [l.0.clone(), a.0.clone()] } else { [a.0.clone(), l.0.clone()] })
+                    .map(|(a, l)| {
+                        if first {
+                            [l.0.clone(), a.0.clone()]
+                        } else {
+                            [a.0.clone(), l.0.clone()]
+                        }
+                    })
                     .collect()
             };
-            let lat = count_greater(&f, &format!("dice.{family}.lat_more"), ids(true), 3)
-                .about(&levels.join(","), "lat>ap", family);
-            let ap = count_greater(&f, &format!("dice.{family}.ap_more"), ids(false), 3)
-                .about(&levels.join(","), "ap>lat", family);
+            let lat = count_greater(&f, &format!("dice.{family}.lat_more"), ids(true), 3).about(
+                &levels.join(","),
+                "lat>ap",
+                family,
+            );
+            let ap = count_greater(&f, &format!("dice.{family}.ap_more"), ids(false), 3).about(
+                &levels.join(","),
+                "ap>lat",
+                family,
+            );
             let (kl, ka) = (lat.value as usize, ap.value as usize);
             let (lat, ap) = (f.say(lat), f.say(ap));
             let m = pairs.len();
@@ -155,7 +173,11 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
             } else if kl + ka == 0 {
                 "AP and LAT alike (equal at the printed precision) in every level".to_string()
             } else {
-                let equal = if kl + ka < m { ", equal at the printed precision in the others" } else { "" };
+                let equal = if kl + ka < m {
+                    ", equal at the printed precision in the others"
+                } else {
+                    ""
+                };
                 format!("LAT loses more in {lat} of {n} levels, AP in {ap}{equal}")
             };
             let span = |a: String, b: String| if a == b { a } else { format!("{a}–{b}") };
@@ -190,7 +212,10 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
                 let flag = if cut.is_empty() {
                     String::new()
                 } else {
-                    format!(" (cut by the detector edge in {}: not comparable)", cut.join(" and "))
+                    format!(
+                        " (cut by the detector edge in {}: not comparable)",
+                        cut.join(" and ")
+                    )
                 };
                 text.push_str(&format!("; {s} AP {ap}, LAT {lat}{flag}"));
             }
@@ -248,10 +273,18 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
         .collect();
     loss.sort_by(|a, b| b.1.total_cmp(&a.1));
     let (most, least) = (loss.first()?.1, loss.last()?.1);
-    let tol = f.say(Claim::new("tie_pct", TIE_PCT, Source::Rule { name: "tie_pct".into() }));
+    let tol = f.say(Claim::new(
+        "tie_pct",
+        TIE_PCT,
+        Source::Rule {
+            name: "tie_pct".into(),
+        },
+    ));
     let tied = |v: f64, extreme: f64| tie(v, extreme, TIE_PCT);
     let top_set: Vec<usize> = (0..loss.len()).filter(|&i| tied(loss[i].1, most)).collect();
-    let bottom: Vec<usize> = (0..loss.len()).filter(|&i| tied(loss[i].1, least)).collect();
+    let bottom: Vec<usize> = (0..loss.len())
+        .filter(|&i| tied(loss[i].1, least))
+        .collect();
     let view = t
         .select(&at)
         .first()
@@ -265,7 +298,16 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
             f.say(loss[loss.len() - 1].2.clone()),
             f.say(loss[0].2.clone()),
         );
-        f.fact("structures.all_tied", "tied", "tie", vec![loss[0].2.id.clone(), loss[loss.len() - 1].2.id.clone(), "tie_pct".into()]);
+        f.fact(
+            "structures.all_tied",
+            "tied",
+            "tie",
+            vec![
+                loss[0].2.id.clone(),
+                loss[loss.len() - 1].2.id.clone(),
+                "tie_pct".into(),
+            ],
+        );
         f.text = format!(
             "At focal Δf {df_text} px every structure loses alike (mean `1 − Dice` over {over} and both \
 views {lo}–{hi}, within {tol} % of each other) {}.",
@@ -282,7 +324,11 @@ views {lo}–{hi}, within {tol} % of each other) {}.",
                     &format!("structures.{name}.tie.{}", loss[i].0),
                     "tied",
                     "tie",
-                    vec![loss[idx[0]].2.id.clone(), loss[i].2.id.clone(), "tie_pct".into()],
+                    vec![
+                        loss[idx[0]].2.id.clone(),
+                        loss[i].2.id.clone(),
+                        "tie_pct".into(),
+                    ],
                 );
             }
         }
@@ -323,12 +369,14 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
             Transform::Identity,
             Stat::Value,
         )?;
-        Some(f.say(
-            Claim::new(format!("dice.{first}.lat.focal.df{df}"), v, src)
-                .shown(3, "")
-                .about(first, "lat", "focal")
-                .cell("df_px", df.parse().unwrap_or(f64::NAN)),
-        ))
+        Some(
+            f.say(
+                Claim::new(format!("dice.{first}.lat.focal.df{df}"), v, src)
+                    .shown(3, "")
+                    .about(first, "lat", "focal")
+                    .cell("df_px", df.parse().unwrap_or(f64::NAN)),
+            ),
+        )
     };
     let (a, b) = (lat(&mut f, "100")?, lat(&mut f, "500")?);
     let paper = |f: &mut Finding, key: &str, v: f64| {
@@ -347,12 +395,23 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
     };
     let s = &x.paper.silhouette;
     let (pa, pb) = (
-        paper(&mut f, "silhouette.lat_dice.at_df_100", s.lat_dice.at_df_100),
-        paper(&mut f, "silhouette.lat_dice.at_df_500", s.lat_dice.at_df_500),
+        paper(
+            &mut f,
+            "silhouette.lat_dice.at_df_100",
+            s.lat_dice.at_df_100,
+        ),
+        paper(
+            &mut f,
+            "silhouette.lat_dice.at_df_500",
+            s.lat_dice.at_df_500,
+        ),
     );
     let min = column(
         t,
-        Where::new().is("target", first).is("view", "ap").is("family", "joint"),
+        Where::new()
+            .is("target", first)
+            .is("view", "ap")
+            .is("family", "joint"),
         "dice",
         Transform::Identity,
         Stat::Min,

@@ -2,10 +2,8 @@
 //! step (single levels as a range, single-view AP against LAT), and the first target's ranges and
 //! trends against the paper's.
 
-use super::claim::{
-    Claim, Finding, Source, Stat, Table, Transform, Where, column, count, count_greater, interval,
-    trend,
-};
+use super::claim::{Claim, Finding, Source, Stat, Table, Transform, Where};
+use super::derive::{column, count, count_greater, interval, trend};
 use super::{Inputs, sources, split_targets};
 use crate::study::schema::RegistrationSummaryRow;
 
@@ -31,12 +29,11 @@ fn range(
     (target, family): (&str, &str),
 ) -> Option<String> {
     let w = at.clone().is("method", method);
-    let cells: Vec<(String, f64)> = w
-        .0
-        .iter()
-        .filter(|(k, v)| (k.as_str() == "df_px" || k.as_str() == "piercing_px") && v.len() == 1)
-        .filter_map(|(k, v)| Some((k.clone(), v[0].parse().ok()?)))
-        .collect();
+    let cells: Vec<(String, f64)> =
+        w.0.iter()
+            .filter(|(k, v)| (k.as_str() == "df_px" || k.as_str() == "piercing_px") && v.len() == 1)
+            .filter_map(|(k, v)| Some((k.clone(), v[0].parse().ok()?)))
+            .collect();
     let mut one = |stat: Stat, name: &str| {
         let (v, n, src) = column(t, w.clone(), col, Transform::Identity, stat)?;
         let mut c = Claim::new(format!("{id}.{method}.{col}.{name}"), v, src)
@@ -52,7 +49,11 @@ fn range(
     if t.distinct(&w, "target").len() == 1 {
         return Some(format!("{}{u}", one(Stat::Value, "value")?));
     }
-    Some(format!("{}–{}{u}", one(Stat::Min, "min")?, one(Stat::Max, "max")?))
+    Some(format!(
+        "{}–{}{u}",
+        one(Stat::Min, "min")?,
+        one(Stat::Max, "max")?
+    ))
 }
 
 /// Registration error at each family's largest step: Kabsch and two-view direct as ranges over the
@@ -71,10 +72,22 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
     let mut f = Finding::new("registration_by_family");
     let mut families = Vec::new();
     if zero(&ps) && df_top != "0" {
-        families.push(("focal", "a focal error alone", format!("Δf = {df_top} px"), df_top.clone(), ps[0].clone()));
+        families.push((
+            "focal",
+            "a focal error alone",
+            format!("Δf = {df_top} px"),
+            df_top.clone(),
+            ps[0].clone(),
+        ));
     }
     if zero(&dfs) && p_top != "0" {
-        families.push(("piercing", "a piercing shift alone", format!("p = {p_top} px"), dfs[0].clone(), p_top.clone()));
+        families.push((
+            "piercing",
+            "a piercing shift alone",
+            format!("p = {p_top} px"),
+            dfs[0].clone(),
+            p_top.clone(),
+        ));
     }
     if df_top != "0" && p_top != "0" {
         families.push((
@@ -104,8 +117,22 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
             said.push(format!("{m} {r} and {tr}"));
         }
         if has("direct-ap") && has("direct-lat") {
-            let a = range(&mut f, t, &at, &id, ("direct-ap", "trans_err_mm_mean", "mm"), who)?;
-            let l = range(&mut f, t, &at, &id, ("direct-lat", "trans_err_mm_mean", "mm"), who)?;
+            let a = range(
+                &mut f,
+                t,
+                &at,
+                &id,
+                ("direct-ap", "trans_err_mm_mean", "mm"),
+                who,
+            )?;
+            let l = range(
+                &mut f,
+                t,
+                &at,
+                &id,
+                ("direct-lat", "trans_err_mm_mean", "mm"),
+                who,
+            )?;
             let mut pairs = Vec::new();
             for level in &levels {
                 let mut one = |m: &str| {
@@ -121,7 +148,8 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
                 }
             }
             let n = pairs.len();
-            let swapped: Vec<[String; 2]> = pairs.iter().map(|[a, l]| [l.clone(), a.clone()]).collect();
+            let swapped: Vec<[String; 2]> =
+                pairs.iter().map(|[a, l]| [l.clone(), a.clone()]).collect();
             let lat = count_greater(&f, &format!("{id}.lat_smaller"), pairs.clone(), 3);
             let ap = count_greater(&f, &format!("{id}.ap_smaller"), swapped, 3);
             let (kl, ka) = (lat.value as usize, ap.value as usize);
@@ -134,7 +162,11 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
             } else if kl + ka == 0 {
                 format!("alike at the printed precision{every}")
             } else {
-                let equal = if kl + ka < n { ", equal at the printed precision in the others" } else { "" };
+                let equal = if kl + ka < n {
+                    ", equal at the printed precision in the others"
+                } else {
+                    ""
+                };
                 format!("LAT smaller in {lat} of them, AP in {ap}{equal}")
             };
             said.push(format!(
@@ -192,10 +224,34 @@ fn decimals(v: f64) -> usize {
 
 /// The paper's four ranges: (method, column, paper key, what).
 const PAPER: [(&str, &str, &str, &str, &str); 4] = [
-    ("kabsch", "rot_err_deg_mean", "registration.kabsch_rotation_deg", "rotation", "°"),
-    ("kabsch", "trans_err_mm_mean", "registration.kabsch_translation_mm", "translation", "mm"),
-    ("direct-ap+lat", "rot_err_deg_mean", "registration.direct_rotation_deg", "rotation", "°"),
-    ("direct-ap+lat", "trans_err_mm_mean", "registration.direct_translation_mm", "translation", "mm"),
+    (
+        "kabsch",
+        "rot_err_deg_mean",
+        "registration.kabsch_rotation_deg",
+        "rotation",
+        "°",
+    ),
+    (
+        "kabsch",
+        "trans_err_mm_mean",
+        "registration.kabsch_translation_mm",
+        "translation",
+        "mm",
+    ),
+    (
+        "direct-ap+lat",
+        "rot_err_deg_mean",
+        "registration.direct_rotation_deg",
+        "rotation",
+        "°",
+    ),
+    (
+        "direct-ap+lat",
+        "trans_err_mm_mean",
+        "registration.direct_translation_mm",
+        "translation",
+        "mm",
+    ),
 ];
 
 /// The first target's ranges over Δf > 0 and every piercing shift against the paper's (inside,
@@ -216,7 +272,12 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
     let span = |f: &mut Finding, col: &str| {
         let mut one = |stat: Stat, name: &str| {
             let (v, _, src) = column(t, at.clone(), col, Transform::Identity, stat)?;
-            Some(f.say(Claim::new(format!("registration.span.{col}.{name}"), v, src).shown(decimals(v), "px")))
+            Some(
+                f.say(
+                    Claim::new(format!("registration.span.{col}.{name}"), v, src)
+                        .shown(decimals(v), "px"),
+                ),
+            )
         };
         Some((one(Stat::Min, "min")?, one(Stat::Max, "max")?))
     };
@@ -227,22 +288,27 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
     let mut span_paper = Vec::new();
     for (key, list) in [
         ("geometry.focal_perturbation_px", &g.focal_perturbation_px),
-        ("geometry.piercing_perturbation_px", &g.piercing_perturbation_px),
+        (
+            "geometry.piercing_perturbation_px",
+            &g.piercing_perturbation_px,
+        ),
     ] {
         for index in [0, list.len().saturating_sub(1)] {
             let v = *list.get(index)?;
-            span_paper.push(f.say(
-                Claim::new(
-                    format!("paper.{key}.{index}"),
-                    v,
-                    Source::Paper {
-                        key: key.into(),
-                        index: Some(index),
-                        mean_over_entries: false,
-                    },
-                )
-                .shown(decimals(v), "px"),
-            ));
+            span_paper.push(
+                f.say(
+                    Claim::new(
+                        format!("paper.{key}.{index}"),
+                        v,
+                        Source::Paper {
+                            key: key.into(),
+                            index: Some(index),
+                            mean_over_entries: false,
+                        },
+                    )
+                    .shown(decimals(v), "px"),
+                ),
+            );
         }
     }
     let said_trend = f.fact(
@@ -263,8 +329,13 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
         let id = format!("registration.{first}.{m}.{col}");
         let mut ours = Vec::new();
         for (stat, name) in [(Stat::Min, "min"), (Stat::Max, "max")] {
-            let Some((v, n, src)) = column(t, at.clone().is("method", m), col, Transform::Identity, stat)
-            else {
+            let Some((v, n, src)) = column(
+                t,
+                at.clone().is("method", m),
+                col,
+                Transform::Identity,
+                stat,
+            ) else {
                 break;
             };
             ours.push((
@@ -311,7 +382,12 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
         for p in &ps {
             let mut ids = Vec::new();
             let mut values = Vec::new();
-            for (d, c) in [(d_first, col), (d_last, col), (d_first, ci.as_str()), (d_last, ci.as_str())] {
+            for (d, c) in [
+                (d_first, col),
+                (d_last, col),
+                (d_first, ci.as_str()),
+                (d_last, ci.as_str()),
+            ] {
                 let w = Where::new()
                     .is("target", first)
                     .is("method", m)
