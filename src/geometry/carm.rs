@@ -34,10 +34,11 @@ up = [0.0, 0.0, 1.0]              # world direction shown at the top of the imag
 
 [[view]]
 name = "lat"
-# Non-isocentric lateral view: the source is 750 mm from the vertebra (magnification 1.8, nearer the
-# source than in AP, so the vertebra appears larger), and the central ray passes 25 mm posterior and
-# 20 mm superior of the vertebra centre, which lands about 190 px from the piercing point.
-source_mm = [-750.0, -25.0, 20.0]
+# Non-isocentric lateral view: the source is 900 mm from the vertebra (magnification 1.5, nearer the
+# source than in AP, so the vertebra appears larger, and the L1-L5 segment still fits the detector),
+# and the central ray passes 25 mm posterior and 20 mm superior of the vertebra centre, which lands
+# about 160 px from the piercing point.
+source_mm = [-900.0, -25.0, 20.0]
 target_mm = [0.0, -25.0, 20.0]
 up = [0.0, 0.0, 1.0]
 "#;

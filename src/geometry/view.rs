@@ -46,6 +46,19 @@ impl View {
         self.world_to_camera.apply(world).z
     }
 
+    /// The central ray's point nearest the world origin (where the view aims), and the source's
+    /// distance to it.
+    pub fn aim(&self) -> (DVec3, f64) {
+        let c = self.source_world();
+        let axis = self
+            .world_to_camera
+            .inverse()
+            .apply_vector(DVec3::Z)
+            .normalize();
+        let d = (-c).dot(axis);
+        (c + axis * d, d)
+    }
+
     /// The X-ray source (camera centre) in world coordinates, `−Rᵀ t`.
     pub fn source_world(&self) -> DVec3 {
         self.world_to_camera.inverse().translation

@@ -159,6 +159,69 @@ fn a_target_cut_by_the_detector_edge_is_flagged_in_the_setup() {
     assert!(row("LAT").ends_with("| whole |"), "{}", row("LAT"));
 }
 
+/// A cut target is left out of pooled numbers: beside two whole boxes `a` and `b`, the shifted box's
+/// Dice is reported apart and flagged, and no claim of `findings.json` pools it with them.
+#[test]
+fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let base = std::fs::read_to_string(box_study(dir.path())).unwrap();
+    let lm = std::fs::read_to_string(dir.path().join("box-landmarks.json")).unwrap();
+    write_mesh(
+        &dir.path().join("box.stl"),
+        &TriMesh::cuboid(
+            "box",
+            DVec3::new(80.0, -15.0, -12.0),
+            DVec3::new(120.0, 15.0, 12.0),
+        ),
+    )
+    .unwrap();
+    let mut extra = String::new();
+    for (name, half) in [("a", 20.0), ("b", 25.0)] {
+        let stl = dir.path().join(format!("{name}.stl"));
+        let h = DVec3::new(half, 15.0, 12.0);
+        write_mesh(&stl, &TriMesh::cuboid(name, -h, h)).unwrap();
+        let json = dir.path().join(format!("{name}.json"));
+        std::fs::write(&json, lm.replace("\"box\"", &format!("{name:?}"))).unwrap();
+        extra.push_str(&format!(
+            "[[anatomy.meshes]]\nname = {name:?}\nfiles = [{:?}]\nlandmarks = {:?}\n",
+            stl.to_str().unwrap(),
+            json.to_str().unwrap()
+        ));
+    }
+    let cfg = dir.path().join("three.toml");
+    std::fs::write(&cfg, format!("experiments = [\"projection\"]\n{base}{extra}")).unwrap();
+    let out = dir.path().join("out");
+    let o = run_study(&cfg, &out, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("tables/findings.json")).unwrap())
+            .unwrap();
+    let findings = json["findings"].as_array().unwrap();
+    let dice = findings
+        .iter()
+        .find(|f| f["id"] == "dice_by_family")
+        .expect("a Dice finding");
+    let text = dice["text"].as_str().unwrap();
+    assert!(
+        text.contains("box AP") && text.contains("(cut by the detector edge in AP: not comparable)"),
+        "{text}"
+    );
+    let mut pooled = 0;
+    for f in findings {
+        for c in f["claims"].as_array().unwrap() {
+            let targets: Vec<&str> = c["source"]["where"]["target"]
+                .as_array()
+                .map(|t| t.iter().filter_map(|x| x.as_str()).collect())
+                .unwrap_or_default();
+            if targets.len() > 1 {
+                pooled += 1;
+                assert_eq!(targets, ["a", "b"], "{}", c["id"]);
+            }
+        }
+    }
+    assert!(pooled > 0, "no pooled claim over a and b");
+}
+
 /// With landmark noise the trials of a cell differ; the 95 % CI of the mean is Student's, shrinks with
 /// more trials, and the report shows it (never the one-value form).
 #[test]

@@ -297,7 +297,7 @@ fn the_report_states_its_provenance() {
     assert!(threads >= 1, "{line}");
 }
 
-/// *Setup* states the built-in geometry's numbers (its comments: magnification 1.35 AP, 1.8 LAT; SDD
+/// *Setup* states the built-in geometry's numbers (its comments: magnification 1.35 AP, 1.5 LAT; SDD
 /// 1350 mm; 0.3 mm pixels, here binned 2× to 0.6 mm and fx 2250 px) and every target and view.
 #[test]
 fn the_setup_states_the_geometry_before_the_findings() {
@@ -323,7 +323,7 @@ fn the_setup_states_the_geometry_before_the_findings() {
     );
     assert_eq!(
         (lat[4].as_str(), lat[5].as_str(), lat[6].as_str()),
-        ("750", "1350", "1.800")
+        ("900", "1350", "1.500")
     );
     assert_eq!(ap[7], "0.6 × 0.6");
     assert!(

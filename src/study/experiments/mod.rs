@@ -341,6 +341,47 @@ impl Context {
     }
 }
 
+/// How far the segment is moved along the world z axis (mm) by [`segment_placed`]: from the mean height
+/// of its levels' body centres to the mean height of the studied views' aims (each central ray's point
+/// nearest the world origin). A single level sits where the views aim; a segment of several levels is
+/// taller than a vertebra, so it is centred between the views' aim heights instead of on its middle
+/// level, which keeps it whole on the detector in both views of the default geometry.
+pub fn segment_shift_mm(phantom: &Phantom, carm: &crate::geometry::CArm, views: &[String]) -> f64 {
+    let aims: Vec<f64> = carm
+        .views
+        .iter()
+        .filter(|v| views.contains(&v.name))
+        .map(|v| v.aim().0.z)
+        .collect();
+    let centres: Vec<f64> = phantom
+        .vertebrae
+        .iter()
+        .map(|v| v.local_to_world.translation.z)
+        .collect();
+    if aims.is_empty() || centres.is_empty() {
+        return 0.0;
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    mean(&aims) - mean(&centres)
+}
+
+/// The segment's vertebrae (meshes, landmarks, poses) moved by [`segment_shift_mm`] along z (the
+/// study's phantoms have no discs or soft tissue).
+fn segment_placed(phantom: &Phantom, carm: &crate::geometry::CArm, views: &[String]) -> Phantom {
+    let d = glam::DVec3::new(0.0, 0.0, segment_shift_mm(phantom, carm, views));
+    let t = crate::geometry::RigidTransform::new(glam::DMat3::IDENTITY, d);
+    let mut p = phantom.clone();
+    for v in &mut p.vertebrae {
+        v.cortical.transform(&t);
+        v.cancellous.transform(&t);
+        for x in v.landmarks.points.values_mut() {
+            *x += d;
+        }
+        v.local_to_world = t.compose(&v.local_to_world);
+    }
+    p
+}
+
 /// The scene of one level (or all levels for `segment`), its landmarks and markers.
 fn build_target(
     cfg: &StudyConfig,
@@ -355,6 +396,13 @@ fn build_target(
             format!("no level '{name}' in the phantom"),
         ));
     }
+    let placed;
+    let sub = if name == SEGMENT_TARGET {
+        placed = segment_placed(sub, &cfg.carm()?, &cfg.geometry.views);
+        &placed
+    } else {
+        sub
+    };
     let backend = cfg.geometry.backend;
     let renderer = timings.time(Phase::Scene, 1, || backend.renderer(phantom_scene(sub)?))?;
     target_with_landmarks(

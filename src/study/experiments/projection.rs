@@ -85,9 +85,10 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
     Ok(rows)
 }
 
-/// The reference render (when the projection experiment runs) and reference marker centroids. When
-/// the landmark experiment runs, the reference DRR (the CT volume DRR for CT targets) is also written
-/// to [`super::reference_image_path`] as the background of the landmark overlay figure.
+/// The reference render (when the projection experiment runs) and reference marker centroids (when the
+/// landmark experiment runs). The reference DRR (the CT volume DRR for CT targets) is written to
+/// [`super::reference_image_path`]: the report's Setup measures where each target lies from it, and the
+/// landmark overlay figure draws on it.
 pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
     let tm = &ctx.timings;
     let drr = if ctx.cfg.runs(Experiment::Projection) {
@@ -101,8 +102,10 @@ pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
         Some(v) if drr.is_some() => Some(tm.time(Phase::RenderVolume, 1, || v.render(view))),
         _ => None,
     };
+    // The reference image is the Setup's evidence of where each target lies on the detector (and
+    // whether the detector cuts it), and the landmark overlays' background.
+    write_reference_image(ctx, t, view, drr.as_ref(), volume_drr.as_ref())?;
     let markers = if ctx.cfg.runs(Experiment::Landmarks) {
-        write_reference_image(ctx, t, view, drr.as_ref(), volume_drr.as_ref())?;
         t.markers
             .iter()
             .map(|m| measure(ctx, m, view))

@@ -10,24 +10,12 @@ use std::path::Path;
 use glam::DVec3;
 
 use super::layout::num;
-use crate::geometry::{GeometryConfig, View};
+use crate::geometry::GeometryConfig;
 use crate::io::read_tiff_f32;
-use crate::study::config::StudyConfig;
+use crate::study::config::{SEGMENT_TARGET, StudyConfig};
 use crate::study::experiments::reference_image_path;
 
 pub const HEADING: &str = "Setup";
-
-/// The central ray's point nearest the world origin, and the source's distance to it.
-fn aim(view: &View) -> (DVec3, f64) {
-    let c = view.source_world();
-    let axis = view
-        .world_to_camera
-        .inverse()
-        .apply_vector(DVec3::Z)
-        .normalize();
-    let d = (-c).dot(axis);
-    (c + axis * d, d)
-}
 
 /// Pixel spacing (mm) of the binned detector, where the geometry states it (not for an explicit K).
 fn spacing(g: &GeometryConfig) -> Option<[f64; 2]> {
@@ -114,7 +102,7 @@ pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, targets: &[String
         .filter(|v| cfg.geometry.views.contains(&v.name))
     {
         let k = &view.intrinsics;
-        let (point, dist) = aim(view);
+        let (point, dist) = view.aim();
         if let Some(s) = sp {
             magnification.push((view.name.clone(), k.fx * s[0] / dist));
         }
@@ -160,6 +148,21 @@ pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, targets: &[String
             big.to_uppercase(),
             small.to_uppercase(),
             big.to_uppercase()
+        );
+    }
+    if targets.iter().any(|t| t == SEGMENT_TARGET) {
+        let z: Vec<f64> = carm
+            .views
+            .iter()
+            .filter(|v| cfg.geometry.views.contains(&v.name))
+            .map(|v| v.aim().0.z)
+            .collect();
+        let _ = writeln!(
+            md,
+            "\nEach single level sits where the views aim (its body centre at the world origin); the \
+             segment, taller than a vertebra, is moved along z so that its levels' mean body-centre height \
+             is the views' mean aim height, z = {} mm, keeping it whole on the detector in both views.",
+            num(z.iter().sum::<f64>() / z.len().max(1) as f64, 1)
         );
     }
     if let Some(v) = carm
@@ -224,7 +227,7 @@ pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, targets: &[String
     if rows == 0 {
         let _ = writeln!(
             md,
-            "\n(No reference DRRs under `references/`: they are written by the `landmarks` experiment.)"
+            "\n(No reference DRRs under `references/`: they are written by the `projection` and `landmarks` experiments.)"
         );
     }
     let _ = writeln!(md);

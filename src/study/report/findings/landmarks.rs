@@ -85,7 +85,7 @@ pub fn ratio(x: &Inputs) -> Option<Finding> {
     }
     let (levels, segments): (Vec<_>, Vec<_>) = measured
         .iter()
-        .partition(|(r, _)| !super::is_segment(&r.target));
+        .partition(|(r, _)| x.pooled(&r.target));
     let mut s = String::from(
         "Landmark shift under a pure focal error, per target on its fixed landmark set (measured in both \
 views at every focal Δf), RMS over the set at the largest Δf: ",
@@ -125,8 +125,13 @@ views at every focal Δf), RMS over the set at the largest Δf: ",
         let kept = f.say(count(&format!("ratio.{}.kept", r.target), &r.landmarks));
         let all: Vec<String> = r.landmarks.iter().chain(&r.left_out).cloned().collect();
         let total = f.say(count(&format!("ratio.{}.all", r.target), &all));
+        let what = if super::is_segment(&r.target) {
+            "a segment".to_string()
+        } else {
+            x.cut_note(&r.target).trim().trim_matches(['(', ')']).to_string()
+        };
         s.push_str(&format!(
-            "{}{m} for {} (a segment: {kept} of its {total} landmarks measured in every cell)",
+            "{}{m} for {} ({what}: {kept} of its {total} landmarks measured in every cell)",
             if levels.is_empty() && i == 0 {
                 "LAT/AP is "
             } else {

@@ -59,9 +59,31 @@ struct Inputs<'a> {
     noise_px: f64,
 }
 
-/// The single levels and the segments among `targets` (in order).
-fn split_targets(targets: Vec<String>) -> (Vec<String>, Vec<String>) {
-    targets.into_iter().partition(|t| !is_segment(t))
+impl Inputs<'_> {
+    /// Whether `target` is pooled with others: a single level (not a segment) whose reference silhouette
+    /// is whole on the detector in every view.
+    fn pooled(&self, target: &str) -> bool {
+        !is_segment(target) && !self.cut.iter().any(|(t, _)| t == target)
+    }
+
+    /// The pooled targets and the others (segments and cut targets, each reported apart), in order.
+    fn split_targets(&self, targets: Vec<String>) -> (Vec<String>, Vec<String>) {
+        targets.into_iter().partition(|t| self.pooled(t))
+    }
+
+    /// `" (cut by the detector edge in LAT: not comparable)"` for a cut target, else nothing.
+    fn cut_note(&self, target: &str) -> String {
+        let views: Vec<String> = ["ap", "lat"]
+            .iter()
+            .filter(|v| self.cut.contains(&(target.to_string(), v.to_string())))
+            .map(|v| v.to_uppercase())
+            .collect();
+        if views.is_empty() {
+            String::new()
+        } else {
+            format!(" (cut by the detector edge in {}: not comparable)", views.join(" and "))
+        }
+    }
 }
 
 /// `tables/findings.json`.

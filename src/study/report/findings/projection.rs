@@ -3,7 +3,7 @@
 
 use super::claim::{Claim, Finding, Source, Stat, Transform, Where};
 use super::derive::{column, count, count_greater, greater, tie};
-use super::{Inputs, sources, split_targets};
+use super::{Inputs, sources};
 use crate::study::schema::{ProjectionRow, StructureRow};
 
 /// A perturbation family as the Dice finding names it: (family, wording, the column of its step and
@@ -38,7 +38,7 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
             continue;
         };
         let at = Where::new().is("family", family).is(col, &top);
-        let (levels, segments) = split_targets(t.distinct(&at, "target"));
+        let (levels, segments) = x.split_targets(t.distinct(&at, "target"));
         let step: f64 = top.parse().unwrap_or(f64::NAN);
         let cell = |c: Claim| match family {
             "piercing" => c.cell("dcx_px", step).cell("dcy_px", step),
@@ -204,19 +204,7 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
                 )
             };
             if let (Some(ap), Some(lat)) = (one("ap"), one("lat")) {
-                let cut: Vec<String> = ["ap", "lat"]
-                    .iter()
-                    .filter(|v| x.cut.contains(&(s.clone(), v.to_string())))
-                    .map(|v| v.to_uppercase())
-                    .collect();
-                let flag = if cut.is_empty() {
-                    String::new()
-                } else {
-                    format!(
-                        " (cut by the detector edge in {}: not comparable)",
-                        cut.join(" and ")
-                    )
-                };
+                let flag = x.cut_note(s);
                 text.push_str(&format!("; {s} AP {ap}, LAT {lat}{flag}"));
             }
         }
@@ -238,14 +226,14 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
 const TIE_PCT: f64 = 2.0;
 
 /// The most and least sensitive structures at the largest focal Δf: mean 1 − Dice over the single levels
-/// (or, without any, the segments) and both views.
+/// (or, without any, the targets reported apart: segments and cut targets) and both views.
 pub fn structures(x: &Inputs) -> Option<Finding> {
     let t = &x.structures;
     let top = largest_step(t, "focal", "df_px", false)?;
     let at = Where::new().is("family", "focal").is("df_px", &top);
-    let (levels, segments) = split_targets(t.distinct(&at, "target"));
+    let (levels, segments) = x.split_targets(t.distinct(&at, "target"));
     let (targets, over) = if levels.is_empty() {
-        (segments, "the segments")
+        (segments, "the targets reported apart")
     } else {
         (levels, "the single levels")
     };

@@ -4,7 +4,7 @@
 
 use super::claim::{Claim, Finding, Source, Stat, Table, Transform, Where};
 use super::derive::{column, count, count_greater, interval, trend};
-use super::{Inputs, sources, split_targets};
+use super::{Inputs, sources};
 use crate::study::schema::RegistrationSummaryRow;
 
 /// The grid's values of `col` (as cell text), ascending.
@@ -63,7 +63,7 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
     let (dfs, ps) = (grid(t, "df_px"), grid(t, "piercing_px"));
     let (df_top, p_top) = (dfs.last()?.clone(), ps.last()?.clone());
     let zero = |g: &[String]| g.iter().any(|v| v.parse::<f64>() == Ok(0.0));
-    let (levels, _) = split_targets(t.distinct(&Where::new(), "target"));
+    let (levels, _) = x.split_targets(t.distinct(&Where::new(), "target"));
     if levels.is_empty() {
         return None;
     }
