@@ -50,7 +50,14 @@ fn noise_free_plate_and_helix_recover_k_and_every_pose() {
         let setup = CalibrationSetup::new(&carm, &phantom, SetupOptions::default()).unwrap();
         let r = run_trial(&setup, 0.0, 1).unwrap();
         let e = k_err(&r.k(), &truth_k());
-        assert!(e <= 1e-6, "{}: K relative error {e:e}", phantom.name);
+        // The plate's calibration is OpenCV's, which works on f32 pixels: their rounding (~3e-5 px at
+        // u, v ~ 500) leaves K a few parts in 1e6 off; the helix's is our f64 LM.
+        let bound = if phantom.name.starts_with("plate") {
+            5e-6
+        } else {
+            1e-6
+        };
+        assert!(e <= bound, "{}: K relative error {e:e}", phantom.name);
         for (im, est) in setup.ideal.iter().zip(&r.calibration.geometry.poses) {
             let e = pose_err(est, &im.phantom_to_camera);
             assert!(e <= 1e-6, "{}: pose error {e:e}", phantom.name);

@@ -7,7 +7,7 @@
 
 use glam::{DMat3, DVec3};
 use spinedrr::anatomy::{Level, Phantom};
-use spinedrr::geometry::{CArm, Perturbation, RigidTransform, View};
+use spinedrr::geometry::{Perturbation, RigidTransform, View};
 use spinedrr::io::XrayModel;
 use spinedrr::registration::intensity::{
     IntensityOptions, IntensityProblem, IntensityView, MovingScope, Objective, Similarity,
@@ -28,7 +28,7 @@ fn phantom() -> &'static Phantom {
 
 /// The default view `name`, perturbed by `p` at full resolution, binned by [`BIN`].
 fn view(name: &str, p: &Perturbation) -> View {
-    let v = CArm::default_paper()
+    let v = crate::common::carm_lat_750()
         .view(name)
         .unwrap()
         .perturbed(p)

@@ -9,7 +9,7 @@ use spinedrr::anatomy::ct::{SurfaceOptions, VoxelMask, label_surface};
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
 use spinedrr::anatomy::{Level, PhantomOptions, build_phantom};
-use spinedrr::geometry::{CArm, RigidTransform};
+use spinedrr::geometry::RigidTransform;
 use spinedrr::registration::SplitMix64;
 use spinedrr::registration::intensity::{
     IntensityOptions, IntensityProblem, IntensityView, MovingDrr, binned_view, mtre_mm,
@@ -47,7 +47,7 @@ fn a_masked_ct_level_registers_at_the_true_k() {
             .vertices,
         2000,
     );
-    let carm = CArm::default_paper();
+    let carm = crate::common::carm_lat_750();
     let views = ["ap", "lat"]
         .iter()
         .map(|n| {

@@ -244,6 +244,8 @@ views = ["ap"]
 [perturbations]
 df_px = [500]
 piercing_px = [0]
+skew_px = []
+pixel_scale = []
 "#
         ),
     )

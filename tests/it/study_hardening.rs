@@ -16,7 +16,7 @@ use crate::common::{Spinedrr, outcome};
 /// A study of L1 only, projection only, on an 8× binned detector: a second or two.
 pub(crate) const SMALL: &str = "experiments = [\"projection\"]\nheatmaps_df_px = []\n\
 [anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.5\n\
-[geometry]\nbinning = 8\n[perturbations]\ndf_px = [100.0]\npiercing_px = [0.0]\n";
+[geometry]\nbinning = 8\n[perturbations]\ndf_px = [100.0]\npiercing_px = [0.0]\nskew_px = []\npixel_scale = []\n";
 
 /// Writes `text` as `dir/name` and returns the path.
 pub(crate) fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
@@ -118,11 +118,15 @@ fn runaway_threads_and_work_are_refused_with_the_limit_and_the_estimate() {
         "[registration]\ntrials_per_unit = 1000000000\n",
         &["registration.trials_per_unit", "1000000000"],
     );
-    // 20 000 focal offsets: 6 targets × 2 views × (20 000 focal + 5 piercing + 5 joint) projection units.
+    // 20 000 focal offsets: 6 targets × 2 views × (20 000 focal + 5 piercing + 5 joint + 3 skew + 3 scale)
+    // projection units.
     let many: Vec<String> = (1..=20_000).map(|i| format!("{i}.0")).collect();
     bad_config(
         &format!("[perturbations]\ndf_px = [{}]\n", many.join(", ")),
-        &["work units", &format!("{}", 6 * 2 * (20_000 + 5 + 5))],
+        &[
+            "work units",
+            &format!("{}", 6 * 2 * (20_000 + 5 + 5 + 3 + 3)),
+        ],
     );
 }
 

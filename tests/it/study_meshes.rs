@@ -70,7 +70,7 @@ fn box_study_named(dir: &Path, names: &[&str; 5]) -> std::path::PathBuf {
     let cfg = format!(
         "[anatomy]\nlevels = []\nsegment = false\nmarker_radius_mm = 5.0\n\
 [[anatomy.meshes]]\nname = \"box\"\nfiles = [{:?}]\nlandmarks = {:?}\n\
-[geometry]\nbinning = 2\n[perturbations]\ndf_px = [100.0, 500.0]\npiercing_px = [0.0, 20.0]\n\
+[geometry]\nbinning = 2\n[perturbations]\ndf_px = [100.0, 500.0]\npiercing_px = [0.0, 20.0]\nskew_px = []\npixel_scale = []\n\
 [registration]\nmethods = [\"kabsch\"]\ndf_px = [0.0, 300.0]\npiercing_px = [0.0]\ntrials = 2\nnoise_px = 0.0\n",
         stl.to_str().unwrap(),
         lm_path.to_str().unwrap()
@@ -189,7 +189,11 @@ fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
         ));
     }
     let cfg = dir.path().join("three.toml");
-    std::fs::write(&cfg, format!("experiments = [\"projection\"]\n{base}{extra}")).unwrap();
+    std::fs::write(
+        &cfg,
+        format!("experiments = [\"projection\"]\n{base}{extra}"),
+    )
+    .unwrap();
     let out = dir.path().join("out");
     let o = run_study(&cfg, &out, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -203,7 +207,8 @@ fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
         .expect("a Dice finding");
     let text = dice["text"].as_str().unwrap();
     assert!(
-        text.contains("box AP") && text.contains("(cut by the detector edge in AP: not comparable)"),
+        text.contains("box AP")
+            && text.contains("(cut by the detector edge in AP: not comparable)"),
         "{text}"
     );
     let mut pooled = 0;

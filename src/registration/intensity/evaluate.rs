@@ -15,6 +15,10 @@ pub const SUCCESS_MTRE_MM: f64 = 2.0;
 /// The success rate a bin needs to count toward the capture range.
 pub const CAPTURE_SUCCESS_RATE: f64 = 0.95;
 
+/// The starts every bin needs before a capture range is stated: with fewer, a 95 % success rate is one
+/// or two lucky starts, not a rate.
+pub const CAPTURE_MIN_STARTS: usize = 10;
+
 /// Every `k`-th point, `k` chosen so at most `max_points` remain (all of them when fewer).
 pub fn subsample(points: &[DVec3], max_points: usize) -> Vec<DVec3> {
     let k = points.len().div_ceil(max_points.max(1)).max(1);
@@ -158,8 +162,12 @@ pub fn summarise(edges: &[f64], trials: &[TrialOutcome]) -> Vec<BinSummary> {
 }
 
 /// The capture range (mm): the upper edge of the last bin of the leading run of bins (from 0 mm) whose
-/// success rate is at least [`CAPTURE_SUCCESS_RATE`]; 0 when the first bin falls short.
+/// success rate is at least [`CAPTURE_SUCCESS_RATE`]; 0 when the first bin falls short; NaN (not
+/// stated) when a bin has fewer than [`CAPTURE_MIN_STARTS`] starts.
 pub fn capture_range_mm(bins: &[BinSummary]) -> f64 {
+    if bins.iter().any(|b| b.trials < CAPTURE_MIN_STARTS) {
+        return f64::NAN;
+    }
     bins.iter()
         .take_while(|b| b.trials > 0 && b.success_rate >= CAPTURE_SUCCESS_RATE)
         .last()
@@ -219,7 +227,17 @@ mod tests {
         assert_eq!(s.iter().map(|b| b.successes).collect::<Vec<_>>(), [2, 1, 1]);
         assert!((s[0].mean_final_mtre_success_mm - 0.2).abs() < 1e-12);
         assert_eq!(s[1].success_rate, 0.5);
-        // Bin 2 succeeds, but bin 1 breaks the leading run.
-        assert_eq!(capture_range_mm(&s), 2.0);
+        // Two starts per bin state no capture range.
+        assert!(capture_range_mm(&s).is_nan());
+        // With CAPTURE_MIN_STARTS per bin at the same rates: bin 2 succeeds, but bin 1 breaks the
+        // leading run.
+        let many: Vec<BinSummary> = s
+            .iter()
+            .map(|b| BinSummary {
+                trials: CAPTURE_MIN_STARTS,
+                ..*b
+            })
+            .collect();
+        assert_eq!(capture_range_mm(&many), 2.0);
     }
 }

@@ -27,8 +27,9 @@ pub use anatomy::{
 };
 pub use cmaes::{CmaesOptions, CmaesResult, minimize};
 pub use evaluate::{
-    BinSummary, CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM, TrialOutcome, capture_range_mm,
-    initial_mtres, mtre_mm, projected_tre_px, start_at_mtre, subsample, summarise,
+    BinSummary, CAPTURE_MIN_STARTS, CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM, TrialOutcome,
+    capture_range_mm, initial_mtres, mtre_mm, projected_tre_px, start_at_mtre, subsample,
+    summarise,
 };
 pub use lm::{LmOptions, LmResult, refine};
 pub use objective::{Evaluation, MeshDrr, MovingDrr, Objective, pose_of};

@@ -156,7 +156,7 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
             &title,
             "a column per view set, a line per assumed K (true, and each Δf and piercing shift); top: \
              success (final mTRE to the truth < 2 mm; the capture range is the last bin edge of the \
-             leading run at ≥ 95 %), bottom: the start ended within 2 mm of the intensity optimum \
+             leading run at ≥ 95 %, stated only with ≥ 10 starts per bin), bottom: the start ended within 2 mm of the intensity optimum \
              under its K (the registration started at the truth), capture without the bias",
             true,
         ));

@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 
 use super::layout;
 use super::layout::{mean_text, num};
-use crate::registration::intensity::{CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
+use crate::registration::intensity::{CAPTURE_MIN_STARTS, CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
 use crate::study::config::{FixedScope, StudyConfig};
 use crate::study::figures::{FigureEntry, Section, distinct};
 use crate::study::schema::{IntensitySummaryRow, StudyTables, ci95_half_width};
@@ -51,7 +51,7 @@ true K: {fixed}, {noise}. Similarity {}, summed over the views of a set; pyramid
 detector{}, then Levenberg–Marquardt at every level. Starts: {} per bin of initial mTRE {:?} mm (uniform \
 in the bin, random direction in the six pose parameters), measured over the level's cortical surface \
 vertices; success = final mTRE < {SUCCESS_MTRE_MM} mm, capture range = the last bin edge of the leading \
-run of bins with ≥ {:.0} % success. Beside each cell: the **landmark** registration of the same level \
+run of bins with ≥ {:.0} % success, stated only with ≥ {CAPTURE_MIN_STARTS} starts in every bin{}. Beside each cell: the **landmark** registration of the same level \
 under the same assumed K (direct LM over the same views, the landmarks' exact true-K projections \
 observed, started at the truth), its mTRE over the same target points.\n",
         list(&s.df_px),
@@ -66,6 +66,15 @@ observed, started at the truth), its mTRE over the same target points.\n",
         s.starts_per_bin,
         s.init_mtre_mm,
         100.0 * CAPTURE_SUCCESS_RATE,
+        if s.starts_per_bin < CAPTURE_MIN_STARTS {
+            format!(
+                " (this run has {} per bin, so it states no capture range and its success rates are \
+counts of a few starts, not rates)",
+                s.starts_per_bin
+            )
+        } else {
+            String::new()
+        },
     );
     layout::figures(md, figs, Section::Intensity, n);
     summary_table(md, rows);
@@ -110,7 +119,7 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow]) {
             r.piercing_px,
             r.trials,
             100.0 * r.success_rate,
-            num(r.capture_range_mm, 1),
+            capture(r.capture_range_mm),
             successes_mtre(r),
             num(r.final_mtre_median_mm, 3),
             num(r.optimum_mtre_mm, 3),
@@ -149,13 +158,17 @@ fn comparison(md: &mut String, rows: &[IntensitySummaryRow]) {
                     words,
                     "At the true K the landmark registration is exact (mTRE {} mm: noise-free landmarks, \
 started at the truth) while the intensity-based one ends at a median {} mm with {:.0} % of {} starts \
-successful and a capture range of {} mm — its floor is the image comparison's own (the finest pyramid \
+successful{} — its floor is the image comparison's own (the finest pyramid \
 level's pixel size, the optimiser's stopping rules, the start), not the calibration's. ",
                     num(t.landmark_mtre_mm, 3),
                     num(t.final_mtre_median_mm, 3),
                     100.0 * t.success_rate,
                     t.trials,
-                    num(t.capture_range_mm, 1)
+                    if t.capture_range_mm.is_nan() {
+                        String::new()
+                    } else {
+                        format!(" and a capture range of {} mm", num(t.capture_range_mm, 1))
+                    }
                 );
                 if t.success_rate < 0.5 {
                     let _ = write!(
@@ -231,5 +244,14 @@ pose that the landmark registration under the same K does not show. ",
             }
             let _ = writeln!(md, "{words}\n");
         }
+    }
+}
+
+/// A capture range as the table prints it: not stated (NaN) below [`CAPTURE_MIN_STARTS`] starts per bin.
+fn capture(mm: f64) -> String {
+    if mm.is_nan() {
+        format!("not stated (< {CAPTURE_MIN_STARTS} starts per bin)")
+    } else {
+        num(mm, 1)
     }
 }

@@ -83,9 +83,8 @@ pub fn ratio(x: &Inputs) -> Option<Finding> {
         f.keep(p.shown(3, "").about(tg, "lat/ap", "focal"));
         measured.push((r, format!("ratio.{tg}.measured")));
     }
-    let (levels, segments): (Vec<_>, Vec<_>) = measured
-        .iter()
-        .partition(|(r, _)| x.pooled(&r.target));
+    let (levels, segments): (Vec<_>, Vec<_>) =
+        measured.iter().partition(|(r, _)| x.pooled(&r.target));
     let mut s = String::from(
         "Landmark shift under a pure focal error, per target on its fixed landmark set (measured in both \
 views at every focal Δf), RMS over the set at the largest Δf: ",
@@ -128,7 +127,10 @@ views at every focal Δf), RMS over the set at the largest Δf: ",
         let what = if super::is_segment(&r.target) {
             "a segment".to_string()
         } else {
-            x.cut_note(&r.target).trim().trim_matches(['(', ')']).to_string()
+            x.cut_note(&r.target)
+                .trim()
+                .trim_matches(['(', ')'])
+                .to_string()
         };
         s.push_str(&format!(
             "{}{m} for {} ({what}: {kept} of its {total} landmarks measured in every cell)",

@@ -81,7 +81,10 @@ impl Inputs<'_> {
         if views.is_empty() {
             String::new()
         } else {
-            format!(" (cut by the detector edge in {}: not comparable)", views.join(" and "))
+            format!(
+                " (cut by the detector edge in {}: not comparable)",
+                views.join(" and ")
+            )
         }
     }
 }
