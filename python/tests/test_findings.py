@@ -225,6 +225,8 @@ def cut_targets(study: Study) -> set:
         a = tifffile.imread(p) > 0
         if a[0].any() or a[-1].any() or a[:, 0].any() or a[:, -1].any():
             cut.add(target)
+    # ... or a perturbed silhouette of some cell does (the projection table's cut_by_edge).
+    cut |= {r["target"] for r in study.table("projection.csv") if r["cut_by_edge"] == "true"}
     return cut
 
 

@@ -27,6 +27,23 @@ pub struct MaskPair {
     pub perturbed: Vec<bool>,
 }
 
+impl MaskPair {
+    /// Whether either silhouette has a pixel on the detector's border: the detector cuts it, so its
+    /// overlap and contour metrics are of the visible part only.
+    pub fn touches_edge(&self) -> bool {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let edge = |m: &[bool]| {
+            (0..w).any(|u| m[u] || m[(h - 1) * w + u])
+                || (0..h).any(|v| m[v * w] || m[v * w + w - 1])
+        };
+        w > 0
+            && h > 0
+            && self.reference.len() == w * h
+            && self.perturbed.len() == w * h
+            && (edge(&self.reference) || edge(&self.perturbed))
+    }
+}
+
 /// Similarity of the two DRRs.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ImageMetrics {

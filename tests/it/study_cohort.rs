@@ -26,6 +26,7 @@ fn projection(target: &str, dice: f64) -> ProjectionRow {
         dcy_px: 0.0,
         skew_px: 0.0,
         sy: 1.0,
+        cut_by_edge: false,
         dice,
         iou: 0.5,
         chamfer_mean_px: 1.0,

@@ -336,6 +336,45 @@ fn the_setup_states_the_geometry_before_the_findings() {
     }
 }
 
+/// The default geometry keeps the L1–L5 segment whole on the detector in both views' reference DRRs
+/// (at the LAT magnification of 1.8 its ~174 mm would span ~1 040 px of the detector's 1 024): the
+/// Setup says "whole" for both, and the segment's placement rule is stated. The default C-arm and
+/// anatomy on a 4× binned detector (the same field of view in mm), projection at Δf = 25 px of it
+/// (100 px at full resolution).
+#[test]
+fn the_default_segment_is_whole_in_both_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("study.toml");
+    std::fs::write(
+        &cfg,
+        "experiments = [\"projection\"]\nheatmaps_df_px = []\n[anatomy]\nvoxel_mm = 1.5\n\
+[geometry]\nbinning = 4\n[perturbations]\ndf_px = [25.0]\npiercing_px = [0.0]\nskew_px = []\n\
+pixel_scale = []\n",
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+        .args(["study", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = read(&out.join("report.md"));
+    for v in ["AP", "LAT"] {
+        let row = md
+            .lines()
+            .find(|l| l.starts_with(&format!("| segment | {v} |")))
+            .unwrap_or_else(|| panic!("no Setup row for the segment in {v}"));
+        assert!(row.ends_with("| whole |"), "{row}");
+    }
+    assert!(
+        md.contains("is moved along z so that its levels' mean body-centre height"),
+        "{md}"
+    );
+}
+
 /// The browser: Debian's `chromium` (scripts/install-deps.sh installs it). A missing browser fails.
 fn chromium() -> PathBuf {
     let found = ["chromium", "chromium-browser"].iter().find_map(|b| {

@@ -203,6 +203,7 @@ fn whole_object(
         dcy_px: q.dcy_px,
         skew_px: q.skew_px,
         sy: q.sy,
+        cut_by_edge: pair.touches_edge(),
         dice: s.dice,
         iou: s.iou,
         chamfer_mean_px: s.chamfer_mean_px,

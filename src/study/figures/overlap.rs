@@ -115,6 +115,7 @@ mod tests {
             dcy_px: 0.0,
             skew_px: 0.0,
             sy: 1.0,
+            cut_by_edge: false,
             dice,
             iou: dice,
             chamfer_mean_px: 0.0,

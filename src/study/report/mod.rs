@@ -78,7 +78,7 @@ configuration is `study.toml`.\n",
     headings.extend(experiments.iter().filter(|e| e.0).map(|e| e.1.to_string()));
     headings.extend([MEASUREMENT, "Products", TIMINGS].map(String::from));
     layout::contents(&mut md, &headings);
-    setup::section(&mut md, out, cfg, &targets);
+    setup::section(&mut md, out, cfg, &targets, &tables.projection);
     let piercing: std::collections::BTreeMap<String, (f64, f64)> = cfg
         .carm()
         .map(|c| {

@@ -14,6 +14,7 @@ use crate::geometry::GeometryConfig;
 use crate::io::read_tiff_f32;
 use crate::study::config::{SEGMENT_TARGET, StudyConfig};
 use crate::study::experiments::reference_image_path;
+use crate::study::schema::ProjectionRow;
 
 pub const HEADING: &str = "Setup";
 
@@ -45,6 +46,34 @@ struct Footprint {
     touches_edge: bool,
 }
 
+/// The Setup's "on the detector" cell: the reference silhouette whole or cut, and in how many of the
+/// perturbed cells of `projection` the detector cuts it.
+fn on_detector(
+    reference_cut: bool,
+    projection: &[ProjectionRow],
+    target: &str,
+    view: &str,
+) -> String {
+    let rows: Vec<&ProjectionRow> = projection
+        .iter()
+        .filter(|r| r.target == target && r.view == view)
+        .collect();
+    let cut = rows.iter().filter(|r| r.cut_by_edge).count();
+    let reference = if reference_cut {
+        "**cut by the edge**"
+    } else {
+        "whole"
+    };
+    if cut == 0 {
+        reference.to_string()
+    } else {
+        format!(
+            "{reference}; **cut in {cut} of {} perturbed cells**",
+            rows.len()
+        )
+    }
+}
+
 /// Whether `target`'s reference silhouette in `view` touches the detector edge (cut off).
 pub fn cut_by_edge(out: &Path, target: &str, view: &str) -> bool {
     footprint(out, target, view).is_some_and(|f| f.touches_edge)
@@ -72,7 +101,13 @@ fn footprint(out: &Path, target: &str, view: &str) -> Option<Footprint> {
 }
 
 /// Writes the section: the views table, then the targets table.
-pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, targets: &[String]) {
+pub fn section(
+    md: &mut String,
+    out: &Path,
+    cfg: &StudyConfig,
+    targets: &[String],
+    projection: &[ProjectionRow],
+) {
     let _ = writeln!(md, "## {HEADING}\n");
     let (Ok((g, origin)), Ok(carm)) = (cfg.geometry_config(), cfg.carm()) else {
         let _ = writeln!(
@@ -216,11 +251,7 @@ pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, targets: &[String
                 f.size_px.0,
                 f.size_px.1,
                 at_detector(f64::from(f.size_px.0), f64::from(f.size_px.1)),
-                if f.touches_edge {
-                    "**cut by the edge**"
-                } else {
-                    "whole"
-                }
+                on_detector(f.touches_edge, projection, t, &view.name)
             );
         }
     }

@@ -40,6 +40,9 @@ pub struct ProjectionRow {
     pub skew_px: f64,
     #[serde(with = "num")]
     pub sy: f64,
+    /// The reference or the perturbed silhouette touches the detector's edge: the overlap, contour and
+    /// image metrics of this row are of a cut silhouette, and the report leaves it out of pooled numbers.
+    pub cut_by_edge: bool,
     #[serde(with = "num")]
     pub dice: f64,
     #[serde(with = "num")]

@@ -127,7 +127,7 @@ views at every focal Δf), RMS over the set at the largest Δf: ",
         let what = if super::is_segment(&r.target) {
             "a segment".to_string()
         } else {
-            x.cut_note(&r.target)
+            x.cut_note(&r.target, &[])
                 .trim()
                 .trim_matches(['(', ')'])
                 .to_string()

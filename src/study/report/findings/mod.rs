@@ -71,19 +71,36 @@ impl Inputs<'_> {
         targets.into_iter().partition(|t| self.pooled(t))
     }
 
-    /// `" (cut by the detector edge in LAT: not comparable)"` for a cut target, else nothing.
-    fn cut_note(&self, target: &str) -> String {
-        let views: Vec<String> = ["ap", "lat"]
-            .iter()
-            .filter(|v| self.cut.contains(&(target.to_string(), v.to_string())))
-            .map(|v| v.to_uppercase())
-            .collect();
-        if views.is_empty() {
+    /// Why `target` is reported apart when the detector cuts it: the views cut in the rows `here` (the
+    /// cell being reported: not comparable), else the views cut in other cells; nothing when whole.
+    fn cut_note(&self, target: &str, here: &[usize]) -> String {
+        let views = |cut: &dyn Fn(&str) -> bool| -> Vec<String> {
+            ["ap", "lat"]
+                .iter()
+                .filter(|v| cut(v))
+                .map(|v| v.to_uppercase())
+                .collect()
+        };
+        let t = &self.projection;
+        let now = views(&|v: &str| {
+            here.iter().any(|&i| {
+                t.rows[i].get("view").is_some_and(|x| x == v)
+                    && t.rows[i].get("cut_by_edge").is_some_and(|x| x == "true")
+            })
+        });
+        if !now.is_empty() {
+            return format!(
+                " (cut by the detector edge in {} here: not comparable)",
+                now.join(" and ")
+            );
+        }
+        let ever = views(&|v: &str| self.cut.contains(&(target.to_string(), v.to_string())));
+        if ever.is_empty() {
             String::new()
         } else {
             format!(
-                " (cut by the detector edge in {}: not comparable)",
-                views.join(" and ")
+                " (cut by the detector edge in {} in other cells)",
+                ever.join(" and ")
             )
         }
     }
@@ -117,12 +134,19 @@ pub struct Context<'a> {
 /// table has rows).
 pub fn section(md: &mut String, t: &StudyTables, cx: &Context) -> Result<()> {
     let projection = Table::of(&t.projection);
-    let cut = projection
+    // Cut where the reference silhouette touches the detector's edge, or the perturbed one of any cell.
+    let mut cut: BTreeSet<(String, String)> = projection
         .distinct(&claim::Where::new(), "target")
         .into_iter()
         .flat_map(|tg| ["ap", "lat"].map(|v| (tg.clone(), v.to_string())))
         .filter(|(tg, v)| super::setup::cut_by_edge(cx.out, tg, v))
         .collect();
+    cut.extend(
+        t.projection
+            .iter()
+            .filter(|r| r.cut_by_edge)
+            .map(|r| (r.target.clone(), r.view.clone())),
+    );
     let inputs = Inputs {
         projection,
         structures: Table::of(&t.structures),

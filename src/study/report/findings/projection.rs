@@ -204,7 +204,7 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
                 )
             };
             if let (Some(ap), Some(lat)) = (one("ap"), one("lat")) {
-                let flag = x.cut_note(s);
+                let flag = x.cut_note(s, &t.select(&at.clone().is("target", s)));
                 text.push_str(&format!("; {s} AP {ap}, LAT {lat}{flag}"));
             }
         }
