@@ -327,6 +327,8 @@ fn intrinsics_figure(figs: &Path, rows: &[CalibrationRow], c: &Conditions) -> Re
                         points: stats.iter().map(|x| (x.0, x.1)).collect(),
                         spread: Vec::new(),
                         band: stats.iter().map(|x| (x.2, x.3)).collect(),
+                        colour: None,
+                        dashed: false,
                     }
                 })
                 .collect();

@@ -21,6 +21,10 @@ pub struct Series {
     pub spread: Vec<f64>,
     /// Empty, or one (low, high) per point: a shaded band around the line (e.g. min–max over levels).
     pub band: Vec<(f64, f64)>,
+    /// The palette colour (`None`: the series' index), so several series can share one (a target's).
+    pub colour: Option<usize>,
+    /// Drawn dashed (e.g. the LAT view beside a solid AP).
+    pub dashed: bool,
 }
 
 impl Series {
@@ -31,6 +35,17 @@ impl Series {
             points,
             spread: Vec::new(),
             band: Vec::new(),
+            colour: None,
+            dashed: false,
+        }
+    }
+
+    /// The same series in palette colour `colour`, dashed or solid.
+    pub fn styled(self, colour: usize, dashed: bool) -> Series {
+        Series {
+            colour: Some(colour),
+            dashed,
+            ..self
         }
     }
 }
@@ -259,7 +274,7 @@ pub(super) fn draw_lines<DB: DrawingBackend>(
         }
     }
     for (i, s) in series.iter().enumerate() {
-        let colour = Palette99::pick(i).to_rgba();
+        let colour = Palette99::pick(s.colour.unwrap_or(i)).to_rgba();
         let band: Vec<(f64, f64)> = s
             .points
             .iter()
@@ -281,16 +296,23 @@ pub(super) fn draw_lines<DB: DrawingBackend>(
         }
     }
     for (i, s) in series.iter().enumerate() {
-        let colour = Palette99::pick(i).to_rgba();
+        let colour = Palette99::pick(s.colour.unwrap_or(i)).to_rgba();
         let finite = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
         let pts: Vec<(f64, f64)> = s.points.iter().filter(finite).copied().collect();
-        chart
-            .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(s.label.clone())
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-            });
+        let line = colour.stroke_width(2);
+        let anno = if s.dashed {
+            chart.draw_series(DashedLineSeries::new(pts.clone(), 9, 6, line))
+        } else {
+            chart.draw_series(LineSeries::new(pts.clone(), line))
+        }
+        .map_err(plot_err)?;
+        // The legend sample in the line's own style: one stroke, or two dashes.
+        let gap = if s.dashed { (9, 14) } else { (24, 24) };
+        anno.label(s.label.clone()).legend(move |(x, y)| {
+            EmptyElement::at((x, y))
+                + PathElement::new(vec![(0, 0), (gap.0, 0)], line)
+                + PathElement::new(vec![(gap.1, 0), (24, 0)], line)
+        });
         chart
             // Earlier series get larger dots, so a line drawn over an equal one leaves it visible.
             .draw_series(
@@ -342,11 +364,11 @@ pub(super) fn draw_lines<DB: DrawingBackend>(
     Ok(())
 }
 
-/// A legend of `labels` laid out in `cols` columns (row by row, centred in `area`): a coloured line and
+/// A legend of `labels` (text, colour, dashed) laid out in `cols` columns (row by row, centred in `area`): a coloured line and
 /// the label of each series (colours as in [`draw_lines`]).
 pub(super) fn legend_grid<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
-    labels: &[(String, RGBAColor)],
+    labels: &[(String, RGBAColor, bool)],
     font: u32,
     cols: usize,
 ) -> Result<()> {
@@ -361,15 +383,23 @@ pub(super) fn legend_grid<DB: DrawingBackend>(
         plotters::style::text_anchor::HPos::Left,
         plotters::style::text_anchor::VPos::Center,
     );
-    for (i, (label, colour)) in labels.iter().enumerate() {
+    for (i, (label, colour, dashed)) in labels.iter().enumerate() {
         let colour = *colour;
         let x = x0 + step_x * (i % cols) as i32 + 10;
         let y = y0 + step_y * (i / cols) as i32;
-        area.draw(&PathElement::new(
-            vec![(x, y), (x + 36, y)],
-            colour.stroke_width(3),
-        ))
-        .map_err(plot_err)?;
+        // The sample in the line's style: one stroke, or three dashes.
+        let dashes: &[(i32, i32)] = if *dashed {
+            &[(0, 9), (14, 23), (28, 36)]
+        } else {
+            &[(0, 36)]
+        };
+        for &(a, b) in dashes {
+            area.draw(&PathElement::new(
+                vec![(x + a, y), (x + b, y)],
+                colour.stroke_width(3),
+            ))
+            .map_err(plot_err)?;
+        }
         let style = ("sans-serif", font).into_font().color(&BLACK).pos(anchor);
         area.draw(&Text::new(label.clone(), (x + 44, y), style))
             .map_err(plot_err)?;

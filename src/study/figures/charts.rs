@@ -38,11 +38,14 @@ impl Figure for LineChart<'_> {
                 ..SINGLE
             };
             draw_lines(&plot, p, self.x_label, self.y_label, style)?;
-            let labels: Vec<(String, RGBAColor)> = p
+            let labels: Vec<(String, RGBAColor, bool)> = p
                 .series
                 .iter()
                 .enumerate()
-                .map(|(i, s)| (s.label.clone(), Palette99::pick(i).to_rgba()))
+                .map(|(i, s)| {
+                    let c = Palette99::pick(s.colour.unwrap_or(i)).to_rgba();
+                    (s.label.clone(), c, s.dashed)
+                })
                 .collect();
             legend_grid(&legend, &labels, 15, 1)?;
         } else {
@@ -145,7 +148,7 @@ impl Figure for PanelChart<'_> {
             labels: 20,
             legend: None,
         };
-        let mut labels: Vec<(String, RGBAColor)> = self
+        let mut labels: Vec<(String, RGBAColor, bool)> = self
             .panels
             .iter()
             .max_by_key(|p| p.series.len())
@@ -153,16 +156,21 @@ impl Figure for PanelChart<'_> {
                 p.series
                     .iter()
                     .enumerate()
-                    .map(|(i, s)| (s.label.clone(), Palette99::pick(i).to_rgba()))
+                    .map(|(i, s)| {
+                        let c = Palette99::pick(s.colour.unwrap_or(i)).to_rgba();
+                        (s.label.clone(), c, s.dashed)
+                    })
                     .collect()
             })
             .unwrap_or_default();
         let grey = RGBColor(120, 120, 120).to_rgba();
-        labels.extend(
-            self.legend_extra
-                .iter()
-                .map(|(l, c)| (l.clone(), c.map_or(grey, |i| Palette99::pick(i).to_rgba()))),
-        );
+        labels.extend(self.legend_extra.iter().map(|(l, c)| {
+            (
+                l.clone(),
+                c.map_or(grey, |i| Palette99::pick(i).to_rgba()),
+                false,
+            )
+        }));
         let (per_row, legend_rows) = self.legend_layout();
         let root = root
             .titled(self.title, ("sans-serif", 32))

@@ -32,6 +32,8 @@ fn band(rows: &[CohortRow], label: &str, keep: impl Fn(&CohortRow) -> bool) -> O
         points: r.iter().map(|r| (r.df_px, r.median)).collect(),
         spread: Vec::new(),
         band: r.iter().map(|r| (r.p5, r.p95)).collect(),
+        colour: None,
+        dashed: false,
     })
 }
 

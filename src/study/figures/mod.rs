@@ -95,19 +95,36 @@ pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<
         .collect();
     if !tables.projection.is_empty() {
         for (value, label, file) in PROJECTION_FIGURES {
+            let targets = distinct(joint.iter().map(|r| r.target.as_str()));
+            // One colour per target, one line style per view (AP solid, LAT dashed).
             let s = grouped(
                 &joint,
                 |_| true,
                 |r| format!("{} {}", r.target, r.view),
                 |r| (r.df_px, value(r)),
-            );
+            )
+            .into_iter()
+            .map(|s| {
+                let (target, view) = s.label.rsplit_once(' ').unwrap_or((&s.label, ""));
+                let colour = targets.iter().position(|t| *t == target).unwrap_or(0);
+                let dashed = view == "lat";
+                s.styled(colour, dashed)
+            })
+            .collect();
             let title = format!("{label} vs joint perturbation (Δf with piercing (p, p))");
-            line_chart(&figs.join(file), &title, "focal offset Δf (px)", label, s)?;
+            line_chart(
+                &figs.join(file),
+                &title,
+                "focal offset Δf (px), with the piercing shift (p, p) paired in order",
+                label,
+                s,
+            )?;
             entries.push(conditions.entry(
                 Section::Projection,
                 file,
                 &title,
-                "one line per target and view, joint family",
+                "one colour per target, AP solid and LAT dashed; along x, Δf and the piercing shift \
+                 change together (the joint family)",
                 false,
             ));
         }

@@ -94,6 +94,8 @@ fn panel(
                 points: pts.iter().map(|x| (x.0, x.1)).collect(),
                 spread: pts.iter().map(|x| x.2).collect(),
                 band: Vec::new(),
+                colour: None,
+                dashed: false,
             }
         })
         .collect();
