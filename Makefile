@@ -33,7 +33,7 @@ study: build
 	@echo "report: $(OUT)/study/report.html (and report.md, tables/, figures/)"
 
 # The calibration-in-the-loop experiment (plate and helix, 4 noise levels × 200 trials), into
-# out/calibration/; not part of `make study`.
+# out/calibration/; `make study` runs it on a small grid.
 calibration: build
 	$(BIN) study --config examples/calibration.toml --out $(OUT)/calibration
 	@echo "report: $(OUT)/calibration/report.html"

@@ -151,8 +151,9 @@ fn a_target_cut_by_the_detector_edge_is_flagged_in_the_setup() {
             .unwrap_or_else(|| panic!("no Setup row for box {view}"))
             .to_string()
     };
+    // Cut in the reference and in every perturbed cell: the Setup says both.
     assert!(
-        row("AP").ends_with("| **cut by the edge** |"),
+        row("AP").ends_with("| **cut by the edge**; **cut in 4 of 4 perturbed cells** |"),
         "{}",
         row("AP")
     );
@@ -208,7 +209,7 @@ fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
     let text = dice["text"].as_str().unwrap();
     assert!(
         text.contains("box AP")
-            && text.contains("(cut by the detector edge in AP: not comparable)"),
+            && text.contains("(cut by the detector edge in AP here: not comparable)"),
         "{text}"
     );
     let mut pooled = 0;

@@ -65,14 +65,17 @@ pub struct CalibrationSection {
 impl Default for CalibrationSection {
     fn default() -> Self {
         CalibrationSection {
+            // The default study's small grid: two noise levels spanning a good and a poor calibration,
+            // 10 calibrations each, every reported column over all 10 (the silhouettes too), no
+            // intensity registration (`make calibration` runs the full grid).
             phantoms: vec!["plate".into(), "helix".into()],
-            noise_px: vec![0.1, 0.25, 0.5, 1.0],
-            trials: 200,
-            trials_per_unit: 50,
+            noise_px: vec![0.1, 1.0],
+            trials: 10,
+            trials_per_unit: 10,
             protocols: vec![Protocol::Intrinsic, Protocol::Full],
             target: None,
-            silhouette_trials: 5,
-            intensity_trials: 1,
+            silhouette_trials: 10,
+            intensity_trials: 0,
             tilt_deg: 30.0,
             poses_per_view: 5,
         }

@@ -38,12 +38,13 @@ impl Experiment {
         Experiment::IntensityRegistration,
     ];
 
-    /// The experiments of the default config (calibration runs when asked for).
-    pub const DEFAULT: [Experiment; 4] = [
+    /// The experiments of the default config: all five (calibration on a small grid).
+    pub const DEFAULT: [Experiment; 5] = [
         Experiment::Projection,
         Experiment::Landmarks,
         Experiment::Registration,
         Experiment::IntensityRegistration,
+        Experiment::Calibration,
     ];
 
     /// The config spelling.

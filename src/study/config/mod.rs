@@ -220,7 +220,8 @@ impl Default for RegistrationConfig {
 }
 
 impl StudyConfig {
-    /// A tiny grid for smoke tests: L1 only, 2× binned detector, Δf {100, 500}, piercing {0, 50}, 3 trials.
+    /// A tiny grid for smoke tests: L1 only, 2× binned detector, Δf {100, 500}, piercing {0, 50}, 3 trials,
+    /// no calibration experiment.
     pub fn quick() -> Self {
         StudyConfig {
             anatomy: AnatomyConfig {
@@ -232,6 +233,12 @@ impl StudyConfig {
                 ct: Vec::new(),
                 dataset: Vec::new(),
             },
+            // The smoke test leaves out the calibration experiment (its own small grid is the
+            // default study's).
+            experiments: Experiment::DEFAULT
+                .into_iter()
+                .filter(|e| *e != Experiment::Calibration)
+                .collect(),
             ..StudyConfig::default()
         }
         .with_quick_grid()

@@ -248,7 +248,9 @@ fn render(ctx: &Context, t: &Target, view: &View) -> Result<ThicknessDrr> {
     })
 }
 
-/// (Dice, mean Chamfer, HD95) of the target's silhouette in `est` against `reference`.
+/// (Dice, mean Chamfer, HD95) of the target's silhouette in `est` against `reference`. A calibration
+/// poor enough to move the whole target off the detector leaves no silhouette: Dice 0 (nothing
+/// overlaps) and no contour distance (NaN); with no reference silhouette nothing is measured (NaN).
 fn silhouettes(
     ctx: &Context,
     t: &Target,
@@ -264,6 +266,14 @@ fn silhouettes(
         reference: reference.masks()?.union(),
         perturbed: b.masks()?.union(),
     };
+    match (
+        pair.reference.iter().any(|&x| x),
+        pair.perturbed.iter().any(|&x| x),
+    ) {
+        (false, _) => return Ok((f64::NAN, f64::NAN, f64::NAN)),
+        (true, false) => return Ok((0.0, f64::NAN, f64::NAN)),
+        (true, true) => {}
+    }
     let s = ctx
         .timings
         .time(Phase::Metrics, 1, || silhouette_metrics(&pair))?;

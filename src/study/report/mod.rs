@@ -100,6 +100,7 @@ configuration is `study.toml`.\n",
             ratios: &ratios,
             piercing: [at("ap"), at("lat")],
             noise_px: cfg.registration.noise_px,
+            calibration_trials: cfg.calibration.trials,
         },
     )?;
     shift_ratio::table(&mut md, &ratios);

@@ -127,6 +127,8 @@ pub enum Stat {
     Max,
     /// √(mean x²).
     Rms,
+    /// The 95th percentile, linear between order statistics (position 0.95·(n − 1)).
+    P95,
 }
 
 /// Where a claim's value comes from.

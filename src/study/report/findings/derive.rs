@@ -80,6 +80,7 @@ pub fn column(
         Stat::Min => v.iter().copied().fold(f64::INFINITY, f64::min),
         Stat::Max => v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
         Stat::Rms => (v.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+        Stat::P95 => crate::analysis::percentile(&v, 95.0),
     };
     Some((
         value,

@@ -7,6 +7,7 @@
 //! views, with the direction of an AP-vs-LAT difference; landmark statistics are over a fixed set; ties
 //! are called ties; the paper is compared by interval logic and trends as trends.
 
+mod calibration;
 pub mod claim;
 mod derive;
 mod landmarks;
@@ -47,6 +48,9 @@ struct Inputs<'a> {
     structures: Table,
     landmarks: Table,
     registration: Table,
+    calibration: Table,
+    /// `calibration.trials` of the config.
+    calibration_trials: usize,
     paper: &'a PaperResults,
     /// The first target (the paper's comparisons are made on it).
     first: &'a str,
@@ -128,6 +132,7 @@ pub struct Context<'a> {
     pub ratios: &'a [TargetRatio],
     pub piercing: [[f64; 2]; 2],
     pub noise_px: f64,
+    pub calibration_trials: usize,
 }
 
 /// Computes the findings, writes `tables/findings.json` and the *Findings* section (nothing when no
@@ -152,6 +157,8 @@ pub fn section(md: &mut String, t: &StudyTables, cx: &Context) -> Result<()> {
         structures: Table::of(&t.structures),
         landmarks: Table::of(&t.landmarks),
         registration: Table::of(&t.registration_summary),
+        calibration: Table::of(&t.calibration),
+        calibration_trials: cx.calibration_trials,
         paper: cx.paper,
         first: cx.first,
         cut,
@@ -167,6 +174,7 @@ pub fn section(md: &mut String, t: &StudyTables, cx: &Context) -> Result<()> {
         projection::versus_paper(&inputs),
         landmarks::versus_paper(&inputs),
         registration::versus_paper(&inputs),
+        calibration::headline(&inputs),
     ]
     .into_iter()
     .flatten()
