@@ -54,7 +54,7 @@ struct Inputs<'a> {
     paper: &'a PaperResults,
     /// The first target (the paper's comparisons are made on it).
     first: &'a str,
-    /// (target, view) whose reference silhouette is cut by the detector edge.
+    /// (target, view) cut by the detector edge: the reference silhouette, or the perturbed one of any cell.
     cut: BTreeSet<(String, String)>,
     ratios: &'a [TargetRatio],
     /// The piercing point (cx, cy) of AP and LAT.
@@ -64,8 +64,8 @@ struct Inputs<'a> {
 }
 
 impl Inputs<'_> {
-    /// Whether `target` is pooled with others: a single level (not a segment) whose reference silhouette
-    /// is whole on the detector in every view.
+    /// Whether `target` is pooled with others: a single level (not a segment) whose silhouette is whole
+    /// on the detector in every view and cell.
     fn pooled(&self, target: &str) -> bool {
         !is_segment(target) && !self.cut.iter().any(|(t, _)| t == target)
     }
@@ -121,8 +121,9 @@ struct FindingsFile<'a> {
 const ABOUT: &str = "Each finding is one bullet of report.md's Findings: its Markdown text, the claims \
 (numbers) it prints (text) or builds on (text null), and its categorical facts. A claim's source says how \
 to recompute it from the CSV tables under tables/ (rows: 0-based data rows matching `where`, whose cells \
-are compared as text), from other claims (formula, count_greater), from reference/paper-results.toml \
-(paper), or names a rule constant. A fact's word follows from its rule applied to the claims it lists.";
+are compared as text) or their points (points), from other claims (formula, count_greater) or facts \
+(count_word), from a list (count), from reference/paper-results.toml (paper) or study.toml (config), or \
+names a rule constant (rule). A fact's word follows from its rule applied to the claims it lists.";
 
 /// Everything the section needs beyond the tables.
 pub struct Context<'a> {

@@ -61,8 +61,18 @@ fn range(
 pub fn by_family(x: &Inputs) -> Option<Finding> {
     let t = &x.registration;
     let (dfs, ps) = (grid(t, "df_px"), grid(t, "piercing_px"));
-    let (df_top, p_top) = (dfs.last()?.clone(), ps.last()?.clone());
-    let zero = |g: &[String]| g.iter().any(|v| v.parse::<f64>() == Ok(0.0));
+    // Each family's largest step is the grid value farthest from 0; "alone" holds the other at 0.
+    let top = |g: &[String]| {
+        g.iter()
+            .max_by(|a, b| {
+                let v = |x: &String| x.parse::<f64>().map_or(0.0, f64::abs);
+                v(a).total_cmp(&v(b))
+            })
+            .cloned()
+    };
+    let (df_top, p_top) = (top(&dfs)?, top(&ps)?);
+    let zero_of = |g: &[String]| g.iter().find(|v| v.parse::<f64>() == Ok(0.0)).cloned();
+    let (df_zero, p_zero) = (zero_of(&dfs), zero_of(&ps));
     let (levels, _) = x.split_targets(t.distinct(&Where::new(), "target"));
     if levels.is_empty() {
         return None;
@@ -71,21 +81,21 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
     let has = |m: &str| methods.iter().any(|x| x == m);
     let mut f = Finding::new("registration_by_family");
     let mut families = Vec::new();
-    if zero(&ps) && df_top != "0" {
+    if let Some(p0) = p_zero.filter(|_| df_top != "0") {
         families.push((
             "focal",
             "a focal error alone",
             format!("Δf = {df_top} px"),
             df_top.clone(),
-            ps[0].clone(),
+            p0,
         ));
     }
-    if zero(&dfs) && p_top != "0" {
+    if let Some(d0) = df_zero.filter(|_| p_top != "0") {
         families.push((
             "piercing",
             "a piercing shift alone",
             format!("p = {p_top} px"),
-            dfs[0].clone(),
+            d0,
             p_top.clone(),
         ));
     }
