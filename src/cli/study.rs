@@ -18,7 +18,8 @@ pub struct Args {
     #[arg(long)]
     config: Option<PathBuf>,
     /// A tiny grid for a smoke test: 2× binned detector, Δf {100, 500}, piercing {0, 50}, 3 registration
-    /// trials. Alone it studies L1 only; with --config, the config's targets and views on that grid.
+    /// trials. Alone it studies L1 only, without the calibration experiment; with --config, the config's
+    /// targets, views and experiments on that grid.
     #[arg(long)]
     quick: bool,
     /// Output folder (tables/, figures/, units/, report.md).
