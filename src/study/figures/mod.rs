@@ -49,6 +49,20 @@ fn grouped<R>(
         .collect()
 }
 
+/// Series labelled "<target> <view>" styled one colour per target (in the order of `targets`), AP solid
+/// and LAT dashed.
+fn by_target_and_view(series: Vec<Series>, targets: &[&str]) -> Vec<Series> {
+    series
+        .into_iter()
+        .map(|s| {
+            let (target, view) = s.label.rsplit_once(' ').unwrap_or((&s.label, ""));
+            let colour = targets.iter().position(|t| *t == target).unwrap_or(0);
+            let dashed = view == "lat";
+            s.styled(colour, dashed)
+        })
+        .collect()
+}
+
 /// Averages the y of points sharing an x (landmarks → mean shift per Δf).
 fn mean_per_x(s: Series) -> Series {
     let mut m: BTreeMap<u64, (f64, f64, usize)> = BTreeMap::new();
@@ -97,20 +111,15 @@ pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<
         for (value, label, file) in PROJECTION_FIGURES {
             let targets = distinct(joint.iter().map(|r| r.target.as_str()));
             // One colour per target, one line style per view (AP solid, LAT dashed).
-            let s = grouped(
-                &joint,
-                |_| true,
-                |r| format!("{} {}", r.target, r.view),
-                |r| (r.df_px, value(r)),
-            )
-            .into_iter()
-            .map(|s| {
-                let (target, view) = s.label.rsplit_once(' ').unwrap_or((&s.label, ""));
-                let colour = targets.iter().position(|t| *t == target).unwrap_or(0);
-                let dashed = view == "lat";
-                s.styled(colour, dashed)
-            })
-            .collect();
+            let s = by_target_and_view(
+                grouped(
+                    &joint,
+                    |_| true,
+                    |r| format!("{} {}", r.target, r.view),
+                    |r| (r.df_px, value(r)),
+                ),
+                &targets,
+            );
             let title = format!("{label} vs joint perturbation (Δf with piercing (p, p))");
             line_chart(
                 &figs.join(file),
@@ -171,15 +180,7 @@ pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<
                     .map(|(a, b)| (a.1 - b.1).abs())
             })
             .fold(0.0, f64::max);
-        let s: Vec<Series> = measured
-            .into_iter()
-            .map(|s| {
-                let (target, view) = s.label.rsplit_once(' ').unwrap_or((&s.label, ""));
-                let colour = targets.iter().position(|t| *t == target).unwrap_or(0);
-                let dashed = view == "lat";
-                s.styled(colour, dashed)
-            })
-            .collect();
+        let s = by_target_and_view(measured, &targets);
         let title = "Mean landmark shift vs focal offset";
         let file = "landmark_shift_vs_df.png";
         line_chart(

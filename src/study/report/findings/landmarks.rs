@@ -6,6 +6,20 @@ use super::derive::{column, count, formula, points};
 use super::{Inputs, sources};
 use crate::study::schema::LandmarkRow;
 
+/// Prints claim `id`'s value again at `decimals` decimals, as the claim `new_id`.
+fn again(f: &mut Finding, id: &str, new_id: &str, decimals: usize) -> Option<String> {
+    let v = f.value(id)?;
+    let c = Claim::new(
+        new_id,
+        v,
+        Source::Formula {
+            op: Op::Value,
+            of: vec![id.to_string()],
+        },
+    );
+    Some(f.say(c.shown(decimals, "")))
+}
+
 /// The ratio finding: per target the measured LAT/AP RMS shift at the largest focal Δf on its fixed
 /// set (landmarks measured in both views at every focal Δf), the range over the single levels, each
 /// segment apart, and for the first level the decomposition into offset and spread.
@@ -98,29 +112,11 @@ views at every focal Δf), RMS over the set at the largest Δf: ",
         let n = f.say(count("ratio.levels", &names));
         s.push_str(&format!("LAT/AP is {lo}–{hi} over the {n} single levels"));
     } else if let Some((r, id)) = levels.first() {
-        let v = f.value(id)?;
-        let c = Claim::new(
-            format!("{id}.2"),
-            v,
-            Source::Formula {
-                op: Op::Value,
-                of: vec![id.clone()],
-            },
-        );
-        let m = f.say(c.shown(2, ""));
+        let m = again(&mut f, id, &format!("{id}.2"), 2)?;
         s.push_str(&format!("LAT/AP is {m} for {}", r.target));
     }
     for (i, (r, id)) in segments.iter().enumerate() {
-        let v = f.value(id)?;
-        let c = Claim::new(
-            format!("{id}.2"),
-            v,
-            Source::Formula {
-                op: Op::Value,
-                of: vec![id.clone()],
-            },
-        );
-        let m = f.say(c.shown(2, ""));
+        let m = again(&mut f, id, &format!("{id}.2"), 2)?;
         let kept = f.say(count(&format!("ratio.{}.kept", r.target), &r.landmarks));
         let all: Vec<String> = r.landmarks.iter().chain(&r.left_out).cloned().collect();
         let total = f.say(count(&format!("ratio.{}.all", r.target), &all));
@@ -159,20 +155,7 @@ views at every focal Δf), RMS over the set at the largest Δf: ",
                 .map(|c| f.say(c.shown(0, "%").about(tg, view, "focal")))
         };
         let copy = |f: &mut Finding, name: &str, d: usize| {
-            let v = f.value(&id(name))?;
-            Some(
-                f.say(
-                    Claim::new(
-                        id(&format!("{name}.shown")),
-                        v,
-                        Source::Formula {
-                            op: Op::Value,
-                            of: vec![id(name)],
-                        },
-                    )
-                    .shown(d, ""),
-                ),
-            )
+            again(f, &id(name), &id(&format!("{name}.shown")), d)
         };
         let (dl, da) = (copy(&mut f, "d_lat", 1)?, copy(&mut f, "d_ap", 1)?);
         let (ol, sl, oa) = (

@@ -1,7 +1,7 @@
 //! Findings of the projection tables: silhouette loss per perturbation family, the most and least
 //! sensitive structures, and the first target's Dice against the paper's.
 
-use super::claim::{Claim, Finding, Source, Stat, Transform, Where};
+use super::claim::{Claim, Finding, Source, Stat, Table, Transform, Where};
 use super::derive::{column, count, count_greater, greater, tie};
 use super::{Inputs, sources};
 use crate::study::schema::{ProjectionRow, StructureRow};
@@ -17,13 +17,19 @@ const FAMILIES: [(&str, &str, &str, bool); 5] = [
 ];
 
 /// The family's largest step: the cell text of `col` farthest from 0 (or from 1 when `about_one`).
-fn largest_step(t: &super::Table, family: &str, col: &str, about_one: bool) -> Option<String> {
+fn largest_step(t: &Table, family: &str, col: &str, about_one: bool) -> Option<String> {
     let base = if about_one { 1.0 } else { 0.0 };
     t.distinct(&Where::new().is("family", family), col)
         .into_iter()
         .filter_map(|v| Some((v.parse::<f64>().ok()?, v)))
         .max_by(|a, b| (a.0 - base).abs().total_cmp(&(b.0 - base).abs()))
         .map(|(_, v)| v)
+}
+
+/// The silhouette loss `1 − Dice` of `target` in `view` in the cell `at` (one row).
+fn loss(t: &Table, at: &Where, target: &str, view: &str) -> Option<(f64, Source)> {
+    let w = at.clone().is("view", view).is("target", target);
+    column(t, w, "dice", Transform::OneMinus, Stat::Value).map(|(v, _, src)| (v, src))
 }
 
 /// Silhouette loss 1 − Dice per perturbation family at its largest step, both views: the single levels
@@ -61,13 +67,7 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
         let mut text = format!("Under {what} ({where_})");
         if let [level] = &levels[..] {
             let mut one = |view: &str| {
-                let (v, _, src) = column(
-                    t,
-                    at.clone().is("view", view).is("target", level),
-                    "dice",
-                    Transform::OneMinus,
-                    Stat::Value,
-                )?;
+                let (v, src) = loss(t, &at, level, view)?;
                 Some((
                     v,
                     f.say(
@@ -125,13 +125,7 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
             let mut pairs = Vec::new();
             for level in &levels {
                 let mut one = |view: &str| {
-                    let (v, _, src) = column(
-                        t,
-                        at.clone().is("view", view).is("target", level),
-                        "dice",
-                        Transform::OneMinus,
-                        Stat::Value,
-                    )?;
+                    let (v, src) = loss(t, &at, level, view)?;
                     let id = format!("dice.{family}.{level}.{view}");
                     f.keep(cell(Claim::new(&id, v, src)).about(level, view, family));
                     Some((id, v))
@@ -188,13 +182,7 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
         }
         for s in &segments {
             let mut one = |view: &str| {
-                let (v, _, src) = column(
-                    t,
-                    at.clone().is("view", view).is("target", s),
-                    "dice",
-                    Transform::OneMinus,
-                    Stat::Value,
-                )?;
+                let (v, src) = loss(t, &at, s, view)?;
                 Some(
                     f.say(
                         cell(Claim::new(format!("dice.{family}.{s}.{view}"), v, src))
