@@ -14,7 +14,7 @@ use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
 
 /// Width (px) of the embedded figure previews: the page's display width.
-pub const PREVIEW_WIDTH_PX: u32 = 1000;
+pub const PREVIEW_WIDTH_PX: u32 = super::figures::PAGE_WIDTH_PX;
 
 const STYLE: &str = ".wide{overflow-x:auto;max-width:100%}code{background:#f3f3f3;padding:0 3px;border-radius:3px;font-size:0.92em}body{font-family:'DejaVu Sans',sans-serif;max-width:1040px;margin:auto;\
 padding:0 16px;line-height:1.45;color:#222}h1{border-bottom:2px solid #444}h2{border-bottom:1px solid #bbb;\

@@ -238,6 +238,8 @@ intensity_trials = 1
         let img = image::open(out.join("figures").join(f)).unwrap();
         assert!(img.width() > 500, "{f}");
     }
+    assert!(crate::common::assert_figures_legible(&out.join("figures")) >= 4);
+    assert!(crate::common::assert_figures_inside_canvas(&out.join("figures")) >= 4);
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
         report.contains("Calibration in the loop"),

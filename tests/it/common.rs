@@ -156,3 +156,76 @@ pub fn carm_lat_750() -> spinedrr::geometry::CArm {
     assert_ne!(text, spinedrr::geometry::DEFAULT_GEOMETRY_TOML);
     spinedrr::geometry::CArm::from_toml_str(&text, "LAT at 750 mm").unwrap()
 }
+
+/// Every text of every SVG figure under `figs` stays at least 12 px high (the bound) when the
+/// figure is shown at the report's preview width: the text height plotters draws is the SVG
+/// `font-size` × 1.24 (plotters-svg writes size / 1.24), scaled by preview width / figure width when
+/// the figure is wider. Returns how many figures were checked.
+pub fn assert_figures_legible(figs: &Path) -> usize {
+    let page = f64::from(spinedrr::study::report_html::PREVIEW_WIDTH_PX);
+    let mut checked = 0;
+    let mut small = Vec::new();
+    for e in std::fs::read_dir(figs).expect("figures") {
+        let p = e.expect("entry").path();
+        if p.extension().is_none_or(|x| x != "svg") {
+            continue;
+        }
+        let s = std::fs::read_to_string(&p).expect("svg");
+        let doc = roxmltree::Document::parse(&s).expect("xml");
+        let root = doc.root_element();
+        let width: f64 = root
+            .attribute("width")
+            .and_then(|w| w.parse().ok())
+            .expect("width");
+        let scale = (page / width).min(1.0);
+        for t in doc.descendants().filter(|n| n.has_tag_name("text")) {
+            let size: f64 = t
+                .attribute("font-size")
+                .and_then(|v| v.parse().ok())
+                .unwrap_or_else(|| panic!("{}: a text without font-size", p.display()));
+            let shown = size * 1.24 * scale;
+            if shown < 12.0 - 1e-6 && !t.text().unwrap_or("").trim().is_empty() {
+                small.push(format!(
+                    "{}: {:?} {shown:.1} px",
+                    p.file_name().unwrap().to_string_lossy(),
+                    t.text().unwrap_or("")
+                ));
+            }
+        }
+        checked += 1;
+    }
+    assert!(
+        small.is_empty(),
+        "{} texts below 12 px at the page width, e.g. {:?}",
+        small.len(),
+        &small[..small.len().min(8)]
+    );
+    checked
+}
+
+/// Every drawn figure PNG under `figs` (not the raw `heatmap_<target>_<view>_df*.png` images) has a
+/// blank (near-white) border of 3 px: titles, legends and labels stay inside the canvas. Returns how
+/// many were checked.
+pub fn assert_figures_inside_canvas(figs: &Path) -> usize {
+    let mut checked = 0;
+    let mut cut = Vec::new();
+    for e in std::fs::read_dir(figs).expect("figures") {
+        let p = e.expect("entry").path();
+        let name = p.file_name().unwrap().to_string_lossy().to_string();
+        let raw = name.starts_with("heatmap_") && !name.starts_with("heatmap_panel_");
+        if p.extension().is_none_or(|x| x != "png") || raw {
+            continue;
+        }
+        let img = image::open(&p).expect("png").to_luma8();
+        let (w, h) = img.dimensions();
+        let dark = |x: u32, y: u32| img.get_pixel(x, y).0[0] < 200;
+        let edge = (0..w).any(|x| (0..3).any(|y| dark(x, y) || dark(x, h - 1 - y)))
+            || (0..h).any(|y| (0..3).any(|x| dark(x, y) || dark(w - 1 - x, y)));
+        if edge {
+            cut.push(name);
+        }
+        checked += 1;
+    }
+    assert!(cut.is_empty(), "drawn to the canvas edge: {cut:?}");
+    checked
+}

@@ -64,6 +64,19 @@ fn every_figure_has_an_svg_twin_that_parses_and_has_real_text() {
     assert!(n >= 15, "{n} SVGs");
 }
 
+/// Text stays legible on the page: every figure's text is at least 12 px high at the report's preview
+/// width (tick labels, legends, landmark numbers and keys included).
+#[test]
+fn every_figure_keeps_its_text_legible_at_the_page_width() {
+    assert!(crate::common::assert_figures_legible(&quick_out().join("figures")) >= 15);
+}
+
+/// Titles, legends and labels stay inside the canvas: every drawn figure has a blank border.
+#[test]
+fn every_figure_keeps_its_titles_inside_the_canvas() {
+    assert!(crate::common::assert_figures_inside_canvas(&quick_out().join("figures")) >= 15);
+}
+
 /// The heatmap panel of L1: views × heatmap Δf panes (4 rasters + the colour bar), each pane titled,
 /// the colour bar labelled with the images' units.
 #[test]
@@ -91,7 +104,9 @@ fn the_heatmap_panel_has_four_titled_panes_and_a_unit_colour_bar() {
     assert_eq!((w, h), (sw, sh));
 }
 
-/// Landmarks AP beside LAT: two DRR backgrounds, every landmark of L1 labelled in each view.
+/// Landmarks AP beside LAT: two DRR backgrounds, every landmark of L1 numbered in each view, each
+/// number once in the key with its name, a scale bar in each view (the views share one window size:
+/// `overlay_draw`'s unit test).
 #[test]
 fn the_landmark_figure_shows_ap_beside_lat_with_every_landmark() {
     let tables = StudyTables::load(quick_out()).expect("tables");
@@ -105,11 +120,24 @@ fn the_landmark_figure_shows_ap_beside_lat_with_every_landmark() {
     let doc = roxmltree::Document::parse(&s).expect("xml");
     assert_eq!(count(&doc, "image"), 2);
     let t = texts(&doc);
-    for n in &names {
-        assert_eq!(t.iter().filter(|x| x == n).count(), 2, "{n}");
+    for (i, n) in names.iter().enumerate() {
+        // Names are keyed in sorted order, numbered from 1.
+        assert_eq!(t.iter().filter(|x| x == n).count(), 1, "{n}: {t:?}");
+        let number = (i + 1).to_string();
+        assert_eq!(
+            t.iter().filter(|x| **x == number).count(),
+            3,
+            "{number}: once in the key, once per view"
+        );
     }
     assert!(
         t.iter().any(|x| x.starts_with("L1 AP:")) && t.iter().any(|x| x.starts_with("L1 LAT:"))
+    );
+    assert_eq!(
+        t.iter()
+            .filter(|x| x.ends_with("mm at the detector"))
+            .count(),
+        2
     );
 }
 

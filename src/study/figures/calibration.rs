@@ -64,12 +64,14 @@ impl Figure for Scatter {
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<Vec<Raster>> {
         let (top, body) = root.split_vertically(50);
-        top.titled(&self.title, ("sans-serif", 26))
+        top.margin(super::charts::TITLE_MARGIN_PX, 0, 0, 0)
+            .titled(&self.title, ("sans-serif", 26))
             .map_err(plot_err)?;
         let rows = self.panels.len().div_ceil(self.cols);
         let areas = body.split_evenly((rows, self.cols));
+        let font = super::legible(self.size().0, 14);
         for (p, area) in self.panels.iter().zip(areas) {
-            draw_scatter(&area, p)?;
+            draw_scatter(&area, p, font)?;
         }
         Ok(Vec::new())
     }
@@ -91,7 +93,12 @@ fn range(v: impl Iterator<Item = f64>, log: bool) -> std::ops::Range<f64> {
     }
 }
 
-fn draw_scatter<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &ScatterPanel) -> Result<()> {
+/// One scatter panel; `font`: tick labels and legend (px).
+fn draw_scatter<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    p: &ScatterPanel,
+    font: u32,
+) -> Result<()> {
     let all = || p.groups.iter().flat_map(|g| g.1.iter().copied());
     let xr = range(all().map(|q| q.0), p.log);
     let yr = range(all().map(|q| q.1), p.log);
@@ -115,7 +122,7 @@ fn draw_scatter<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &ScatterPa
                 .y_labels(6)
                 .x_label_formatter(&tick)
                 .y_label_formatter(&tick)
-                .label_style(("sans-serif", 14))
+                .label_style(("sans-serif", font))
                 .draw()
                 .map_err(plot_err)?;
             for (i, (label, pts)) in p.groups.iter().enumerate() {
@@ -147,7 +154,7 @@ fn draw_scatter<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &ScatterPa
                 .position(SeriesLabelPosition::UpperLeft)
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
-                .label_font(("sans-serif", 13))
+                .label_font(("sans-serif", font))
                 .draw()
                 .map_err(plot_err)?;
         }};
@@ -329,6 +336,7 @@ fn intrinsics_figure(figs: &Path, rows: &[CalibrationRow], c: &Conditions) -> Re
                         band: stats.iter().map(|x| (x.2, x.3)).collect(),
                         colour: None,
                         dashed: false,
+                        floor: f64::NEG_INFINITY,
                     }
                 })
                 .collect();

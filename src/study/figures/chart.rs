@@ -25,6 +25,8 @@ pub struct Series {
     pub colour: Option<usize>,
     /// Drawn dashed (e.g. the LAT view beside a solid AP).
     pub dashed: bool,
+    /// The least value the quantity can take (0 for an error or a distance): whiskers stop there.
+    pub floor: f64,
 }
 
 impl Series {
@@ -37,7 +39,17 @@ impl Series {
             band: Vec::new(),
             colour: None,
             dashed: false,
+            floor: f64::NEG_INFINITY,
         }
+    }
+
+    /// The whisker (low, high) of point `i`: its value ± spread, the low end at [`Series::floor`] at
+    /// least; `None` without a finite positive spread.
+    pub fn whisker(&self, i: usize) -> Option<(f64, f64)> {
+        let (x, y) = *self.points.get(i)?;
+        let e = *self.spread.get(i)?;
+        (x.is_finite() && y.is_finite() && e.is_finite() && e > 0.0)
+            .then(|| ((y - e).max(self.floor), y + e))
     }
 
     /// The same series in palette colour `colour`, dashed or solid.
@@ -113,13 +125,8 @@ fn ranges(series: &[Series], marks: &[Mark]) -> (std::ops::Range<f64>, std::ops:
             if !(x.is_finite() && y.is_finite()) {
                 continue;
             }
-            let e = s
-                .spread
-                .get(i)
-                .copied()
-                .filter(|e| e.is_finite())
-                .unwrap_or(0.0);
-            (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y - e), y1.max(y + e));
+            let (lo, hi) = s.whisker(i).unwrap_or((y, y));
+            (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(lo), y1.max(hi));
         }
     }
     for m in marks {
@@ -320,14 +327,14 @@ pub(super) fn draw_lines<DB: DrawingBackend>(
                     .map(|&p| Circle::new(p, radius(i, series.len()), colour.filled())),
             )
             .map_err(plot_err)?;
-        let whiskers = s
-            .points
-            .iter()
-            .zip(&s.spread)
-            .filter(|&(&(x, y), &e)| x.is_finite() && y.is_finite() && e.is_finite() && e > 0.0)
-            .map(|(&(x, y), &e)| {
-                PathElement::new(vec![(x, y - e), (x, y + e)], colour.stroke_width(1))
-            });
+        let whiskers = (0..s.points.len()).filter_map(|i| {
+            let (lo, hi) = s.whisker(i)?;
+            let x = s.points[i].0;
+            Some(PathElement::new(
+                vec![(x, lo), (x, hi)],
+                colour.stroke_width(1),
+            ))
+        });
         chart.draw_series(whiskers).map_err(plot_err)?;
     }
     for m in marks {
@@ -422,4 +429,25 @@ pub(super) fn encode_png_sized(path: &Path, buf: Vec<u8>, size: (u32, u32)) -> R
     img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
         .map_err(|e| Error::format(path, e.to_string()))?;
     write_atomic_bytes(path, &png)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A whisker is the value ± its spread, stopped at the series' floor (an error is never below 0);
+    /// a point without a positive finite spread has none.
+    #[test]
+    fn whiskers_stop_at_the_floor() {
+        let mut s = Series::line("e", vec![(0.0, 0.2), (1.0, 1.0), (2.0, 0.5)]);
+        s.spread = vec![0.5, 0.25, 0.0];
+        assert_eq!(s.whisker(0), Some((-0.3, 0.7)));
+        s.floor = 0.0;
+        assert_eq!(s.whisker(0), Some((0.0, 0.7)));
+        assert_eq!(s.whisker(1), Some((0.75, 1.25)));
+        assert_eq!(s.whisker(2), None);
+        assert_eq!(s.whisker(3), None);
+        let (_, y) = ranges(&[s], &[]);
+        assert!(y.start >= -0.1, "{y:?}");
+    }
 }

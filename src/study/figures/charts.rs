@@ -128,6 +128,9 @@ impl PanelChart<'_> {
     }
 }
 
+/// Blank space (px) above a figure's title.
+pub(super) const TITLE_MARGIN_PX: u32 = 10;
+
 /// Least width of a [`PanelChart`] (px).
 const MIN_PANEL_CHART_WIDTH_PX: usize = 1000;
 
@@ -137,15 +140,16 @@ impl Figure for PanelChart<'_> {
         let legend_rows = self.legend_layout().1 as u32;
         (
             self.width() as u32,
-            80 + 30 * legend_rows + 500 * rows as u32,
+            80 + TITLE_MARGIN_PX + 30 * legend_rows + 500 * rows as u32,
         )
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<Vec<Raster>> {
         let (rows, cols) = self.grid();
+        let width = self.width() as u32;
         let style = ChartStyle {
             caption: 26,
-            labels: 20,
+            labels: super::legible(width, 20),
             legend: None,
         };
         let mut labels: Vec<(String, RGBAColor, bool)> = self
@@ -172,11 +176,13 @@ impl Figure for PanelChart<'_> {
             )
         }));
         let (per_row, legend_rows) = self.legend_layout();
+        // A top margin keeps the title's ascenders (parentheses) inside the canvas.
         let root = root
+            .margin(TITLE_MARGIN_PX, 0, 0, 0)
             .titled(self.title, ("sans-serif", 32))
             .map_err(plot_err)?;
         let (strip, root) = root.split_vertically(20 + 30 * legend_rows as i32);
-        legend_grid(&strip, &labels, 22, per_row)?;
+        legend_grid(&strip, &labels, super::legible(width, 22), per_row)?;
         for (i, (area, p)) in root
             .split_evenly((rows, cols))
             .iter()

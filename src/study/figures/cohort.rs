@@ -34,6 +34,7 @@ fn band(rows: &[CohortRow], label: &str, keep: impl Fn(&CohortRow) -> bool) -> O
         band: r.iter().map(|r| (r.p5, r.p95)).collect(),
         colour: None,
         dashed: false,
+        floor: f64::NEG_INFINITY,
     })
 }
 

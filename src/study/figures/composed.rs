@@ -16,6 +16,20 @@ use crate::study::config::StudyConfig;
 use crate::study::paper::PaperResults;
 use crate::study::schema::{Family, StudyTables};
 
+/// `x` to `d` decimals.
+fn round_to(x: f64, d: usize) -> String {
+    format!("{x:.d$}")
+}
+
+/// `x` to `n` significant digits in plain notation (no exponent): 2.135, 0.01234.
+pub(super) fn significant(x: f64, n: usize) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return format!("{x}");
+    }
+    let digits = n as i32 - 1 - x.abs().log10().floor() as i32;
+    format!("{x:.*}", digits.max(0) as usize)
+}
+
 /// The conditions every caption states.
 pub struct Conditions {
     /// Views, detector binning, renderer backend, C-arm geometry.
@@ -120,7 +134,14 @@ line is the mean over {} ({}), the band their min–max; triangles are the paper
     let mut dfs = cfg.heatmaps_df_px.clone();
     dfs.sort_by(f64::total_cmp);
     for target in distinct(p.iter().map(|r| r.target.as_str())) {
-        let Some(panel) = HeatmapPanel::load(out, target, &views, &dfs, LINE_INTEGRAL_DIFFERENCE)?
+        let Some(panel) = HeatmapPanel::load(
+            out,
+            target,
+            &views,
+            &dfs,
+            LINE_INTEGRAL_DIFFERENCE,
+            super::mm_per_px(cfg),
+        )?
         else {
             continue;
         };
@@ -129,16 +150,22 @@ line is the mean over {} ({}), the band their min–max; triangles are the paper
         let dfs: Vec<String> = dfs.iter().map(|d| format!("{d}")).collect();
         let what = format!(
             "|A − B| of the reference DRR A and the DRR B under a focal offset alone (focal family), a \
-row per view, a column per Δf ({} px), each view cropped to where its differences are non-zero; one \
-viridis scale from 0 to {:.3e} for every pane, so colours compare across views and Δf",
+row per view, a column per Δf ({} px), each view cropped around where its differences are non-zero to \
+a window of one size for every view ({} px square{}), so the views are drawn at one scale (scale bar in \
+each pane); one viridis scale from 0 to {} for every pane, so colours compare across views and Δf",
             dfs.join(", "),
-            panel.scale.max
+            panel.crops.first().map_or(0, |c| c.side),
+            super::mm_per_px(cfg).map_or(String::new(), |s| format!(
+                ", {} mm at the detector",
+                round_to(f64::from(panel.crops.first().map_or(0, |c| c.side)) * s, 1)
+            )),
+            significant(panel.scale.max, 4)
         );
         let title = format!("{target}: |ΔDRR| heatmaps");
         entries.push(c.entry(Section::Projection, &file, &title, &what, true));
     }
     if !tables.landmarks.is_empty() {
-        for o in overlay::landmark_overlays(out, &tables.landmarks, &figs)? {
+        for o in overlay::landmark_overlays(out, &tables.landmarks, &figs, super::mm_per_px(cfg))? {
             let views: Vec<String> = o.views.iter().map(|v| v.to_uppercase()).collect();
             let title = format!(
                 "{}: landmark displacement, {}",
@@ -148,8 +175,17 @@ viridis scale from 0 to {:.3e} for every pane, so colours compare across views a
             let what = format!(
                 "the {} landmarks on the reference DRR, reference position (green circle), position \
 measured from the marker render under a focal offset Δf = {} px (red dot), the shift magnified ×{} (red \
-arrow) and the homography prediction H·x at the same magnification (blue cross); focal family",
-                o.landmarks, o.df_px, o.gain
+arrow) and the homography prediction H·x at the same magnification (blue cross), each landmark numbered \
+(the key under the panes); focal family. The views are drawn at one scale (the same detector window \
+size; scale bar in {})",
+                o.landmarks,
+                o.df_px,
+                o.gain,
+                if o.scale_in_mm {
+                    "mm at the detector"
+                } else {
+                    "detector px"
+                }
             );
             entries.push(c.entry(Section::Landmarks, &o.file, &title, &what, true));
             for (v, upper) in o.views.iter().zip(&views) {
@@ -173,4 +209,17 @@ where trials vary; grey bands are the paper's reported ranges",
         entries.push(c.entry(Section::Registration, &file, &title, &what, true));
     }
     Ok(entries)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::significant;
+
+    #[test]
+    fn captions_print_significant_digits_without_an_exponent() {
+        assert_eq!(significant(2.13456, 4), "2.135");
+        assert_eq!(significant(0.0123456, 3), "0.0123");
+        assert_eq!(significant(1234.5, 3), "1234");
+        assert_eq!(significant(0.0, 3), "0");
+    }
 }

@@ -1,7 +1,8 @@
 //! The paper's |ΔDRR| heatmap panel of one target: a row per view, a column per heatmap Δf (focal
-//! family), every pane cropped to the same window per view (where any of that view's differences is
-//! non-zero, with a margin) and coloured through ONE scale, viridis over [0, max of all panes], with a
-//! colour bar labelled in the images' units.
+//! family), each view's panes cropped to a window around where any of its differences is non-zero,
+//! every window the same size (the largest view's), so all panes are drawn at one scale with a scale
+//! bar, and coloured through ONE scale, viridis over [0, max of all panes], with a colour bar labelled
+//! in the images' units.
 
 use std::path::Path;
 
@@ -11,10 +12,13 @@ use plotters::prelude::*;
 
 use super::canvas::{Figure, Raster};
 use super::chart::plot_err;
+use super::scale_bar::ScaleBar;
 use crate::Result;
 use crate::io::{ImageF32, read_tiff_f32};
 use crate::study::experiments::difference_image_path;
 
+/// Text size (px) of the pane labels and scale bars.
+const SMALL_FONT: u32 = 15;
 /// Pane side (px) in the figure.
 const PANE: u32 = 380;
 const LEFT: u32 = 30;
@@ -56,6 +60,20 @@ pub struct Crop {
     pub u0: u32,
     pub v0: u32,
     pub side: u32,
+}
+
+impl Crop {
+    /// The window of side `side` (at most the detector's smaller side) centred where this one is, kept
+    /// on a `w × h` detector.
+    pub fn resized(&self, side: u32, w: u32, h: u32) -> Crop {
+        let side = side.min(w.min(h)).max(1);
+        let place = |a: u32, n: u32| (a + self.side / 2).saturating_sub(side / 2).min(n - side);
+        Crop {
+            u0: place(self.u0, w),
+            v0: place(self.v0, h),
+            side,
+        }
+    }
 }
 
 /// The square window holding every pixel of `images` above 1 % of `scale.max`, with a 15 % margin,
@@ -137,6 +155,8 @@ pub struct HeatmapPanel {
     pub crops: Vec<Crop>,
     pub scale: ColourScale,
     pub units: String,
+    /// The detector's u pixel spacing (mm), for the scale bar.
+    pub mm_per_px: Option<f64>,
 }
 
 impl HeatmapPanel {
@@ -147,6 +167,7 @@ impl HeatmapPanel {
         views: &[String],
         dfs: &[f64],
         units: &str,
+        mm_per_px: Option<f64>,
     ) -> Result<Option<HeatmapPanel>> {
         if views.is_empty() || dfs.is_empty() {
             return Ok(None); // a study without heatmaps has no panel (not an empty one)
@@ -169,6 +190,7 @@ impl HeatmapPanel {
             dfs.to_vec(),
             images,
             units,
+            mm_per_px,
         )))
     }
 
@@ -178,11 +200,21 @@ impl HeatmapPanel {
         dfs: Vec<f64>,
         images: Vec<Vec<ImageF32>>,
         units: &str,
+        mm_per_px: Option<f64>,
     ) -> HeatmapPanel {
         let scale = ColourScale::spanning(images.iter().flatten());
-        let crops = images
+        let crops: Vec<Crop> = images
             .iter()
             .map(|row| crop_of(&row.iter().collect::<Vec<_>>(), scale))
+            .collect();
+        let side = crops.iter().map(|c| c.side).max().unwrap_or(1);
+        let crops = crops
+            .iter()
+            .zip(&images)
+            .map(|(c, row)| {
+                row.first()
+                    .map_or(*c, |img| c.resized(side, img.width, img.height))
+            })
             .collect();
         HeatmapPanel {
             title,
@@ -192,6 +224,7 @@ impl HeatmapPanel {
             crops,
             scale,
             units: units.to_string(),
+            mm_per_px,
         }
     }
 
@@ -244,7 +277,10 @@ impl Figure for HeatmapPanel {
         ))
         .map_err(plot_err)?;
         let font = ("sans-serif", 18).into_font().color(&BLACK).pos(centre);
-        let small = ("sans-serif", 14).into_font().color(&BLACK).pos(centre);
+        let small = ("sans-serif", SMALL_FONT)
+            .into_font()
+            .color(&BLACK)
+            .pos(centre);
         for (row, (view, crop)) in self.views.iter().zip(&self.crops).enumerate() {
             for (col, df) in self.dfs.iter().enumerate() {
                 let (x, y) = self.pane_origin(row, col);
@@ -263,6 +299,13 @@ impl Figure for HeatmapPanel {
                 );
                 root.draw(&Text::new(window, (x + half, y + p + 4), small.clone()))
                     .map_err(plot_err)?;
+                let bar = ScaleBar::for_span(f64::from(crop.side), self.mm_per_px);
+                bar.draw(
+                    root,
+                    (x + p - 6, y + p - 6),
+                    f64::from(PANE) / f64::from(crop.side),
+                    SMALL_FONT,
+                )?;
             }
         }
         let bar_area = root.clone().shrink(
@@ -347,6 +390,7 @@ mod tests {
             vec![100.0, 500.0],
             images,
             "u",
+            None,
         );
         assert_eq!(panel.scale, ColourScale { max: 9.0 });
         let expected = colorous::VIRIDIS.eval_continuous(1.0 / 9.0);
@@ -359,6 +403,35 @@ mod tests {
         }
         assert_eq!(panel.scale.colour(0.0), panel.scale.colour(-1.0));
         assert_ne!(panel.scale.colour(4.5), panel.scale.colour(9.0));
+    }
+
+    /// Views whose anatomy differs in size get windows of one size (the larger), each still holding
+    /// its own anatomy: the panes are drawn at one scale.
+    #[test]
+    fn every_view_is_cropped_to_one_window_size() {
+        let small = square(400, 150, 200, 1.0);
+        let large = square(400, 100, 300, 1.0);
+        let panel = HeatmapPanel::new(
+            "t".into(),
+            vec!["ap".into(), "lat".into()],
+            vec![100.0],
+            vec![vec![small], vec![large]],
+            "u",
+            Some(0.3),
+        );
+        let own = crop_of(&[&square(400, 100, 300, 1.0)], panel.scale);
+        assert_eq!(panel.crops[0].side, own.side);
+        assert_eq!(panel.crops[1].side, own.side);
+        let c = panel.crops[0];
+        assert!(c.u0 <= 150 && c.u0 + c.side >= 200 && c.v0 <= 150 && c.v0 + c.side >= 200);
+        // A window near the edge stays on the detector.
+        let near = Crop {
+            u0: 380,
+            v0: 0,
+            side: 20,
+        };
+        let r = near.resized(100, 400, 400);
+        assert_eq!((r.u0 + r.side, r.v0, r.side), (400, 0, 100));
     }
 
     #[test]

@@ -19,7 +19,9 @@ mod labels;
 pub mod manifest;
 mod overlap;
 mod overlay;
+mod overlay_draw;
 mod registration;
+mod scale_bar;
 
 pub use canvas::{Figure, Raster, svg_path, write_figure};
 pub use chart::{Mark, Panel, Series};
@@ -29,6 +31,29 @@ pub use manifest::{FigureEntry, Section};
 use super::config::StudyConfig;
 use super::schema::{Family, LandmarkRow, ProjectionRow, StructureRow, StudyTables};
 use crate::{Error, Result};
+
+/// Width (px) at which the report shows a figure (its HTML preview; wider figures are scaled down to
+/// it).
+pub const PAGE_WIDTH_PX: u32 = 1000;
+/// The least text height (px, the font size plotters draws) a figure may show at [`PAGE_WIDTH_PX`].
+pub const MIN_TEXT_PX: f64 = 12.0;
+
+/// A font size (px) at least `at_least` that stays [`MIN_TEXT_PX`] high when a figure `width_px` wide
+/// is scaled to [`PAGE_WIDTH_PX`].
+fn legible(width_px: u32, at_least: u32) -> u32 {
+    let scaled = MIN_TEXT_PX * f64::from(width_px) / f64::from(PAGE_WIDTH_PX);
+    at_least.max(scaled.ceil() as u32)
+}
+
+/// The detector's u pixel spacing (mm, binned) where the geometry states it (not for an explicit K):
+/// the scale bars' unit.
+fn mm_per_px(cfg: &StudyConfig) -> Option<f64> {
+    let (g, _) = cfg.geometry_config().ok()?;
+    g.detector
+        .k
+        .is_none()
+        .then_some(g.detector.pixel_spacing_mm[0])
+}
 
 /// Groups the rows passing `keep` by `group` and collects their (x, y) points, x-sorted.
 fn grouped<R>(
@@ -343,7 +368,7 @@ mod tests {
     fn overlays_and_structure_figures_for_every_target() {
         let dir = tempfile::tempdir().expect("temp dir");
         let (lm, st) = rows(&["L1", "segment"]);
-        overlay::landmark_overlays(dir.path(), &lm, dir.path()).expect("overlays");
+        overlay::landmark_overlays(dir.path(), &lm, dir.path(), Some(0.3)).expect("overlays");
         let tables = StudyTables::default();
         let conditions = composed::Conditions::of(&StudyConfig::default(), &tables);
         structure_figures(&st, dir.path(), &conditions).expect("structure figures");

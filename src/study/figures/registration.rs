@@ -93,6 +93,8 @@ fn panel(
                 label: format!("piercing ({p}, {p}) px"),
                 points: pts.iter().map(|x| (x.0, x.1)).collect(),
                 spread: pts.iter().map(|x| x.2).collect(),
+                // Errors and residuals are ≥ 0: a confidence interval reaching below 0 stops there.
+                floor: 0.0,
                 band: Vec::new(),
                 colour: None,
                 dashed: false,

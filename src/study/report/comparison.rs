@@ -11,6 +11,11 @@ fn show(v: Option<f64>) -> String {
     v.map_or("n/a".into(), |x| format!("{x:.4}"))
 }
 
+/// A value of the paper as the paper prints it (no digits added), or `n/a`.
+fn as_printed(v: Option<f64>) -> String {
+    v.map_or("n/a".into(), |x| format!("{x}"))
+}
+
 /// The projection row of (target, view, family, Δf).
 pub(super) fn projection_row<'a>(
     rows: &'a [ProjectionRow],
@@ -104,7 +109,7 @@ pub fn silhouette_table(rows: &[ProjectionRow], paper: &PaperResults, first: &st
                 let ours = projection_row(rows, first, "lat", family, df).map(value);
                 body.push(vec![
                     format!("lat {col} at Δf {df} px ({family})"),
-                    show(theirs.at(df)),
+                    as_printed(theirs.at(df)),
                     show(ours),
                 ]);
             }
@@ -112,7 +117,7 @@ pub fn silhouette_table(rows: &[ProjectionRow], paper: &PaperResults, first: &st
     }
     body.push(vec![
         "ap Dice, minimum over the schedule".into(),
-        show(Some(s.ap_dice_min)),
+        as_printed(Some(s.ap_dice_min)),
         show(ap_joint_dice_min(rows, first)),
     ]);
     PaperTable {
@@ -146,7 +151,7 @@ pub fn landmark_table(rows: &[LandmarkRow], paper: &PaperResults, first: &str) -
                     && r.df_px == df
                     && r.landmark == n
             });
-            cells.push(show(theirs));
+            cells.push(as_printed(theirs));
             cells.push(row.map_or("n/a".into(), |r| {
                 format!("{:.2} ({:.2})", r.shift_px, r.pred_shift_px)
             }));
