@@ -6,6 +6,7 @@
 
 mod carm;
 mod intrinsics;
+pub mod outline;
 mod perturbation;
 mod pose;
 mod view;

@@ -77,6 +77,57 @@ fn every_figure_keeps_its_titles_inside_the_canvas() {
     assert!(crate::common::assert_figures_inside_canvas(&quick_out().join("figures")) >= 15);
 }
 
+/// The Setup draws each view to scale, and the outline it draws is where the target really is: the
+/// outline's vertices (depth z, offset y in the camera frame) projected through the sidecar's K,
+/// v = cy + fy·y/z, span the same rows as the target's rendered reference silhouette (an extreme of
+/// y/z over a convex outline lies at a vertex), to within a pixel.
+#[test]
+fn the_setup_drawing_places_each_target_where_its_drr_shows_it() {
+    let report = read(&quick_out().join("report.md"));
+    let fig = report.find("![Each view drawn to scale](figures/setup_geometry.png)");
+    let findings = report.find("## Findings").expect("findings");
+    assert!(fig.is_some_and(|f| f < findings), "the drawing is in Setup");
+    assert!(quick_out().join("figures/setup_geometry.svg").is_file());
+    let refs = quick_out().join("references");
+    let mut checked = 0;
+    for e in std::fs::read_dir(&refs).expect("references") {
+        let p = e.expect("entry").path();
+        let name = p.file_name().unwrap().to_string_lossy().to_string();
+        if !name.ends_with(".tiff") || name.contains("absdiff") {
+            continue;
+        }
+        let side: serde_json::Value =
+            serde_json::from_str(&read(&p.with_extension("json"))).expect("sidecar");
+        let (fy, cy) = (
+            side["K"][1][1].as_f64().unwrap(),
+            side["K"][1][2].as_f64().unwrap(),
+        );
+        let outline = side["details"]["outline_depth_v_mm"]
+            .as_array()
+            .unwrap_or_else(|| panic!("{name}: no outline"));
+        assert!(outline.len() >= 3, "{name}");
+        let vs: Vec<f64> = outline
+            .iter()
+            .map(|p| cy + fy * p[1].as_f64().unwrap() / p[0].as_f64().unwrap())
+            .collect();
+        let img = spinedrr::io::read_tiff_f32(&p).expect("tiff");
+        let rows: Vec<u32> = (0..img.height)
+            .filter(|&v| (0..img.width).any(|u| img.get(u, v) > 0.0))
+            .collect();
+        let (lo, hi) = (*rows.first().unwrap(), *rows.last().unwrap());
+        let (vlo, vhi) = (
+            vs.iter().copied().fold(f64::MAX, f64::min),
+            vs.iter().copied().fold(f64::MIN, f64::max),
+        );
+        assert!(
+            (vlo - f64::from(lo)).abs() <= 1.0 && (vhi - f64::from(hi)).abs() <= 1.0,
+            "{name}: outline rows {vlo:.1}–{vhi:.1}, silhouette rows {lo}–{hi}"
+        );
+        checked += 1;
+    }
+    assert!(checked >= 2, "{checked}");
+}
+
 /// The heatmap panel of L1: views × heatmap Δf panes (4 rasters + the colour bar), each pane titled,
 /// the colour bar labelled with the images' units.
 #[test]

@@ -10,6 +10,7 @@ mod ct;
 mod intensity;
 mod on_detector;
 mod projection;
+pub use projection::OUTLINE_KEY;
 mod registration;
 
 use std::collections::BTreeMap;

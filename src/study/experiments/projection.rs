@@ -122,6 +122,10 @@ pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
 
 /// Writes the reference image of `t` in `view` (TIFF + sidecar): the CT volume DRR when there is one,
 /// else the thickness DRR's line integral (rendered here when the projection experiment did not).
+/// The reference sidecar's `details` key holding the target's side outline: `[[depth, v], …]` (mm, the
+/// convex hull of its vertices in the view's camera frame, see [`crate::geometry::outline`]).
+pub const OUTLINE_KEY: &str = "outline_depth_v_mm";
+
 fn write_reference_image(
     ctx: &Context,
     t: &Target,
@@ -159,6 +163,24 @@ fn write_reference_image(
     side.details
         .insert("backend".into(), ctx.cfg.geometry.backend_name().into());
     side.details.insert("target".into(), t.name.clone().into());
+    // The target seen from beside the beam (depth along the central ray, offset along v; mm): the
+    // report's to-scale drawing of each view.
+    let outline = crate::geometry::outline::side_outline(
+        t.renderer
+            .scene()
+            .meshes
+            .iter()
+            .flat_map(|m| m.mesh.vertices.iter().copied()),
+        view,
+    );
+    let outline: Vec<[f64; 2]> = outline
+        .iter()
+        .map(|p| [(p.x * 100.0).round() / 100.0, (p.y * 100.0).round() / 100.0])
+        .collect();
+    side.details.insert(
+        OUTLINE_KEY.into(),
+        serde_json::to_value(outline).map_err(|e| crate::Error::encode("outline", e))?,
+    );
     if let Some(p) = &t.placement {
         let value = serde_json::to_value(p).map_err(|e| crate::Error::encode("placement", e))?;
         side.details.insert("placement".into(), value);

@@ -16,6 +16,7 @@ pub const MANIFEST: &str = "index.json";
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Section {
+    Setup,
     Projection,
     Landmarks,
     Registration,

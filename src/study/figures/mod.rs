@@ -22,6 +22,7 @@ mod overlay;
 mod overlay_draw;
 mod registration;
 mod scale_bar;
+mod setup;
 
 pub use canvas::{Figure, Raster, svg_path, write_figure};
 pub use chart::{Mark, Panel, Series};
@@ -126,7 +127,22 @@ const PROJECTION_FIGURES: [ProjectionMetric; 5] = [
 pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<usize> {
     let figs = out.join("figures");
     let conditions = composed::Conditions::of(cfg, tables);
-    let mut entries = composed::write(out, cfg, tables, &conditions)?;
+    let mut entries = Vec::new();
+    if setup::write(out, cfg, &super::units::targets(cfg), &figs)? {
+        entries.push(conditions.entry(
+            Section::Setup,
+            setup::FILE,
+            "Each view drawn to scale",
+            "every view seen from beside the beam at one scale in mm: the source (red dot), the \
+central ray (dashed) to the piercing point, the detector (black bar, its extent along v at the SDD), the \
+beam's fan to the detector's edges, the aim (cross) and each target's outline where the study placed it \
+(the convex hull of its surface in the view's camera frame; one colour per target as in the other \
+figures; the single levels each sit at the aim, so their outlines overlap); horizontal is depth from the source along the central ray, vertical the offset along the \
+detector's v axis, up = the top row",
+            true,
+        ));
+    }
+    entries.extend(composed::write(out, cfg, tables, &conditions)?);
     let joint: Vec<&ProjectionRow> = tables
         .projection
         .iter()

@@ -78,7 +78,15 @@ configuration is `study.toml`.\n",
     headings.extend(experiments.iter().filter(|e| e.0).map(|e| e.1.to_string()));
     headings.extend([MEASUREMENT, "Products", TIMINGS].map(String::from));
     layout::contents(&mut md, &headings);
-    setup::section(&mut md, out, cfg, &targets, &tables.projection);
+    let mut n = 0;
+    setup::section(
+        &mut md,
+        out,
+        cfg,
+        &targets,
+        &tables.projection,
+        (&figs, &mut n),
+    );
     let piercing: std::collections::BTreeMap<String, (f64, f64)> = cfg
         .carm()
         .map(|c| {
@@ -105,7 +113,6 @@ configuration is `study.toml`.\n",
     )?;
     shift_ratio::table(&mut md, &ratios);
     cohort::section(&mut md, out, cfg, tables);
-    let mut n = 0;
     if !tables.projection.is_empty() {
         let _ = writeln!(md, "## {PROJECTION}\n");
         layout::figures(&mut md, &figs, Section::Projection, &mut n);

@@ -14,6 +14,7 @@ use crate::geometry::GeometryConfig;
 use crate::io::read_tiff_f32;
 use crate::study::config::{SEGMENT_TARGET, StudyConfig};
 use crate::study::experiments::reference_image_path;
+use crate::study::figures::{FigureEntry, Section};
 use crate::study::schema::ProjectionRow;
 
 pub const HEADING: &str = "Setup";
@@ -107,6 +108,7 @@ pub fn section(
     cfg: &StudyConfig,
     targets: &[String],
     projection: &[ProjectionRow],
+    (figs, n): (&[FigureEntry], &mut usize),
 ) {
     let _ = writeln!(md, "## {HEADING}\n");
     let (Ok((g, origin)), Ok(carm)) = (cfg.geometry_config(), cfg.carm()) else {
@@ -185,6 +187,8 @@ pub fn section(
             big.to_uppercase()
         );
     }
+    let _ = writeln!(md);
+    super::layout::figures(md, figs, Section::Setup, n);
     if targets.iter().any(|t| t == SEGMENT_TARGET) {
         let z: Vec<f64> = carm
             .views
