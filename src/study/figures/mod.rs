@@ -20,6 +20,8 @@ pub mod manifest;
 mod overlap;
 mod overlay;
 mod overlay_draw;
+mod overlay_key;
+mod overlay_points;
 mod registration;
 mod scale_bar;
 mod setup;

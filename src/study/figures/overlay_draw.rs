@@ -12,27 +12,18 @@ use image::RgbImage;
 use super::canvas::{Figure, Raster};
 use super::chart::plot_err;
 use super::labels::{PixelBox, place_labels};
-use super::overlay::{Point, resized, tip, window};
+use super::overlay_key::{
+    FONT, MEAS_COLOUR, Mark, PRED_COLOUR, REF_COLOUR, band_height, band_rows, corner, draw_band,
+    draw_label, label_size,
+};
+use super::overlay_points::{Point, Window, resized, tip, window};
 use super::scale_bar::ScaleBar;
 use crate::Result;
 use crate::io::ImageF32;
 
-/// A detector window: (u0, u1), (v0, v1) in px.
-type Window = ((f64, f64), (f64, f64));
-
 /// One view's pane (px): title, plot and axes.
 const PANE: (u32, u32) = (760, 720);
-/// Text size (px) of tick labels, numbers, legend and key.
-const FONT: u32 = 20;
 const TITLE_FONT: u32 = 24;
-/// Height (px) of a row of the band under the panes, and its padding.
-const BAND_ROW: u32 = 34;
-const BAND_PAD: u32 = 12;
-
-const REF_COLOUR: RGBColor = RGBColor(0, 220, 90);
-const MEAS_COLOUR: RGBColor = RGBColor(255, 60, 40);
-const PRED_COLOUR: RGBColor = RGBColor(80, 170, 255);
-
 /// One overlay: the reference DRR of a target in a view under its landmarks.
 pub(super) struct Overlay {
     pub title: String,
@@ -51,79 +42,20 @@ pub(super) struct OverlayRow {
     pub mm_per_px: Option<f64>,
 }
 
-/// A mark of the band: what it draws before its text.
-enum Mark {
-    Reference,
-    Measured,
-    Arrow,
-    Predicted,
-    Number(usize),
-    Nothing,
-}
-
-fn text_width(text: &str, font: u32) -> f64 {
-    ("sans-serif", font).into_font().box_size(text).map_or(
-        0.6 * f64::from(font) * text.chars().count() as f64,
-        |(w, _)| f64::from(w),
-    )
-}
-
-/// Width of a mark's symbol before its text (px).
-const MARK_W: f64 = 40.0;
-const ITEM_GAP: f64 = 28.0;
-
 impl OverlayRow {
     fn width(&self) -> u32 {
         PANE.0 * self.overlays.len().max(1) as u32
     }
 
-    fn levels(&self) -> bool {
-        self.overlays
+    /// The band's rows at this figure's width.
+    fn band(&self) -> Vec<Vec<(Mark, String)>> {
+        let g = self.overlays.first().map_or(1.0, |o| o.g);
+        let levels = self
+            .overlays
             .iter()
             .flat_map(|o| &o.pts)
-            .any(|p| p.level.is_some())
-    }
-
-    /// The band's items in rows: the legend, then the key (a new row).
-    fn band_rows(&self) -> Vec<Vec<(Mark, String)>> {
-        let g = self.overlays.first().map_or(1.0, |o| o.g);
-        let legend = vec![
-            (Mark::Reference, "reference position".to_string()),
-            (Mark::Measured, "measured under the perturbed K".to_string()),
-            (Mark::Arrow, format!("measured shift ×{g}")),
-            (Mark::Predicted, format!("H·x predicted (×{g})")),
-        ];
-        let mut key: Vec<(Mark, String)> = self
-            .key
-            .iter()
-            .enumerate()
-            .map(|(i, n)| (Mark::Number(i + 1), n.clone()))
-            .collect();
-        if self.levels() {
-            key.push((
-                Mark::Nothing,
-                "(the same number on every level; levels tagged at the left)".into(),
-            ));
-        }
-        let width = f64::from(self.width()) - 2.0 * f64::from(BAND_PAD);
-        let mut rows = Vec::new();
-        for items in [legend, key] {
-            let mut row: Vec<(Mark, String)> = Vec::new();
-            let mut used = 0.0;
-            for (m, t) in items {
-                let w = MARK_W + text_width(&t, FONT) + ITEM_GAP;
-                if used + w > width && !row.is_empty() {
-                    rows.push(std::mem::take(&mut row));
-                    used = 0.0;
-                }
-                used += w;
-                row.push((m, t));
-            }
-            if !row.is_empty() {
-                rows.push(row);
-            }
-        }
-        rows
+            .any(|p| p.level.is_some());
+        band_rows(g, &self.key, levels, self.width())
     }
 
     /// Each overlay's detector window at the plot `aspect` (width / height), all of the largest one's
@@ -139,94 +71,11 @@ impl OverlayRow {
             .map(|win| resized(win, w, w / aspect))
             .collect()
     }
-
-    fn band_height(&self) -> u32 {
-        2 * BAND_PAD + BAND_ROW * self.band_rows().len() as u32
-    }
-
-    fn draw_band<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()> {
-        let mut y = (PANE.1 + BAND_PAD) as i32;
-        for row in self.band_rows() {
-            let mut x = f64::from(BAND_PAD);
-            let cy = y + BAND_ROW as i32 / 2;
-            for (mark, text) in row {
-                let c = (x as i32 + 16, cy);
-                match mark {
-                    Mark::Reference => root.draw(&Circle::new(c, 6, REF_COLOUR.stroke_width(3))),
-                    Mark::Measured => root.draw(&Circle::new(c, 4, MEAS_COLOUR.filled())),
-                    Mark::Arrow => root.draw(&PathElement::new(
-                        vec![(c.0 - 14, cy), (c.0 + 14, cy)],
-                        MEAS_COLOUR.stroke_width(3),
-                    )),
-                    Mark::Predicted => root.draw(&Cross::new(c, 7, PRED_COLOUR.stroke_width(3))),
-                    Mark::Number(n) => {
-                        number_box(root, (x as i32, cy - label_size("0").1 as i32 / 2), n)
-                    }
-                    Mark::Nothing => Ok(()),
-                }
-                .map_err(plot_err)?;
-                let tx = if matches!(mark, Mark::Nothing) {
-                    x
-                } else {
-                    x + MARK_W
-                };
-                root.draw(&Text::new(text.clone(), (tx as i32, cy), left_middle()))
-                    .map_err(plot_err)?;
-                x = tx + text_width(&text, FONT) + ITEM_GAP;
-            }
-            y += BAND_ROW as i32;
-        }
-        Ok(())
-    }
-}
-
-/// A landmark number in a white box with a thin border, top-left corner at `(x, y)`.
-fn number_box<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    (x, y): (i32, i32),
-    n: usize,
-) -> std::result::Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
-    let t = n.to_string();
-    let (w, h) = label_size(&t);
-    let (w, h) = (w as i32, h as i32);
-    root.draw(&Rectangle::new([(x, y), (x + w, y + h)], WHITE.filled()))?;
-    root.draw(&Rectangle::new(
-        [(x, y), (x + w, y + h)],
-        RGBColor(60, 60, 60).stroke_width(1),
-    ))?;
-    root.draw(&Text::new(
-        t,
-        (x + w / 2, y + h / 2 + FONT as i32 / 10),
-        centred(),
-    ))
-}
-
-/// The box (w, h) of a number or tag label.
-fn label_size(text: &str) -> (f64, f64) {
-    (text_width(text, FONT) + 10.0, f64::from(FONT) + 4.0)
-}
-
-/// [`FONT`]-px black text anchored at its centre.
-fn centred() -> TextStyle<'static> {
-    use plotters::style::text_anchor::{HPos, Pos, VPos};
-    ("sans-serif", FONT)
-        .into_font()
-        .color(&BLACK)
-        .pos(Pos::new(HPos::Center, VPos::Center))
-}
-
-/// [`FONT`]-px black text anchored at its left edge's middle.
-fn left_middle() -> TextStyle<'static> {
-    use plotters::style::text_anchor::{HPos, Pos, VPos};
-    ("sans-serif", FONT)
-        .into_font()
-        .color(&BLACK)
-        .pos(Pos::new(HPos::Left, VPos::Center))
 }
 
 impl Figure for OverlayRow {
     fn size(&self) -> (u32, u32) {
-        (self.width(), PANE.1 + self.band_height())
+        (self.width(), PANE.1 + band_height(&self.band()))
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<Vec<Raster>> {
@@ -246,7 +95,7 @@ impl Figure for OverlayRow {
         for ((o, area), win) in self.overlays.iter().zip(&areas).zip(self.windows(aspect)) {
             rasters.push(o.draw_in(root, area, win, self.mm_per_px)?);
         }
-        self.draw_band(root)?;
+        draw_band(root, PANE.1, &self.band())?;
         Ok(rasters)
     }
 }
@@ -444,33 +293,6 @@ fn marks_and_numbers<DB: DrawingBackend>(
     Ok(())
 }
 
-fn corner(x: f64, y: f64) -> (i32, i32) {
-    (x.round() as i32, y.round() as i32)
-}
-
-/// `text` centred in a white box `b`.
-fn draw_label<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    b: PixelBox,
-    text: &str,
-) -> Result<()> {
-    root.draw(&Rectangle::new(
-        [corner(b.x0, b.y0), corner(b.x1, b.y1)],
-        WHITE.mix(0.9).filled(),
-    ))
-    .map_err(plot_err)?;
-    root.draw(&Text::new(
-        text.to_string(),
-        // Digits have no descent: centring the em box sets them high by about a tenth of the font.
-        corner(
-            (b.x0 + b.x1) / 2.0,
-            (b.y0 + b.y1) / 2.0 + 0.1 * f64::from(FONT),
-        ),
-        centred(),
-    ))
-    .map_err(plot_err)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -531,13 +353,13 @@ mod tests {
             mm_per_px: None,
         };
         let numbers = |r: &OverlayRow| {
-            r.band_rows()
+            r.band()
                 .iter()
                 .flatten()
                 .filter(|(m, _)| matches!(m, Mark::Number(_)))
                 .count()
         };
         assert_eq!(numbers(&row(10)), 10);
-        assert!(row(10).band_height() > row(1).band_height());
+        assert!(band_height(&row(10).band()) > band_height(&row(1).band()));
     }
 }
