@@ -251,7 +251,10 @@ pub fn compare(
         .map(silhouette_metrics)
         .collect::<Result<Vec<_>>>()?;
     let landmarks = match views {
-        Some((r, p)) => landmark_shifts(r, p, landmarks),
+        Some((r, p)) => {
+            in_front_of_both(r, p, landmarks)?;
+            landmark_shifts(r, p, landmarks)
+        }
         None if landmarks.is_empty() => Vec::new(),
         None => {
             return Err(Error::invalid(
@@ -265,6 +268,35 @@ pub fn compare(
         silhouettes,
         landmarks,
     })
+}
+
+/// Refuses a landmark at or behind either view's source (camera depth ≤ 0): it has no projection, and
+/// the pinhole formula would put it on the detector mirrored. The error names the landmark, the view
+/// and the depth — usually a file in another frame or unit.
+fn in_front_of_both(reference: &View, perturbed: &View, landmarks: &[Landmark]) -> Result<()> {
+    for l in landmarks {
+        for (which, v) in [("reference", reference), ("perturbed", perturbed)] {
+            let depth = v.depth(l.position);
+            // Positions are finite (the readers refuse others), so the depth is too.
+            if depth <= 0.0 {
+                return Err(Error::invalid(
+                    "landmarks",
+                    format!(
+                        "landmark '{}' at ({:.1}, {:.1}, {:.1}) mm is {} the {which} view '{}''s source \
+                         (depth {depth:.1} mm along its central ray): it cannot be projected; check the \
+                         landmark file's frame and units (world mm, RAS+ unless it says otherwise)",
+                        l.name,
+                        l.position.x,
+                        l.position.y,
+                        l.position.z,
+                        if depth == 0.0 { "level with" } else { "behind" },
+                        v.name
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Reads an 8-bit mask PNG (any non-zero grey value is inside). Returns `(width, height, mask)`.

@@ -92,6 +92,12 @@ pub fn blob_centroid(img: &ImageF32, centre_guess: DVec2, radius_px: f64) -> Opt
 struct LandmarkSet {
     #[serde(default)]
     level: Option<String>,
+    /// Length unit of the coordinates (default mm), see [`crate::anatomy::landmarks::to_world_mm`].
+    #[serde(default)]
+    units: Option<String>,
+    /// World frame of the coordinates (default RAS+).
+    #[serde(default)]
+    frame: Option<String>,
     landmarks: BTreeMap<String, [f64; 3]>,
 }
 
@@ -107,8 +113,9 @@ fn json_kind(v: &serde_json::Value) -> &'static str {
     }
 }
 
-/// Parses landmark JSON: `{"landmarks": {"name": [x, y, z], …}}` (other keys such as `level` are
-/// ignored), or an array of such objects, whose names are then prefixed `LEVEL/` when a level is given.
+/// Parses landmark JSON: `{"landmarks": {"name": [x, y, z], …}}` with optional `level`, `units` and
+/// `frame` (converted to world mm RAS+; an unknown unit or a non-world frame is refused), or an array
+/// of such objects, whose names are then prefixed `LEVEL/` when a level is given.
 pub fn parse_landmarks(text: &str, origin: &str) -> Result<Vec<Landmark>> {
     const EXPECTED: &str =
         "expected {\"landmarks\": {\"name\": [x, y, z]}} or an array of such objects";
@@ -138,12 +145,21 @@ pub fn parse_landmarks(text: &str, origin: &str) -> Result<Vec<Landmark>> {
     };
     let mut out = Vec::new();
     for set in sets {
+        let to_world =
+            crate::anatomy::landmarks::to_world_mm(set.units.as_deref(), set.frame.as_deref())
+                .map_err(|e| {
+                    let which = set
+                        .level
+                        .as_ref()
+                        .map_or(String::new(), |l| format!("level {l}: "));
+                    Error::format(origin, format!("{which}{e}"))
+                })?;
         for (name, p) in set.landmarks {
             let name = match (&set.level, prefix) {
                 (Some(level), true) => format!("{level}/{name}"),
                 _ => name,
             };
-            let position = DVec3::from(p);
+            let position = DVec3::from(p) * to_world;
             if !position.is_finite() {
                 return Err(Error::format(
                     origin,

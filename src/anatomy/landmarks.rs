@@ -10,7 +10,10 @@
 //! ]
 //! ```
 //!
-//! `units` must be `"mm"`; `frame` is free text (the phantom writes `"world RAS+"`) and is kept on reading.
+//! `units` is `"mm"` (the default), `"cm"`, `"m"` or `"um"`; `frame` is `"world RAS+"` (the default; also
+//! written `"RAS"`, `"RAS+"`, `"world RAS"`) or `"world LPS+"` (`"LPS"`, …, DICOM's and ITK's patient
+//! frame: x and y negated). Both are converted to world mm RAS+ on reading ([`to_world_mm`]); anything
+//! else (a voxel or camera frame, an unknown unit) is refused, naming the value.
 //!
 //! Files are read and written through [`crate::anatomy::markups`], which also speaks 3D Slicer markups
 //! and VerSe centroids; this module is our own format.
@@ -76,6 +79,42 @@ fn default_frame() -> String {
     "world RAS+".to_string()
 }
 
+/// How a landmark file's `units` and `frame` map its coordinates to world mm RAS+: the scale (mm per
+/// unit) and the axis signs (LPS+ → RAS+ negates x and y). `None` means the default (mm, RAS+). An
+/// error names the value and what is accepted.
+pub fn to_world_mm(units: Option<&str>, frame: Option<&str>) -> std::result::Result<DVec3, String> {
+    let scale = match units.map(str::trim) {
+        None | Some("mm") => 1.0,
+        Some("cm") => 10.0,
+        Some("m") => 1000.0,
+        Some("um" | "µm" | "μm") => 1e-3,
+        Some(u) => {
+            return Err(format!(
+                "units {u:?}: give \"mm\", \"cm\", \"m\" or \"um\" (lengths in the world frame)"
+            ));
+        }
+    };
+    let frame_key = frame.map(|f| {
+        f.trim()
+            .trim_start_matches("world")
+            .trim()
+            .trim_end_matches('+')
+            .to_ascii_uppercase()
+    });
+    let signs = match frame_key.as_deref() {
+        None | Some("RAS") => DVec3::ONE,
+        Some("LPS") => DVec3::new(-1.0, -1.0, 1.0),
+        Some(_) => {
+            return Err(format!(
+                "frame {:?}: landmarks are world coordinates, \"world RAS+\" or \"world LPS+\" (not voxel \
+                 indices or a camera frame)",
+                frame.unwrap_or_default()
+            ));
+        }
+    };
+    Ok(signs * scale)
+}
+
 impl Landmarks {
     /// A landmark by name.
     pub fn get(&self, name: &str) -> Option<DVec3> {
@@ -124,15 +163,8 @@ pub fn landmarks_from_json(text: &str, path: &Path) -> Result<Vec<Landmarks>> {
     }
     list.into_iter()
         .map(|l| {
-            if l.units != "mm" {
-                return Err(Error::format(
-                    path,
-                    format!(
-                        "level {}: units {:?} (only \"mm\" is supported)",
-                        l.level, l.units
-                    ),
-                ));
-            }
+            let to_world = to_world_mm(Some(&l.units), Some(&l.frame))
+                .map_err(|e| Error::format(path, format!("level {}: {e}", l.level)))?;
             if let Some((k, _)) = l
                 .landmarks
                 .iter()
@@ -148,7 +180,7 @@ pub fn landmarks_from_json(text: &str, path: &Path) -> Result<Vec<Landmarks>> {
                 points: l
                     .landmarks
                     .into_iter()
-                    .map(|(k, v)| (k, DVec3::from_array(v)))
+                    .map(|(k, v)| (k, DVec3::from_array(v) * to_world))
                     .collect(),
             })
         })
@@ -190,9 +222,37 @@ mod tests {
     }
 
     #[test]
-    fn wrong_units_name_the_file() {
-        let bad = r#"{"level":"L3","units":"cm","landmarks":{}}"#;
-        let e = landmarks_from_json(bad, Path::new("lm.json")).unwrap_err();
-        assert!(e.to_string().contains("lm.json") && e.to_string().contains("cm"));
+    fn wrong_units_or_frames_name_the_file_and_the_value() {
+        for (units, frame, word) in [
+            ("inch", "world RAS+", "inch"),
+            ("mm", "voxel IJK", "voxel IJK"),
+            ("mm", "camera", "camera"),
+        ] {
+            let bad =
+                format!(r#"{{"level":"L3","units":"{units}","frame":"{frame}","landmarks":{{}}}}"#);
+            let e = landmarks_from_json(&bad, Path::new("lm.json")).unwrap_err();
+            let e = e.to_string();
+            assert!(
+                e.contains("lm.json") && e.contains(word) && e.contains("L3"),
+                "{e}"
+            );
+        }
+    }
+
+    /// Other units and LPS+ coordinates come back as world mm RAS+: 1.5 cm is 15 mm; LPS+ (x, y, z) is
+    /// RAS+ (−x, −y, z).
+    #[test]
+    fn units_and_lps_frames_are_converted_to_world_mm_ras() {
+        let read = |units: &str, frame: &str| {
+            let text = format!(
+                r#"{{"level":"L3","units":"{units}","frame":"{frame}","landmarks":{{"a":[1.5,-2,3]}}}}"#
+            );
+            landmarks_from_json(&text, Path::new("lm.json")).unwrap()[0].points["a"]
+        };
+        assert_eq!(read("mm", "world RAS+"), DVec3::new(1.5, -2.0, 3.0));
+        assert_eq!(read("cm", "RAS"), DVec3::new(15.0, -20.0, 30.0));
+        assert_eq!(read("m", "world RAS"), DVec3::new(1500.0, -2000.0, 3000.0));
+        assert_eq!(read("mm", "world LPS+"), DVec3::new(-1.5, 2.0, 3.0));
+        assert_eq!(read("um", "LPS"), DVec3::new(-0.0015, 0.002, 0.003));
     }
 }

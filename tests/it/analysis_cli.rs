@@ -166,6 +166,57 @@ fn compare_reports_bad_input() {
     std::fs::write(dir.path().join("bad.json"), "{\"landmarks\": 3}").unwrap();
     let (ok, err) = run(&["--landmarks", "bad.json"], None);
     assert!(!ok && err.contains("bad.json"), "{err}");
+    // A landmark file in a non-world frame, or a unit we do not know: refused, naming the value.
+    for (file, text, word) in [
+        (
+            "voxel.json",
+            r#"{"frame": "voxel IJK", "landmarks": {"c": [10, 20, 30]}}"#,
+            "voxel IJK",
+        ),
+        (
+            "inch.json",
+            r#"{"units": "inch", "landmarks": {"c": [1, 2, 3]}}"#,
+            "inch",
+        ),
+    ] {
+        std::fs::write(dir.path().join(file), text).unwrap();
+        let (ok, err) = run(&["--landmarks", file], None);
+        assert!(!ok && err.contains(file) && err.contains(word), "{err}");
+    }
+    // A landmark behind the source (the AP source sits at y = −1000 mm, looking along +y) has no
+    // projection: refused, naming it, instead of a mirrored point on the detector.
+    std::fs::write(
+        dir.path().join("behind.json"),
+        r#"{"landmarks": {"ok": [0, 0, 0], "tail": [0, -1500, 0]}}"#,
+    )
+    .unwrap();
+    let (ok, err) = run(&["--landmarks", "behind.json"], None);
+    assert!(
+        !ok && err.contains("'tail'") && err.contains("behind"),
+        "{err}"
+    );
+    // Centimetres and LPS+ are converted: (1, 0, 2) cm is (10, 0, 20) mm; LPS+ (−10, 0, 20) is RAS+
+    // (10, 0, 20): both project where the mm RAS+ point does.
+    let expect = small_view().project(DVec3::new(10.0, 0.0, 20.0));
+    for (i, text) in [
+        r#"{"units": "cm", "landmarks": {"p": [1, 0, 2]}}"#,
+        r#"{"frame": "world LPS+", "landmarks": {"p": [-10, 0, 20]}}"#,
+    ]
+    .iter()
+    .enumerate()
+    {
+        let file = format!("conv{i}.json");
+        std::fs::write(dir.path().join(&file), text).unwrap();
+        let (ok, err) = run(&["--landmarks", &file], None);
+        assert!(ok, "{err}");
+        let m: Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("o/metrics.json")).unwrap(),
+        )
+        .unwrap();
+        let x = &m["landmarks"][0]["reference_px"];
+        let got = DVec2::new(x[0].as_f64().unwrap(), x[1].as_f64().unwrap());
+        assert!((got - expect).length() < 1e-9, "{text}: {got} vs {expect}");
+    }
     let (ok, err) = run(&[], Some("pert.json"));
     assert!(!ok && err.contains("pert.json"), "{err}");
 }
