@@ -242,11 +242,21 @@ mod tests {
         calibration.experiments.push(Experiment::Calibration);
         calibration.calibration.trials = 7;
         calibration.calibration.trials_per_unit = 3;
+        let mut intensity = StudyConfig::quick();
+        if !intensity.runs(Experiment::IntensityRegistration) {
+            intensity
+                .experiments
+                .push(Experiment::IntensityRegistration);
+        }
+        intensity.intensity_registration.views = vec!["ap".into(), "ap+lat".into()];
+        intensity.intensity_registration.init_mtre_mm = vec![0.0, 1.0, 3.0, 7.0];
+        intensity.intensity_registration.starts_per_bin = 5;
         for mut cfg in [
             StudyConfig::default(),
             StudyConfig::quick(),
             skewed,
             calibration,
+            intensity,
         ] {
             cfg.registration.trials = 7;
             cfg.registration.trials_per_unit = 3;
@@ -265,6 +275,14 @@ mod tests {
                 })
                 .sum();
             assert_eq!(w.registration_trials, trials as u64);
+            let starts: usize = units
+                .iter()
+                .map(|u| match u {
+                    Unit::Intensity(c) => c.starts,
+                    _ => 0,
+                })
+                .sum();
+            assert_eq!(w.intensity_starts, starts as u64);
         }
     }
 }

@@ -128,6 +128,22 @@ fn runaway_threads_and_work_are_refused_with_the_limit_and_the_estimate() {
             &format!("{}", 6 * 2 * (20_000 + 5 + 5 + 3 + 3)),
         ],
     );
+    // 20 000 initial-mTRE bins of one target, view set, Δf and piercing shift: 20 000 units, within the
+    // unit limit, but hours of intensity registration (it used to start them without an estimate).
+    let edges: Vec<String> = (0..=20_000).map(|i| format!("{}.0", i)).collect();
+    bad_config(
+        &format!(
+            "experiments = [\"intensity-registration\"]\n[intensity_registration]\nviews = [\"ap\"]\n\
+             df_px = [0.0]\npiercing_px = [0.0]\ninit_mtre_mm = [{}]\n",
+            edges.join(", ")
+        ),
+        &[
+            "intensity_registration.init_mtre_mm",
+            "20000 initial-mTRE bins",
+            "= 20000 intensity registrations",
+            "at most 10000",
+        ],
+    );
 }
 
 #[test]

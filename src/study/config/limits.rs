@@ -6,12 +6,15 @@
 use super::{Experiment, StudyConfig};
 use crate::{Error, Result};
 
-/// At most this many work units (the default study has 1 476).
+/// At most this many work units (the default study has 1 560).
 pub const MAX_UNITS: u64 = 100_000;
 /// At most this many registration trials in all (the default study runs 25 920).
 pub const MAX_REGISTRATION_TRIALS: u64 = 1_000_000;
 /// At most this many trials in one unit (the default is 20).
 pub const MAX_TRIALS_PER_UNIT: usize = 10_000;
+/// At most this many intensity-registration starts in all (each renders hundreds of DRRs; the full
+/// grid of `examples/intensity_registration.toml` has 7 200, the default study 8).
+pub const MAX_INTENSITY_STARTS: u64 = 10_000;
 
 /// The work a config asks for, counted without enumerating it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -27,6 +30,8 @@ pub struct WorkEstimate {
     /// Calibration units (phantoms × σ × trial chunks) and intensity-registration units (targets ×
     /// view sets × Δf × piercing × initial-mTRE bins).
     pub other_units: u64,
+    /// Intensity-registration starts: intensity units × starts per bin.
+    pub intensity_starts: u64,
 }
 
 impl WorkEstimate {
@@ -98,6 +103,7 @@ impl StudyConfig {
         };
         WorkEstimate {
             other_units: calibration_units.saturating_add(intensity_units),
+            intensity_starts: intensity_units.saturating_mul(n(i.starts_per_bin)),
             projection_units,
             registration_cells: cells,
             registration_units: cells.saturating_mul(chunks),
@@ -130,6 +136,28 @@ impl StudyConfig {
                     "{} trials × {} registration cells (targets × methods × df_px × piercing_px) = {} \
                      trials; at most {MAX_REGISTRATION_TRIALS}",
                     r.trials, w.registration_cells, w.registration_trials
+                ),
+            ));
+        }
+        if w.intensity_starts > MAX_INTENSITY_STARTS {
+            let i = &self.intensity_registration;
+            let bins = i.init_mtre_mm.len().saturating_sub(1);
+            return Err(Error::invalid(
+                "intensity_registration.init_mtre_mm",
+                format!(
+                    "{} targets × {} view sets × {} df_px × {} piercing_px × {bins} initial-mTRE bins \
+                     (from {} edges) × {} starts_per_bin = {} intensity registrations; at most \
+                     {MAX_INTENSITY_STARTS} (each renders some 300–1 000 DRRs: the default study's \
+                     take about a second of CPU each, the full grid of \
+                     examples/intensity_registration.toml has 7 200); use fewer, wider bins or fewer \
+                     starts_per_bin",
+                    i.targets.len(),
+                    i.views.len(),
+                    i.df_px.len(),
+                    i.piercing_px.len(),
+                    i.init_mtre_mm.len(),
+                    i.starts_per_bin,
+                    w.intensity_starts
                 ),
             ));
         }

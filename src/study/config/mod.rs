@@ -24,7 +24,9 @@ pub use anatomy::{AnatomyConfig, CtTarget, MeshTarget};
 pub use calibration::{CalibrationCell, CalibrationSection, MAX_CALIBRATION_TRIALS, Protocol};
 pub use intensity::{FixedScope, IntensityCell, IntensitySection, MAX_STARTS_PER_BIN};
 pub use kinds::{Experiment, Family, RegistrationMethod};
-pub use limits::{MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate};
+pub use limits::{
+    MAX_INTENSITY_STARTS, MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate,
+};
 
 /// The default landmark observation noise σ (px per axis): sub-pixel localisation of a marker's centre
 /// on a 0.3 mm detector (about 0.15 mm), so the registration trials of a cell differ and their mean has
