@@ -123,6 +123,15 @@ impl LabelConvention {
     /// Resolves a command-line label: a level name (`L1`, `vertebrae_T12`) or a raw integer id.
     pub fn resolve(self, spec: &str) -> Result<u16> {
         if let Ok(id) = spec.trim().parse::<u16>() {
+            if id == 0 {
+                return Err(Error::invalid(
+                    "label",
+                    format!(
+                        "{spec:?}: label 0 is the background of every label map, not a structure (give \
+                         the label of a vertebra, e.g. L3 or its id)"
+                    ),
+                ));
+            }
             return Ok(id);
         }
         let level = Level::parse(spec).ok_or_else(|| {
@@ -196,6 +205,8 @@ mod tests {
         assert!(ts.resolve("T13").is_err());
         assert!(ts.resolve("X1").is_err());
         assert!(ts.resolve("").is_err());
+        let background = ts.resolve("0").unwrap_err().to_string();
+        assert!(background.contains("background"), "{background}");
         assert!("mni".parse::<LabelConvention>().is_err());
     }
 }

@@ -120,13 +120,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let id = convention
         .resolve(&a.label)
         .with_context(|| format!("--label {:?}", a.label))?;
-    if id == 0 {
-        bail!(
-            "--label {:?}: label 0 is the background of every label map, not a structure (give the \
-             label of a vertebra, e.g. L3 or its id)",
-            a.label
-        );
-    }
     let seg =
         read_labels(&a.seg).with_context(|| format!("reading segmentation {}", a.seg.display()))?;
     let opts = SurfaceOptions {

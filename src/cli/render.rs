@@ -19,7 +19,7 @@ use spinedrr::render::{
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
-    mesh_mu_cause, split_mesh_spec,
+    mesh_mu_cause, mesh_zero_cause, split_mesh_spec,
 };
 use super::render_timing::{median_min, peak_rss_mb};
 
@@ -227,6 +227,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &perturbation.to_string(),
         &corners,
         a.allow_empty,
+        || mesh_zero_cause(renderer.scene()),
     )?;
     check_not_negative(&drr.line_integral)?;
 

@@ -94,29 +94,95 @@ fn where_it_projects(view: &View, corners: &[DVec3]) -> String {
     )
 }
 
-/// Refuses an image in which every pixel is 0 — the anatomy did not land on the detector (placed
-/// elsewhere, a huge perturbation, a CT whose world position is not where the view aims) — unless
-/// `allow_empty`. `rendered` is the view the rays followed (perturbed K), `corners` the anatomy's world
-/// bounding box.
+/// The size (px) of the bounding box's image when it overlaps the detector's area (every corner in front
+/// of the source), else `None`.
+fn image_on_detector(view: &View, corners: &[DVec3]) -> Option<glam::DVec2> {
+    if corners.iter().any(|&c| view.depth(c) <= 0.0) {
+        return None;
+    }
+    let px: Vec<_> = corners.iter().map(|&c| view.project(c)).collect();
+    let lo = px.iter().fold(glam::DVec2::INFINITY, |a, &p| a.min(p));
+    let hi = px.iter().fold(glam::DVec2::NEG_INFINITY, |a, &p| a.max(p));
+    let (w, h) = (
+        f64::from(view.intrinsics.width),
+        f64::from(view.intrinsics.height),
+    );
+    (lo.x < w && hi.x > 0.0 && lo.y < h && hi.y > 0.0).then_some(hi - lo)
+}
+
+/// Refuses an image in which every pixel is 0 unless `allow_empty`. The message says why: `no_attenuation`
+/// (asked only then) names what attenuates nothing — every mesh with μ = 0 or enclosing no volume, every
+/// rendered voxel air — and otherwise, where the anatomy's bounding box lands: off the detector (placed
+/// elsewhere, a huge perturbation, a CT whose world position is not where the view aims) or on it.
+/// `rendered` is the view the rays followed (perturbed K), `corners` the anatomy's world bounding box.
 pub fn check_not_empty(
     line_integral: &ImageF32,
     rendered: &View,
     perturbation: &str,
     corners: &[DVec3],
     allow_empty: bool,
+    no_attenuation: impl FnOnce() -> Option<String>,
 ) -> anyhow::Result<()> {
     if allow_empty || line_integral.data.iter().any(|&v| v != 0.0) {
         return Ok(());
     }
-    bail!(
-        "nothing of the anatomy is on the detector: every pixel of the {} × {} DRR of view '{}' under \
-         perturbation {perturbation} is 0 ({}); nothing was written. Pass --allow-empty to write an empty \
-         image anyway",
-        line_integral.width,
-        line_integral.height,
-        rendered.name,
-        where_it_projects(rendered, corners)
-    )
+    let what = format!(
+        "every pixel of the {} × {} DRR of view '{}' under perturbation {perturbation} is 0",
+        line_integral.width, line_integral.height, rendered.name
+    );
+    let place = where_it_projects(rendered, corners);
+    let cause = if let Some(nothing) = no_attenuation() {
+        format!("nothing attenuates: {nothing}; {what} ({place})")
+    } else if let Some(size) = image_on_detector(rendered, corners) {
+        let why = if size.min_element() < 1.0 {
+            "smaller than a pixel, it fell between the rays through the pixel centres"
+        } else {
+            "is the mesh hollow, or thinner than the rays' spacing?"
+        };
+        format!(
+            "{what}, although the anatomy's bounding box meets the detector ({place}; its image spans \
+             {:.2} × {:.2} px): no ray through a pixel centre crossed it ({why})",
+            size.x, size.y
+        )
+    } else {
+        format!("nothing of the anatomy is on the detector: {what} ({place})")
+    };
+    bail!("{cause}; nothing was written. Pass --allow-empty to write an empty image anyway")
+}
+
+/// What attenuates nothing in a mesh scene, when that is every mesh: a mesh with μ = 0, or one whose
+/// surface encloses no volume (flat or degenerate: |V| below 10⁻⁹ of its bounding box's). `None` when
+/// some mesh attenuates.
+pub fn mesh_zero_cause(scene: &RenderScene) -> Option<String> {
+    if scene.meshes.is_empty() {
+        return None;
+    }
+    scene
+        .meshes
+        .iter()
+        .map(|m| {
+            let name = &m.mesh.name;
+            if m.mu_per_mm == 0.0 {
+                return Some(format!("mesh '{name}' has μ = 0 mm⁻¹"));
+            }
+            let (lo, hi) = m.mesh.bounds()?;
+            let extent = hi - lo;
+            let box_volume = extent.x.max(1e-300) * extent.y.max(1e-300) * extent.z.max(1e-300);
+            let volume = m.mesh.volume();
+            (volume.abs() <= 1e-9 * box_volume).then(|| {
+                format!(
+                    "mesh '{name}' encloses no volume ({} mm³ in a {:.3} × {:.3} × {:.3} mm box, area {} \
+                     mm²): a flat or degenerate surface has no path length",
+                    spinedrr::error::shown(volume),
+                    extent.x,
+                    extent.y,
+                    extent.z,
+                    spinedrr::error::shown(m.mesh.area())
+                )
+            })
+        })
+        .collect::<Option<Vec<_>>>()
+        .map(|v| v.join("; "))
 }
 
 /// Refuses a line integral with a non-finite pixel: μ × path length overflowed the image's float32 range

@@ -80,7 +80,9 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
     }
     let label = match (&a.seg, &a.label) {
         (Some(seg_path), Some(spec)) => {
-            let id = convention.resolve(spec)?;
+            let id = convention
+                .resolve(spec)
+                .with_context(|| format!("--label {spec:?}"))?;
             let seg = read_labels(seg_path)
                 .with_context(|| format!("reading segmentation {}", seg_path.display()))?;
             ct.check_grid_of(ct_path, &seg, seg_path)?;
@@ -173,6 +175,7 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
         &run.perturbation.to_string(),
         &corners,
         run.allow_empty,
+        || ct_zero_cause(&ct.values, mask.as_ref().map(|m| m.keep.as_slice())),
     )
     .with_context(|| match placement {
         Placement::Keep => "--placement keep leaves the CT at the file's scanner coordinates, where the \
@@ -213,4 +216,29 @@ struct CtInputs {
     placement: Placed,
     #[serde(flatten)]
     render: VolumeDetails,
+}
+
+/// What attenuates nothing in a CT render, when that is every rendered voxel: all of them (the label's
+/// or `--bone-hu`'s, else the whole volume's) at or below −1000 HU, where μ = μ_water · max(0, 1 + HU /
+/// 1000) is 0. `None` when some voxel attenuates.
+fn ct_zero_cause(hu: &[f32], keep: Option<&[bool]>) -> Option<String> {
+    let rendered = |i: usize| keep.is_none_or(|k| k[i]);
+    let (count, attenuating) = hu
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| rendered(i))
+        .fold((0usize, 0usize), |(n, a), (_, &v)| {
+            (n + 1, a + usize::from(v > -1000.0))
+        });
+    (attenuating == 0).then(|| {
+        format!(
+            "every one of the {count} rendered voxels ({}) is at or below −1000 HU (air), where μ = \
+             μ_water · max(0, 1 + HU/1000) is 0",
+            if keep.is_some() {
+                "those --seg/--label and --bone-hu select"
+            } else {
+                "the whole volume"
+            }
+        )
+    })
 }

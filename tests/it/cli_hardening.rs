@@ -150,21 +150,24 @@ fn anatomy_off_the_detector_is_an_error_unless_allowed() {
     ));
     let out = d.path().join("o.tiff");
     let o = s(&out);
-    let cases: [&[&str]; 3] = [
-        &["--mesh", &far],
-        &["--mesh", &near, "--perturb", "dcx=5000"],
-        &["--mesh", &near, "--perturb", "alpha=0.001"],
+    let cases: [(&[&str], &str); 3] = [
+        (
+            &["--mesh", &far],
+            "nothing of the anatomy is on the detector",
+        ),
+        (
+            &["--mesh", &near, "--perturb", "dcx=5000"],
+            "nothing of the anatomy is on the detector",
+        ),
+        // Focal length scaled by 0.001: the cube's image is a tenth of a pixel, between the rays.
+        (
+            &["--mesh", &near, "--perturb", "alpha=0.001"],
+            "smaller than a pixel",
+        ),
     ];
-    for case in cases {
+    for (case, cause) in cases {
         let args = [&["render"], case, &["--out", &o]].concat();
-        refused(
-            &args,
-            &[
-                "nothing of the anatomy is on the detector",
-                "--allow-empty",
-                "px",
-            ],
-        );
+        refused(&args, &[cause, "--allow-empty", "px"]);
         assert!(!out.exists());
     }
     let (ok, err) = crate::common::run(&["render", "--mesh", &far, "--allow-empty", "--out", &o]);

@@ -260,3 +260,91 @@ fn a_malformed_landmark_file_is_described_not_named_by_internal_types() {
         }
     }
 }
+
+/// A binary STL of four copies of one triangle whose corners lie on a line: a surface of no area.
+fn flat_stl(dir: &Path) -> String {
+    let mut bytes = vec![0u8; 80];
+    bytes.extend(4u32.to_le_bytes());
+    for _ in 0..4 {
+        for v in [[0f32; 3], [0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]] {
+            for x in v {
+                bytes.extend(x.to_le_bytes());
+            }
+        }
+        bytes.extend([0, 0]);
+    }
+    let path = dir.join("flat.stl");
+    std::fs::write(&path, bytes).unwrap();
+    s(&path)
+}
+
+/// An image of zeros is explained by its cause: what attenuates nothing (a mesh with μ = 0, a surface
+/// enclosing no volume, a CT all air), a target between the rays, or anatomy off the detector; label 0,
+/// the background, is refused wherever a label is read. It used to say "nothing of the anatomy is on the
+/// detector" for all of them, quoting a bounding box on the detector.
+#[test]
+fn an_image_of_zeros_names_its_cause() {
+    use spinedrr::geometry::CArm;
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("o.tiff");
+    let o = s(&out);
+    let c = s(&cube(d.path(), "c.stl", DVec3::ZERO, 10.0));
+    refused(
+        &["render", "--mesh", &format!("{c}:0"), "--out", &o],
+        &["nothing attenuates", "has μ = 0 mm⁻¹", "--allow-empty"],
+    );
+    let flat = flat_stl(d.path());
+    refused(
+        &["render", "--mesh", &format!("{flat}:0.05"), "--out", &o],
+        &["nothing attenuates", "encloses no volume", "area 0 mm²"],
+    );
+    // One mesh that attenuates is enough: a zero image then has another cause.
+    let err = refused(
+        &[
+            "render",
+            "--mesh",
+            &format!("{c}:0"),
+            "--mesh",
+            &format!("{flat}:0.05"),
+            "--out",
+            &o,
+        ],
+        &["has μ = 0", "encloses no volume"],
+    );
+    assert!(!err.contains("not on the detector"), "{err}");
+    // A 0.2 µm cube centred between four rays (half a pixel from each pixel centre's ray, at the depth
+    // where the view aims): on the detector, yet no ray crosses it.
+    let ap = CArm::default_paper().view("ap").unwrap().clone();
+    let (aim, distance) = ap.aim();
+    let between = ap.pixel_ray(511.5, 511.5);
+    let centre = between.origin + between.dir * distance;
+    assert!((centre - aim).length() < 1.0, "{centre} vs {aim}");
+    let tiny = s(&cube(d.path(), "tiny.stl", centre, 1e-4));
+    refused(
+        &["render", "--mesh", &tiny, "--out", &o],
+        &[
+            "meets the detector",
+            "no ray through a pixel centre",
+            "smaller than a pixel",
+        ],
+    );
+    // A CT all air; label 0 of a segmentation.
+    let air = cube_ct(d.path(), "air.nii", -1000.0, -1000.0);
+    refused(
+        &["render", "--ct", &air, "--out", &o],
+        &[
+            "nothing attenuates",
+            "at or below −1000 HU",
+            "the whole volume",
+        ],
+    );
+    let ct = cube_ct(d.path(), "ct.nii", 1000.0, -1000.0);
+    let seg = cube_ct(d.path(), "seg.nii", 29.0, 0.0);
+    refused(
+        &[
+            "render", "--ct", &ct, "--seg", &seg, "--label", "0", "--out", &o,
+        ],
+        &["label 0 is the background"],
+    );
+    assert!(!out.exists(), "a refused render wrote {o}");
+}

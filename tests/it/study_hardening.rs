@@ -259,6 +259,15 @@ fn late_errors_come_before_any_output_and_name_the_key() {
         &["anatomy.meshes.landmarks", "no landmarks"],
     );
     assert!(!out.exists());
+    // A mesh target that attenuates nothing: every DRR would be 0.
+    let cfg = box_study(dir.path(), &cuboid(), BOX_LANDMARKS);
+    let zero = std::fs::read_to_string(&cfg).unwrap() + "mu_per_mm = 0.0\n";
+    let cfg = write(dir.path(), "zero.toml", &zero);
+    refused(
+        &study(&cfg, &out, &[]),
+        &["anatomy.meshes.mu_per_mm", "target 'box'", "above 0 mm⁻¹"],
+    );
+    assert!(!out.exists());
 }
 
 #[test]

@@ -172,10 +172,14 @@ impl StudyConfig {
                     ));
                 }
             }
-            if !m.mu_per_mm.is_finite() {
+            if !(m.mu_per_mm.is_finite() && m.mu_per_mm > 0.0) {
                 return Err(Error::invalid(
                     "anatomy.meshes.mu_per_mm",
-                    format!("{} is not finite", m.mu_per_mm),
+                    format!(
+                        "target '{}': {} must be a finite attenuation above 0 mm⁻¹ (every file of the \
+                         target takes it; at 0 the target attenuates nothing and every DRR is 0)",
+                        m.name, m.mu_per_mm
+                    ),
                 ));
             }
         }
