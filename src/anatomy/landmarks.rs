@@ -36,6 +36,7 @@ pub struct Landmarks {
 #[derive(Serialize, Deserialize)]
 struct LevelJson {
     level: String,
+    #[serde(default = "default_units")]
     units: String,
     #[serde(default = "default_frame")]
     frame: String,
@@ -73,6 +74,10 @@ where
         }
     }
     d.deserialize_map(Unique(std::marker::PhantomData))
+}
+
+fn default_units() -> String {
+    "mm".to_string()
 }
 
 fn default_frame() -> String {
@@ -254,5 +259,9 @@ mod tests {
         assert_eq!(read("m", "world RAS"), DVec3::new(1500.0, -2000.0, 3000.0));
         assert_eq!(read("mm", "world LPS+"), DVec3::new(-1.5, 2.0, 3.0));
         assert_eq!(read("um", "LPS"), DVec3::new(-0.0015, 0.002, 0.003));
+        // Without units or frame: mm, RAS+.
+        let bare = r#"{"level":"L3","landmarks":{"a":[1.5,-2,3]}}"#;
+        let p = landmarks_from_json(bare, Path::new("lm.json")).unwrap()[0].points["a"];
+        assert_eq!(p, DVec3::new(1.5, -2.0, 3.0));
     }
 }

@@ -259,6 +259,24 @@ fn late_errors_come_before_any_output_and_name_the_key() {
         &["anatomy.meshes.landmarks", "no landmarks"],
     );
     assert!(!out.exists());
+    // Landmarks in another frame than the mesh (here 3 m away): every landmark row would be NaN.
+    let far = r#"{"level": "box", "landmarks": {"a": [3000, 0, 0], "b": [0, 3000, 10]}}"#;
+    let cfg = box_study(dir.path(), &cuboid(), far);
+    let text = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("[\"projection\"]", "[\"projection\", \"landmarks\"]");
+    let cfg = write(dir.path(), "far.toml", &text);
+    refused(
+        &study(&cfg, &out, &[]),
+        &[
+            "landmarks",
+            "target 'box'",
+            "landmark 'a'",
+            "from the target's bounding box",
+            "frame",
+        ],
+    );
+    assert!(!out.exists());
     // A mesh target that attenuates nothing: every DRR would be 0.
     let cfg = box_study(dir.path(), &cuboid(), BOX_LANDMARKS);
     let zero = std::fs::read_to_string(&cfg).unwrap() + "mu_per_mm = 0.0\n";

@@ -14,6 +14,9 @@ impl Context {
     /// lies in front of the source and projects inside the detector; the error names the target, the
     /// view, the perturbation and its config key, and where the target lands.
     pub fn check_on_detector(&self) -> Result<()> {
+        if self.cfg.runs(Experiment::Landmarks) || self.cfg.runs(Experiment::Registration) {
+            self.check_landmarks_in_view()?;
+        }
         if !(self.cfg.runs(Experiment::Projection) || self.cfg.runs(Experiment::Landmarks)) {
             return Ok(());
         }
@@ -37,6 +40,80 @@ impl Context {
                             ),
                         ));
                     }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks every target's landmarks: each within reach of its anatomy (the bounding box's diagonal,
+    /// at least 100 mm), none at or behind a view's source (it has no projection), and in each reference
+    /// view some projecting onto the detector — else the target's landmark rows would be NaN. The error names the target, the view and the landmarks, and
+    /// points at the usual cause, a landmarks file in another frame or unit than the anatomy.
+    fn check_landmarks_in_view(&self) -> Result<()> {
+        const CAUSE: &str = "are the landmarks in the anatomy's frame and unit (world mm, RAS+)?";
+        for t in self.targets.iter().filter(|t| !t.landmarks.is_empty()) {
+            let (lo, hi) = vertices(t).fold(
+                (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY),
+                |(a, b), p| (a.min(p), b.max(p)),
+            );
+            // A landmark belongs to its anatomy: within the box's diagonal (at least 100 mm) of it.
+            let reach = (hi - lo).length().max(100.0);
+            for (l, p) in &t.landmarks {
+                let away = (p.clamp(lo, hi) - *p).length();
+                if away > reach {
+                    return Err(Error::invalid(
+                        "landmarks",
+                        format!(
+                            "target '{}': landmark '{l}' at ({:.1}, {:.1}, {:.1}) mm lies {away:.0} mm \
+                             from the target's bounding box ([{:.1}, {:.1}, {:.1}] to [{:.1}, {:.1}, {:.1}] \
+                             mm; at most {reach:.0} mm, its diagonal or 100 mm, is accepted); {CAUSE}",
+                            t.name, p.x, p.y, p.z, lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
+                        ),
+                    ));
+                }
+            }
+            for name in &self.cfg.geometry.views {
+                let view = self.carm.view(name)?;
+                if let Some((l, p)) = t.landmarks.iter().find(|(_, p)| view.depth(*p) <= 0.0) {
+                    return Err(Error::invalid(
+                        "landmarks",
+                        format!(
+                            "target '{}': landmark '{l}' at ({:.1}, {:.1}, {:.1}) mm lies at or behind the \
+                             source of view '{name}' (depth {:.1} mm): it cannot be projected; {CAUSE}",
+                            t.name,
+                            p.x,
+                            p.y,
+                            p.z,
+                            view.depth(*p)
+                        ),
+                    ));
+                }
+                let k = &view.intrinsics;
+                let (w, h) = (f64::from(k.width) - 0.5, f64::from(k.height) - 0.5);
+                let px: Vec<_> = t.landmarks.iter().map(|(_, p)| view.project(*p)).collect();
+                if !px
+                    .iter()
+                    .any(|q| (-0.5..=w).contains(&q.x) && (-0.5..=h).contains(&q.y))
+                {
+                    let lo = px.iter().fold(glam::DVec2::INFINITY, |a, &q| a.min(q));
+                    let hi = px.iter().fold(glam::DVec2::NEG_INFINITY, |a, &q| a.max(q));
+                    return Err(Error::invalid(
+                        "landmarks",
+                        format!(
+                            "target '{}': none of its {} landmarks projects onto the detector of view \
+                             '{name}' (they project to u ∈ [{:.1}, {:.1}], v ∈ [{:.1}, {:.1}] px, the \
+                             detector is {} × {} px), so every landmark measurement would be NaN; {CAUSE}",
+                            t.name,
+                            t.landmarks.len(),
+                            lo.x,
+                            hi.x,
+                            lo.y,
+                            hi.y,
+                            k.width,
+                            k.height
+                        ),
+                    ));
                 }
             }
         }
