@@ -16,6 +16,7 @@ use spinedrr::anatomy::markups::{
 use spinedrr::anatomy::parse_mesh;
 use spinedrr::calibration::CalibrationPhantom;
 use spinedrr::geometry::{CArm, Intrinsics, Perturbation};
+use spinedrr::io::{Sidecar, decode_drr_tiff};
 use spinedrr::registration::LoadedProblem;
 use spinedrr::registration::intensity::LoadedIntensityProblem;
 use spinedrr::study::StudyConfig;
@@ -41,6 +42,8 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("calib_phantom", calib_phantom),
     ("intensity_problem", intensity_problem),
     ("cohort_dataset", cohort_dataset),
+    ("drr_tiff", drr_tiff),
+    ("sidecar_json", sidecar_json),
 ];
 
 fn origin() -> &'static Path {
@@ -280,5 +283,23 @@ pub fn cohort_dataset(data: &[u8]) {
         let mut d = d.clone();
         d.folder = dataset_folder().to_path_buf();
         let _ = d.discover();
+    }
+}
+
+/// A TIFF as `compare` reads a DRR (one page of float samples; integer and multi-page files refused):
+/// any bytes; the decoder's limits bound what a header may make it allocate.
+pub fn drr_tiff(data: &[u8]) {
+    if let Ok(img) = decode_drr_tiff(std::io::Cursor::new(data), origin()) {
+        assert_eq!(img.data.len(), img.width as usize * img.height as usize);
+    }
+}
+
+/// A DRR's JSON sidecar as `compare` reads it: parsed, then its K and world_to_camera checked into the
+/// view the image was rendered with.
+pub fn sidecar_json(data: &[u8]) {
+    if let Some(t) = text(data)
+        && let Ok(sc) = Sidecar::from_json_str(t, origin())
+    {
+        let _ = sc.rendered_view(origin());
     }
 }

@@ -60,7 +60,17 @@ pub fn read_tiff_f32(path: &Path) -> Result<ImageF32> {
 /// detector's raw image, an 8-bit export) or a stack of pages is refused, naming what it is: its values
 /// are not a DRR's and comparing them as one would measure nonsense.
 pub fn read_drr_tiff(path: &Path) -> Result<ImageF32> {
-    let t = read_tiff(path)?;
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    decode_drr_tiff(BufReader::new(file), path)
+}
+
+/// [`read_drr_tiff`] of bytes from any reader; `origin` names them in errors.
+pub fn decode_drr_tiff<R: std::io::Read + std::io::Seek>(
+    reader: R,
+    origin: &Path,
+) -> Result<ImageF32> {
+    let path = origin;
+    let t = decode_tiff(reader, path)?;
     if !t.float {
         return Err(Error::format(
             path,
@@ -90,8 +100,12 @@ struct Tiff {
 
 fn read_tiff(path: &Path) -> Result<Tiff> {
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    decode_tiff(BufReader::new(file), path)
+}
+
+fn decode_tiff<R: std::io::Read + std::io::Seek>(reader: R, path: &Path) -> Result<Tiff> {
     let bad = |e: tiff::TiffError| Error::format(path, format!("not a readable TIFF image: {e}"));
-    let mut dec = Decoder::new(BufReader::new(file)).map_err(bad)?;
+    let mut dec = Decoder::new(reader).map_err(bad)?;
     let (width, height) = dec.dimensions().map_err(bad)?;
     let colour = dec.colortype().map_err(bad)?;
     if !matches!(colour, tiff::ColorType::Gray(_)) {

@@ -14,7 +14,9 @@ pub use atomic::{
     write_json,
 };
 pub use heatmap::{format_label, heatmap_rgb, write_heatmap_png};
-pub use image::{ImageF32, read_tiff_f32, write_mask_png, write_preview_png, write_tiff_f32};
+pub use image::{
+    ImageF32, decode_drr_tiff, read_tiff_f32, write_mask_png, write_preview_png, write_tiff_f32,
+};
 pub use output_set::{
     check_ours, check_output_paths, check_spares_inputs, create_output_dir, same_file,
 };

@@ -150,8 +150,13 @@ impl Sidecar {
     /// Reads a sidecar.
     pub fn read(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        serde_json::from_str(&text)
-            .map_err(|e| Error::format(path, format!("not a spinedrr sidecar: {e}")))
+        Self::from_json_str(&text, path)
+    }
+
+    /// Parses a sidecar's JSON; `origin` names it in errors.
+    pub fn from_json_str(text: &str, origin: &Path) -> Result<Self> {
+        serde_json::from_str(text)
+            .map_err(|e| Error::format(origin, format!("not a spinedrr sidecar: {e}")))
     }
 }
 
