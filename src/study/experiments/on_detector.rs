@@ -59,7 +59,7 @@ impl Context {
             );
             // A landmark belongs to its anatomy: within the box's diagonal (at least 100 mm) of it.
             let reach = (hi - lo).length().max(100.0);
-            for (l, p) in &t.landmarks {
+            for (l, p) in t.landmarks.iter().filter(|_| lo.cmple(hi).all()) {
                 let away = (p.clamp(lo, hi) - *p).length();
                 if away > reach {
                     return Err(Error::invalid(
