@@ -11,7 +11,8 @@
 #           binaries, the CLI and the Python module (no separate `cargo clippy` check build, no release build
 #           of the module); the Python virtual environment is made meanwhile
 #   rust    the library's unit tests and the one integration-test binary (tests/it/)
-#   python  the module the build phase compiled, installed into the venv, and pytest over python/tests
+#   python  the module the build phase compiled, installed into the venv, and pytest over python/tests,
+#           run beside the Rust tests (both phases' times count from their common start)
 #
 # The last line is a plain "N passed, N failed" total over the Rust and the Python tests.
 set -euo pipefail
@@ -77,15 +78,29 @@ python_tests() {
 }
 
 t_start=$(now_ms)
-rm -f target/test.log target/pytest.log
+rm -f target/test.log target/pytest.log target/python.out target/python.status
 status=0
 phase deps bash scripts/install-deps.sh || status=$?
 [ $status -ne 0 ] || phase static static_checks || status=$?
 [ $status -ne 0 ] || phase build build || status=$?
 if [ $status -eq 0 ]; then
-  # The Python tests run even when a Rust test failed, so both totals count.
-  phase rust rust_tests || status=$?
-  phase python python_tests || status=$?
+  # The Python tests run beside the Rust tests (they mostly wait on the CLI's subprocesses, and fill the
+  # cores the Rust tests' tail leaves idle); each phase's time is its own wall time from the common start.
+  # Both always run, so both totals count; the Python output follows the Rust output.
+  t_tests=$(now_ms)
+  (
+    rc=0
+    python_tests > target/python.out 2>&1 || rc=$?
+    echo "$rc $(($(now_ms) - t_tests))" > target/python.status
+  ) &
+  python_pid=$!
+  rust_tests || status=$?
+  phases+=("rust $(seconds $(($(now_ms) - t_tests)))")
+  wait "$python_pid" || true
+  cat target/python.out
+  read -r py_rc py_ms < target/python.status || { py_rc=1; py_ms=0; }
+  phases+=("python $(seconds "$py_ms")")
+  [ "$py_rc" -eq 0 ] || status=$py_rc
 fi
 
 rust_counts=$(awk '/^test result:/ {p += $4; f += $6} END {print p + 0, f + 0}' target/test.log 2>/dev/null ||

@@ -172,12 +172,17 @@ impl OutputLock {
     /// Claims `out` (which must exist): creates the lock, or takes over a stale one with a warning; a
     /// live one is an error naming its owner.
     pub fn acquire(out: &Path) -> Result<OutputLock> {
+        Self::acquire_beating(out, HEARTBEAT)
+    }
+
+    /// [`Self::acquire`] with the heartbeat every `every` (the tests' short one; runs use [`HEARTBEAT`]).
+    fn acquire_beating(out: &Path, every: Duration) -> Result<OutputLock> {
         let path = out.join(LOCK_FILE);
         let me = LockOwner::current();
         let text = serde_json::to_string(&me).map_err(|e| Error::encode("the study lock", e))?;
         for _ in 0..3 {
             match create_new_with(&path, text.as_bytes()) {
-                Ok(true) => return Ok(OutputLock::held(path, me)),
+                Ok(true) => return Ok(OutputLock::held(path, me, every)),
                 Ok(false) => {
                     let owner = match read_owner(&path, &me) {
                         Read::Missing => continue,
@@ -217,15 +222,15 @@ impl OutputLock {
         )))
     }
 
-    /// The lock at `path`, now ours, with its heartbeat thread started.
-    fn held(path: PathBuf, owner: LockOwner) -> OutputLock {
+    /// The lock at `path`, now ours, with its heartbeat thread started (a beat every `every`).
+    fn held(path: PathBuf, owner: LockOwner, every: Duration) -> OutputLock {
         let (tx, rx) = mpsc::channel::<()>();
         let (p, o) = (path.clone(), owner.clone());
         // Without a thread the lock still works; it only goes stale for other hosts after STALE_AFTER.
         let heartbeat = std::thread::Builder::new()
             .name("study-lock-heartbeat".into())
             .spawn(move || {
-                while let Err(mpsc::RecvTimeoutError::Timeout) = rx.recv_timeout(HEARTBEAT) {
+                while let Err(mpsc::RecvTimeoutError::Timeout) = rx.recv_timeout(every) {
                     if read_owner(&p, &o) != Read::Owner(o.clone()) {
                         break; // taken over after all: never touch another run's lock
                     }
@@ -338,14 +343,16 @@ mod tests {
     #[test]
     fn the_heartbeat_refreshes_the_lock() {
         let dir = tempfile::tempdir().unwrap();
-        let lock = OutputLock::acquire(dir.path()).unwrap();
+        // A beat every 200 ms instead of every HEARTBEAT (10 s): the same thread and loop, a shorter wait.
+        let every = Duration::from_millis(200);
+        let lock = OutputLock::acquire_beating(dir.path(), every).unwrap();
         let p = dir.path().join(LOCK_FILE);
         let f = std::fs::OpenOptions::new().write(true).open(&p).unwrap();
         f.set_modified(SystemTime::now() - Duration::from_secs(3600))
             .unwrap();
         assert!(heartbeat_age(&p) >= Duration::from_secs(3600));
-        std::thread::sleep(HEARTBEAT + Duration::from_secs(2));
-        assert!(heartbeat_age(&p) < HEARTBEAT + Duration::from_secs(2));
+        std::thread::sleep(every * 6);
+        assert!(heartbeat_age(&p) < every * 6, "{:?}", heartbeat_age(&p));
         drop(lock);
     }
 }

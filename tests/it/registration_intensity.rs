@@ -95,11 +95,20 @@ fn final_mtres(
     max_mm: f64,
     seed: u64,
 ) -> Vec<f64> {
+    use rayon::prelude::*;
+    // The starts are drawn in order from one generator, then registered in parallel (each start is
+    // independent and deterministic, so the results do not depend on the thread count).
     let mut rng = SplitMix64::new(seed);
-    (0..n)
-        .map(|i| {
+    let starts: Vec<RigidTransform> = (0..n)
+        .map(|_| {
             let m = max_mm * rng.uniform();
-            let init = start_at_mtre(&TRUTH, &p.targets, p.centre(), p.rho_mm(), m, &mut rng);
+            start_at_mtre(&TRUTH, &p.targets, p.centre(), p.rho_mm(), m, &mut rng)
+        })
+        .collect();
+    starts
+        .par_iter()
+        .enumerate()
+        .map(|(i, init)| {
             let o = IntensityOptions {
                 cmaes: spinedrr::registration::intensity::CmaesOptions {
                     seed: seed + i as u64,
@@ -107,7 +116,7 @@ fn final_mtres(
                 },
                 ..opts.clone()
             };
-            let r = register_intensity(p, &init, &o).unwrap();
+            let r = register_intensity(p, init, &o).unwrap();
             mtre_mm(&r.pose, &TRUTH, &p.targets)
         })
         .collect()

@@ -17,6 +17,8 @@ use spinedrr::registration::intensity::{
 };
 use spinedrr::render::volume::{VolumeRenderOptions, VolumeRenderer};
 
+use rayon::prelude::*;
+
 const TRUTH: RigidTransform = RigidTransform::IDENTITY;
 const L3_TOTALSEG: u16 = 29;
 
@@ -71,25 +73,32 @@ fn a_masked_ct_level_registers_at_the_true_k() {
     };
     let mut rng = SplitMix64::new(5);
     let n = 40;
-    let finals: Vec<f64> = (0..n)
-        .map(|i| {
+    // Starts drawn in order, registered in parallel (independent and deterministic each).
+    let starts: Vec<RigidTransform> = (0..n)
+        .map(|_| {
             let m = 10.0 * rng.uniform();
-            let init = start_at_mtre(
+            start_at_mtre(
                 &TRUTH,
                 &problem.targets,
                 problem.centre(),
                 problem.rho_mm(),
                 m,
                 &mut rng,
-            );
+            )
+        })
+        .collect();
+    let finals: Vec<f64> = starts
+        .par_iter()
+        .enumerate()
+        .map(|(i, init)| {
             let o = IntensityOptions {
                 cmaes: spinedrr::registration::intensity::CmaesOptions {
-                    seed: 100 + i,
+                    seed: 100 + i as u64,
                     ..opts.cmaes
                 },
                 ..opts.clone()
             };
-            let r = register_intensity(&problem, &init, &o).unwrap();
+            let r = register_intensity(&problem, init, &o).unwrap();
             mtre_mm(&r.pose, &TRUTH, &problem.targets)
         })
         .collect();
