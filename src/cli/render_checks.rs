@@ -137,7 +137,7 @@ pub fn check_not_empty(
         let why = if size.min_element() < 1.0 {
             "smaller than a pixel, it fell between the rays through the pixel centres"
         } else {
-            "is the mesh hollow, or thinner than the rays' spacing?"
+            "is the anatomy hollow, or thinner than the rays' spacing?"
         };
         format!(
             "{what}, although the anatomy's bounding box meets the detector ({place}; its image spans \
@@ -151,8 +151,8 @@ pub fn check_not_empty(
 }
 
 /// What attenuates nothing in a mesh scene, when that is every mesh: a mesh with μ = 0, or one whose
-/// surface encloses no volume (flat or degenerate: |V| below 10⁻⁹ of its bounding box's). `None` when
-/// some mesh attenuates.
+/// surface encloses no volume (flat or degenerate: |V| ≤ 10⁻⁹ · area^1.5, the volume a closed surface of
+/// that area could hold scaled down a billion times). `None` when some mesh attenuates.
 pub fn mesh_zero_cause(scene: &RenderScene) -> Option<String> {
     if scene.meshes.is_empty() {
         return None;
@@ -165,19 +165,13 @@ pub fn mesh_zero_cause(scene: &RenderScene) -> Option<String> {
             if m.mu_per_mm == 0.0 {
                 return Some(format!("mesh '{name}' has μ = 0 mm⁻¹"));
             }
-            let (lo, hi) = m.mesh.bounds()?;
-            let extent = hi - lo;
-            let box_volume = extent.x.max(1e-300) * extent.y.max(1e-300) * extent.z.max(1e-300);
-            let volume = m.mesh.volume();
-            (volume.abs() <= 1e-9 * box_volume).then(|| {
+            let (volume, area) = (m.mesh.volume(), m.mesh.area());
+            (volume.abs() <= 1e-9 * area.powf(1.5)).then(|| {
                 format!(
-                    "mesh '{name}' encloses no volume ({} mm³ in a {:.3} × {:.3} × {:.3} mm box, area {} \
-                     mm²): a flat or degenerate surface has no path length",
-                    spinedrr::error::shown(volume),
-                    extent.x,
-                    extent.y,
-                    extent.z,
-                    spinedrr::error::shown(m.mesh.area())
+                    "mesh '{name}' encloses no volume ({} mm³ within {} mm² of surface): a flat or \
+                     degenerate surface has no path length",
+                    spinedrr::error::shown(volume.abs()),
+                    spinedrr::error::shown(area)
                 )
             })
         })

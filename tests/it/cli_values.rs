@@ -261,12 +261,20 @@ fn a_malformed_landmark_file_is_described_not_named_by_internal_types() {
     }
 }
 
-/// A binary STL of four copies of one triangle whose corners lie on a line: a surface of no area.
+/// A binary STL of a 10 mm square in the plane z = 0, both sides (each triangle also wound backwards):
+/// closed, 200 mm² of surface, no volume.
 fn flat_stl(dir: &Path) -> String {
+    let (a, b, c, d) = (
+        [0f32, 0.0, 0.0],
+        [10.0, 0.0, 0.0],
+        [10.0, 10.0, 0.0],
+        [0.0, 10.0, 0.0],
+    );
+    let triangles = [[a, b, c], [a, c, d], [a, c, b], [a, d, c]];
     let mut bytes = vec![0u8; 80];
-    bytes.extend(4u32.to_le_bytes());
-    for _ in 0..4 {
-        for v in [[0f32; 3], [0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]] {
+    bytes.extend((triangles.len() as u32).to_le_bytes());
+    for [p, q, r] in triangles {
+        for v in [[0f32; 3], p, q, r] {
             for x in v {
                 bytes.extend(x.to_le_bytes());
             }
@@ -296,7 +304,11 @@ fn an_image_of_zeros_names_its_cause() {
     let flat = flat_stl(d.path());
     refused(
         &["render", "--mesh", &format!("{flat}:0.05"), "--out", &o],
-        &["nothing attenuates", "encloses no volume", "area 0 mm²"],
+        &[
+            "nothing attenuates",
+            "encloses no volume",
+            "0 mm³ within 200 mm² of surface",
+        ],
     );
     // One mesh that attenuates is enough: a zero image then has another cause.
     let err = refused(

@@ -48,8 +48,9 @@ impl Context {
 
     /// Checks every target's landmarks: each within reach of its anatomy (the bounding box's diagonal,
     /// at least 100 mm), none at or behind a view's source (it has no projection), and in each reference
-    /// view some projecting onto the detector — else the target's landmark rows would be NaN. The error names the target, the view and the landmarks, and
-    /// points at the usual cause, a landmarks file in another frame or unit than the anatomy.
+    /// view some projecting onto the detector — else the target's landmark rows would be NaN. The error
+    /// names the target, the view and the landmarks, and points at the usual cause, a landmarks file in
+    /// another frame or unit than the anatomy.
     fn check_landmarks_in_view(&self) -> Result<()> {
         const CAUSE: &str = "are the landmarks in the anatomy's frame and unit (world mm, RAS+)?";
         for t in self.targets.iter().filter(|t| !t.landmarks.is_empty()) {
