@@ -266,4 +266,14 @@ fn register_intensity_recovers_the_pose_and_refuses_bad_problems_naming_the_fiel
         assert!(!err.contains("panicked"), "{what}: {err}");
         assert!(!d.join("r.json").exists(), "{what}: R.json was written");
     }
+    // A start 500 mm behind the AP source: the pinhole formula would put its centre near the principal
+    // point, inside the detector; the error says where it is instead of quoting those pixels.
+    let mut behind = good.clone();
+    behind["init"]["t"] = json!([0.0, -1500.0, 0.0]);
+    let (ok, err) = register(d, &behind);
+    assert!(!ok, "a start behind the source was accepted");
+    assert!(
+        err.contains("init") && err.contains("behind the source") && !err.contains("projects to"),
+        "{err}"
+    );
 }

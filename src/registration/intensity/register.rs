@@ -196,9 +196,20 @@ pub fn check_visible(problem: &IntensityProblem, pose: &RigidTransform, field: &
     let c = pose.apply(problem.centre());
     for v in &problem.views {
         let k = &v.view.intrinsics;
+        let depth = v.view.depth(c);
+        if depth <= 0.0 {
+            // The pinhole formula would give a mirrored pixel, perhaps inside the detector: not quoted.
+            return Err(Error::invalid(
+                field,
+                format!(
+                    "the anatomy is not visible in view '{}': its centre lies at or behind the source \
+                     (depth {depth:.1} mm along the central ray)",
+                    v.view.name
+                ),
+            ));
+        }
         let x = v.view.project(c);
-        let inside = v.view.depth(c) > 0.0
-            && x.x >= -0.5
+        let inside = x.x >= -0.5
             && x.y >= -0.5
             && x.x <= f64::from(k.width) - 0.5
             && x.y <= f64::from(k.height) - 0.5;
@@ -207,7 +218,7 @@ pub fn check_visible(problem: &IntensityProblem, pose: &RigidTransform, field: &
                 field,
                 format!(
                     "the anatomy is not visible in view '{}': its centre projects to ({:.0}, {:.0}) px, \
-                     outside the {}×{} detector (or behind the source)",
+                     outside the {}×{} detector",
                     v.view.name, x.x, x.y, k.width, k.height
                 ),
             ));
