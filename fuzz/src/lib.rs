@@ -20,6 +20,7 @@ use spinedrr::io::{Sidecar, decode_drr_tiff};
 use spinedrr::registration::LoadedProblem;
 use spinedrr::registration::intensity::LoadedIntensityProblem;
 use spinedrr::study::StudyConfig;
+use spinedrr::study::units::UnitFile;
 
 /// A fuzz target: it takes any bytes and must return (not panic, not hang).
 pub type Target = fn(&[u8]);
@@ -44,6 +45,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("cohort_dataset", cohort_dataset),
     ("drr_tiff", drr_tiff),
     ("sidecar_json", sidecar_json),
+    ("unit_file", unit_file),
 ];
 
 fn origin() -> &'static Path {
@@ -302,4 +304,17 @@ pub fn sidecar_json(data: &[u8]) {
     {
         let _ = sc.rendered_view(origin());
     }
+}
+
+/// A study's unit file (`units/<id>.json`, what a resumed run reads before reusing a unit): any JSON. One
+/// that parses must print back to text that parses and prints the same (its numbers are strings so that
+/// NaN and infinities survive; the assembled tables depend on that round trip).
+pub fn unit_file(data: &[u8]) {
+    let Some(t) = text(data) else { return };
+    let Ok(f) = serde_json::from_str::<UnitFile>(t) else {
+        return;
+    };
+    let once = serde_json::to_string(&f).expect("a parsed unit file serialises");
+    let back: UnitFile = serde_json::from_str(&once).expect("a written unit file parses");
+    assert_eq!(serde_json::to_string(&back).unwrap(), once);
 }
