@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::bail;
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use spinedrr::anatomy::TriMesh;
 use spinedrr::geometry::{Perturbation, View};
 use spinedrr::io::{DrrValues, ImageF32};
@@ -67,42 +67,42 @@ pub fn check_source_outside(view: &View, meshes: &[(&str, &TriMesh)]) -> anyhow:
     Ok(())
 }
 
+/// The pixel box `(lo, hi)` the world points `corners` project to on `view`'s detector plane; `None` when
+/// one lies at or behind the source (it has no projection).
+fn projected_box(view: &View, corners: &[DVec3]) -> Option<(DVec2, DVec2)> {
+    if corners.iter().any(|&c| view.depth(c) <= 0.0) {
+        return None;
+    }
+    Some(
+        corners
+            .iter()
+            .map(|&c| view.project(c))
+            .fold((DVec2::INFINITY, DVec2::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p), hi.max(p))
+            }),
+    )
+}
+
 /// Where the anatomy with world bounding-box corners `corners` lands on the detector of `view`, in words.
 fn where_it_projects(view: &View, corners: &[DVec3]) -> String {
-    let behind = corners.iter().filter(|&&c| view.depth(c) <= 0.0).count();
-    if behind > 0 {
+    let Some((lo, hi)) = projected_box(view, corners) else {
+        let behind = corners.iter().filter(|&&c| view.depth(c) <= 0.0).count();
         return format!(
             "{behind} of its {} bounding-box corners lie behind the source",
             corners.len()
         );
-    }
-    let px: Vec<_> = corners.iter().map(|&c| view.project(c)).collect();
-    let (u0, u1) = px
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.x), b.max(p.x))
-        });
-    let (v0, v1) = px
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.y), b.max(p.y))
-        });
+    };
     format!(
-        "its bounding box projects to u ∈ [{u0:.4e}, {u1:.4e}], v ∈ [{v0:.4e}, {v1:.4e}] px, the detector \
-         is {} × {} px",
-        view.intrinsics.width, view.intrinsics.height
+        "its bounding box projects to u ∈ [{:.4e}, {:.4e}], v ∈ [{:.4e}, {:.4e}] px, the detector is {} × \
+         {} px",
+        lo.x, hi.x, lo.y, hi.y, view.intrinsics.width, view.intrinsics.height
     )
 }
 
 /// The size (px) of the bounding box's image when it overlaps the detector's area (every corner in front
 /// of the source), else `None`.
-fn image_on_detector(view: &View, corners: &[DVec3]) -> Option<glam::DVec2> {
-    if corners.iter().any(|&c| view.depth(c) <= 0.0) {
-        return None;
-    }
-    let px: Vec<_> = corners.iter().map(|&c| view.project(c)).collect();
-    let lo = px.iter().fold(glam::DVec2::INFINITY, |a, &p| a.min(p));
-    let hi = px.iter().fold(glam::DVec2::NEG_INFINITY, |a, &p| a.max(p));
+fn image_on_detector(view: &View, corners: &[DVec3]) -> Option<DVec2> {
+    let (lo, hi) = projected_box(view, corners)?;
     let (w, h) = (
         f64::from(view.intrinsics.width),
         f64::from(view.intrinsics.height),

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::anatomy::{Level, parse_levels};
-use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig, Perturbation};
+use crate::geometry::{CArm, DEFAULT_GEOMETRY_TOML, GeometryConfig, Perturbation, View};
 use crate::render::Backend;
 use crate::{Error, Result};
 
@@ -340,6 +340,16 @@ impl StudyConfig {
     pub fn carm(&self) -> Result<CArm> {
         let (g, origin) = self.geometry_config()?;
         g.build().map_err(|e| Error::format(&origin, e.to_string()))
+    }
+
+    /// The views of `carm` this study uses (`geometry.views`), in the geometry's order.
+    pub fn studied_views<'a>(
+        &self,
+        carm: &'a CArm,
+    ) -> impl Iterator<Item = &'a View> + use<'a, '_> {
+        carm.views
+            .iter()
+            .filter(|v| self.geometry.views.contains(&v.name))
     }
 
     /// The geometry file (or the built-in one) as written, with the detector binned, and where it came

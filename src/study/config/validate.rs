@@ -117,11 +117,7 @@ impl StudyConfig {
             .into_iter()
             .map(|(family, q)| (family.config_keys(), q))
             .collect();
-        let views: Vec<_> = carm
-            .views
-            .iter()
-            .filter(|v| self.geometry.views.contains(&v.name))
-            .collect();
+        let views: Vec<_> = self.studied_views(carm).collect();
         for (key, q) in &cells {
             for v in &views {
                 q.apply(&v.intrinsics).map_err(|e| {

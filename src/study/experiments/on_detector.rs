@@ -2,6 +2,8 @@
 //! checked for the whole grid before the first unit (an empty silhouette would otherwise abort the
 //! study in the middle, at that cell).
 
+use glam::DVec3;
+
 use super::{Context, Target};
 use crate::geometry::View;
 use crate::study::config::Experiment;
@@ -26,17 +28,17 @@ impl Context {
                 let view = self.carm.view(name)?;
                 for np in &perturbations {
                     let pv = view.perturbed(&np.perturbation)?;
-                    if !lands_on_detector(t, &pv) {
+                    if !lands_on_detector(vertices(t), &pv) {
                         return Err(Error::invalid(
                             family_keys(np.family),
                             format!(
                                 "target '{}' is not on the detector in view '{}' under perturbation \
-                                 {} (family {}): {}",
+                                 {} (family {}): its vertices {}",
                                 t.name,
                                 name,
                                 np.perturbation,
                                 np.family,
-                                where_it_lands(t, &pv)
+                                where_it_lands(vertices(t), &pv)
                             ),
                         ));
                     }
@@ -54,10 +56,9 @@ impl Context {
     fn check_landmarks_in_view(&self) -> Result<()> {
         const CAUSE: &str = "are the landmarks in the anatomy's frame and unit (world mm, RAS+)?";
         for t in self.targets.iter().filter(|t| !t.landmarks.is_empty()) {
-            let (lo, hi) = vertices(t).fold(
-                (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY),
-                |(a, b), p| (a.min(p), b.max(p)),
-            );
+            let (lo, hi) = vertices(t).fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), p| {
+                (a.min(p), b.max(p))
+            });
             // A landmark belongs to its anatomy: within the box's diagonal (at least 100 mm) of it.
             let reach = (hi - lo).length().max(100.0);
             for (l, p) in t.landmarks.iter().filter(|_| lo.cmple(hi).all()) {
@@ -90,29 +91,16 @@ impl Context {
                         ),
                     ));
                 }
-                let k = &view.intrinsics;
-                let (w, h) = (f64::from(k.width) - 0.5, f64::from(k.height) - 0.5);
-                let px: Vec<_> = t.landmarks.iter().map(|(_, p)| view.project(*p)).collect();
-                if !px
-                    .iter()
-                    .any(|q| (-0.5..=w).contains(&q.x) && (-0.5..=h).contains(&q.y))
-                {
-                    let lo = px.iter().fold(glam::DVec2::INFINITY, |a, &q| a.min(q));
-                    let hi = px.iter().fold(glam::DVec2::NEG_INFINITY, |a, &q| a.max(q));
+                let points = || t.landmarks.iter().map(|(_, p)| *p);
+                if !lands_on_detector(points(), view) {
                     return Err(Error::invalid(
                         "landmarks",
                         format!(
                             "target '{}': none of its {} landmarks projects onto the detector of view \
-                             '{name}' (they project to u ∈ [{:.1}, {:.1}], v ∈ [{:.1}, {:.1}] px, the \
-                             detector is {} × {} px), so every landmark measurement would be NaN; {CAUSE}",
+                             '{name}' (they {}), so every landmark measurement would be NaN; {CAUSE}",
                             t.name,
                             t.landmarks.len(),
-                            lo.x,
-                            hi.x,
-                            lo.y,
-                            hi.y,
-                            k.width,
-                            k.height
+                            where_it_lands(points(), view)
                         ),
                     ));
                 }
@@ -122,7 +110,7 @@ impl Context {
     }
 }
 
-fn vertices(t: &Target) -> impl Iterator<Item = glam::DVec3> + '_ {
+fn vertices(t: &Target) -> impl Iterator<Item = DVec3> + '_ {
     t.renderer
         .scene()
         .meshes
@@ -130,11 +118,12 @@ fn vertices(t: &Target) -> impl Iterator<Item = glam::DVec3> + '_ {
         .flat_map(|m| m.mesh.vertices.iter().copied())
 }
 
-/// Whether some vertex of `t` is in front of the source and projects inside the detector of `view`.
-fn lands_on_detector(t: &Target, view: &View) -> bool {
+/// Whether some of the world `points` is in front of the source and projects inside the detector of
+/// `view`.
+fn lands_on_detector(mut points: impl Iterator<Item = DVec3>, view: &View) -> bool {
     let k = &view.intrinsics;
     let (w, h) = (f64::from(k.width) - 0.5, f64::from(k.height) - 0.5);
-    vertices(t).any(|p| {
+    points.any(|p| {
         if view.depth(p) <= 0.0 {
             return false;
         }
@@ -143,20 +132,21 @@ fn lands_on_detector(t: &Target, view: &View) -> bool {
     })
 }
 
-/// The pixel range the target's vertices in front of the source project to, against the detector size.
-fn where_it_lands(t: &Target, view: &View) -> String {
+/// The pixel range the world `points` in front of the source project to, against the detector size, as
+/// a predicate ("project to …" or "lie behind the source").
+fn where_it_lands(points: impl Iterator<Item = DVec3>, view: &View) -> String {
     let (mut lo, mut hi) = (glam::DVec2::INFINITY, glam::DVec2::NEG_INFINITY);
-    for p in vertices(t).filter(|&p| view.depth(p) > 0.0) {
+    for p in points.filter(|&p| view.depth(p) > 0.0) {
         let q = view.project(p);
         lo = lo.min(q);
         hi = hi.max(q);
     }
     let k = &view.intrinsics;
     if lo.x > hi.x {
-        return "it lies behind the source".into();
+        return "lie behind the source".into();
     }
     format!(
-        "it projects to u ∈ [{:.1}, {:.1}], v ∈ [{:.1}, {:.1}] px, the detector is {} × {} px",
+        "project to u ∈ [{:.1}, {:.1}], v ∈ [{:.1}, {:.1}] px, the detector is {} × {} px",
         lo.x, hi.x, lo.y, hi.y, k.width, k.height
     )
 }

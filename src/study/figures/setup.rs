@@ -52,11 +52,7 @@ impl SetupSketch {
         let sv = g.detector.pixel_spacing_mm[1];
         let carm = cfg.carm().ok()?;
         let mut views = Vec::new();
-        for view in carm
-            .views
-            .iter()
-            .filter(|v| cfg.geometry.views.contains(&v.name))
-        {
+        for view in cfg.studied_views(&carm) {
             let k = &view.intrinsics;
             let outlines: Vec<(usize, Vec<DVec2>)> = targets
                 .iter()

@@ -133,11 +133,7 @@ pub fn section(
          |---|---|---|---|---|---|---|---|---|---|"
     );
     let mut magnification = Vec::new();
-    for view in carm
-        .views
-        .iter()
-        .filter(|v| cfg.geometry.views.contains(&v.name))
-    {
+    for view in cfg.studied_views(&carm) {
         let k = &view.intrinsics;
         let (point, dist) = view.aim();
         if let Some(s) = sp {
@@ -190,12 +186,7 @@ pub fn section(
     let _ = writeln!(md);
     super::layout::figures(md, figs, Section::Setup, n);
     if targets.iter().any(|t| t == SEGMENT_TARGET) {
-        let z: Vec<f64> = carm
-            .views
-            .iter()
-            .filter(|v| cfg.geometry.views.contains(&v.name))
-            .map(|v| v.aim().0.z)
-            .collect();
+        let z: Vec<f64> = cfg.studied_views(&carm).map(|v| v.aim().0.z).collect();
         let _ = writeln!(
             md,
             "\nEach single level sits where the views aim (its body centre at the world origin); the \
@@ -204,11 +195,7 @@ pub fn section(
             num(z.iter().sum::<f64>() / z.len().max(1) as f64, 1)
         );
     }
-    if let Some(v) = carm
-        .views
-        .iter()
-        .find(|v| cfg.geometry.views.contains(&v.name))
-    {
+    if let Some(v) = cfg.studied_views(&carm).next() {
         let _ = writeln!(md);
         let sdd = g.detector.k.is_none().then_some(g.detector.sdd_mm);
         super::grid::table(md, &cfg.perturbations, &v.intrinsics, sp, sdd);
@@ -227,11 +214,7 @@ pub fn section(
     );
     let mut rows = 0;
     for t in targets {
-        for view in carm
-            .views
-            .iter()
-            .filter(|v| cfg.geometry.views.contains(&v.name))
-        {
+        for view in cfg.studied_views(&carm) {
             let k = &view.intrinsics;
             let Some(f) = footprint(out, t, &view.name) else {
                 continue;

@@ -103,10 +103,8 @@ impl CostModel {
             .carm()
             .ok()
             .and_then(|c| {
-                let px: Vec<f64> = c
-                    .views
-                    .iter()
-                    .filter(|v| cfg.geometry.views.contains(&v.name))
+                let px: Vec<f64> = cfg
+                    .studied_views(&c)
                     .map(|v| f64::from(v.intrinsics.width) * f64::from(v.intrinsics.height))
                     .collect();
                 (!px.is_empty()).then(|| px.iter().sum::<f64>() / px.len() as f64 / 1e6)
