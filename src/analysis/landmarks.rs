@@ -27,20 +27,26 @@ pub struct LandmarkShift {
     pub perturbed_px: [f64; 2],
     /// `e_2D = ‖x_gt − x_err‖` (the paper's landmark projection error).
     pub shift_px: f64,
-    /// `H x_gt` with `H = K' K⁻¹`.
+    /// `H x_gt` with `H = K' K⁻¹`; NaN (JSON `null`) when the two views differ in pose (a physical
+    /// perturbation moved the source or the detector), where no homography maps one image to the other.
     pub predicted_px: [f64; 2],
-    /// `‖H x_gt − x_gt‖`.
+    /// `‖H x_gt − x_gt‖`; NaN when the views differ in pose.
     pub predicted_shift_px: f64,
 }
 
 /// Projects every landmark through both views and sets the homography prediction beside the
-/// measurement (they agree when the two views share the source and orientation).
+/// measurement (they agree when the two views share the source and orientation; when they do not, the
+/// prediction is NaN: parallax makes the shift depend on each landmark's depth).
 pub fn landmark_shifts(
     reference: &View,
     perturbed: &View,
     landmarks: &[Landmark],
 ) -> Vec<LandmarkShift> {
-    let h = reference.homography_to(perturbed);
+    let h = if reference.same_pose(perturbed) {
+        reference.homography_to(perturbed)
+    } else {
+        glam::DMat3::from_cols_array(&[f64::NAN; 9])
+    };
     landmarks
         .iter()
         .map(|l| {

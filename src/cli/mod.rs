@@ -34,7 +34,7 @@ enum Command {
     /// and landmarks.json.
     Phantom(phantom::Args),
     /// Render a DRR (thickness DRR of the phantom or mesh files, or CT volume DRR) under the reference or a
-    /// perturbed K.
+    /// perturbed calibration (K, or the focal spot and detector moved in mm and degrees).
     Render(Box<render::Args>),
     /// Compare a reference and a perturbed DRR: landmark shifts, contours, Dice/IoU, image similarity,
     /// difference heatmap (metrics.json, absdiff.tiff, heatmap.png).

@@ -59,8 +59,15 @@ pub struct Args {
     /// Geometry TOML file (see `spinedrr geometry`); default: the built-in non-isocentric C-arm.
     #[arg(long, value_name = "FILE")]
     geometry: Option<PathBuf>,
-    /// Intrinsic perturbation, comma-separated KEY=VALUE: df=300 (focal offset px), alpha=1.05 (focal
-    /// scale), dcx=20, dcy=-10 (piercing shift px), skew=1.5, sx=1.01, sy=0.99 (per-axis focal scale).
+    /// How the assumed calibration differs from the true one, comma-separated KEY=VALUE. Intrinsic
+    /// (K only, pose fixed): df=300 (focal offset px), alpha=1.05 (focal scale), dcx=20, dcy=-10
+    /// (piercing shift px), skew=1.5, sx=1.01, sy=0.99 (per-axis focal scale). Physical (mm and degrees,
+    /// in the view's camera axes: x along detector rows, y down the detector, z along the central ray;
+    /// these change K and the pose together and need a geometry with sdd_mm, not an explicit K):
+    /// src_dx_mm, src_dy_mm, src_dz_mm (focal spot moved), det_dx_mm, det_dy_mm, det_dz_mm (detector
+    /// moved), det_roll_deg (detector rotated about the central ray), det_tilt_u_deg, det_tilt_v_deg
+    /// (about its row and column axes through the piercing point). The sidecar records the rendered K,
+    /// world_to_camera and P = K [R | t] beside the reference's.
     #[arg(long, default_value = "none", value_name = "SPEC")]
     perturb: String,
     /// How rays find the surfaces: `raster` (exact edge functions per pixel, the fastest; a view with a

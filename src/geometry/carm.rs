@@ -154,7 +154,12 @@ impl GeometryConfig {
                     format!("'{}' appears twice", vc.name),
                 ));
             }
-            views.push(View::new(vc.name.clone(), k, vc.world_to_camera()?));
+            let view = View::new(vc.name.clone(), k, vc.world_to_camera()?);
+            // With an explicit K the detector's distance in mm is not known (K fixes only ratios).
+            views.push(match self.detector.k {
+                None => view.with_sdd(self.detector.sdd_mm),
+                Some(_) => view,
+            });
         }
         Ok(CArm { views })
     }

@@ -8,6 +8,7 @@ mod carm;
 mod intrinsics;
 pub mod outline;
 mod perturbation;
+pub mod physical;
 mod pose;
 mod view;
 
@@ -15,6 +16,6 @@ pub use carm::{CArm, DEFAULT_GEOMETRY_TOML, DetectorConfig, GeometryConfig, View
 pub use intrinsics::{
     Intrinsics, MAX_DETECTOR_PX, MAX_FOCAL_PX, MAX_PRINCIPAL_POINT_PX, MIN_FOCAL_PX,
 };
-pub use perturbation::Perturbation;
+pub use perturbation::{PERTURBATION_KEYS, PHYSICAL_KEYS, Perturbation};
 pub use pose::{RigidTransform, rotation_angle_deg, rotation_exp, rotation_log};
 pub use view::{Ray, View, apply_homography, box_corners};

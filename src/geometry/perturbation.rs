@@ -1,4 +1,6 @@
-//! Intrinsic perturbations: the paper's `K_perr` (focal scale/offset, piercing shift, skew, pixel scale).
+//! Geometry perturbations: the paper's `K_perr` (focal scale/offset, piercing shift, skew, pixel scale)
+//! and the physical errors of a C-arm (a displaced focal spot, a displaced or rotated detector; see
+//! [`super::physical`]), as one value with one spec syntax.
 
 use std::fmt;
 
@@ -7,10 +9,17 @@ use serde::{Deserialize, Serialize};
 use super::Intrinsics;
 use crate::{Error, Result};
 
-/// A change of the intrinsics with the extrinsics held fixed.
+/// How the assumed (calibrated) geometry of a view differs from the true one.
 ///
-/// Applied as `fx' = (α_f fx + Δf) · sx`, `fy' = (α_f fy + Δf) · sy`, `cx' = cx + Δcx`, `cy' = cy + Δcy`,
-/// `s' = s + skew`. `sx`, `sy` model an anisotropic pixel-spacing error (spacing scaled by `1/sx`, `1/sy`).
+/// The intrinsic part changes `K` with the extrinsics held fixed: `fx' = (α_f fx + Δf) · sx`,
+/// `fy' = (α_f fy + Δf) · sy`, `cx' = cx + Δcx`, `cy' = cy + Δcy`, `s' = s + skew`. `sx`, `sy` model an
+/// anisotropic pixel-spacing error (spacing scaled by `1/sx`, `1/sy`).
+///
+/// The physical part (fields ending in `_mm` and `_deg`) moves the assumed focal spot and detector
+/// relative to the true ones, in the true view's camera axes (x along detector rows = u, y down the
+/// detector = v, z along the central ray); it changes `K`, `R` and `t` together
+/// ([`super::physical::assumed_view`]). When both parts are given, the physical one applies first and
+/// the intrinsic one changes the `K` it produced.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Perturbation {
@@ -28,6 +37,21 @@ pub struct Perturbation {
     pub sx: f64,
     /// Scale of fy alone (pixel-spacing change along v).
     pub sy: f64,
+    /// Focal-spot displacement (mm) along the camera's x, y and z axes.
+    pub src_dx_mm: f64,
+    pub src_dy_mm: f64,
+    pub src_dz_mm: f64,
+    /// Detector displacement (mm) along the camera's x, y and z axes.
+    pub det_dx_mm: f64,
+    pub det_dy_mm: f64,
+    pub det_dz_mm: f64,
+    /// Detector rotation (degrees, right-handed) about the central ray, through the piercing point.
+    pub det_roll_deg: f64,
+    /// Detector tilt (degrees, right-handed) about its row axis (u, camera x), through the piercing point.
+    pub det_tilt_u_deg: f64,
+    /// Detector tilt (degrees, right-handed) about its column axis (v, camera y), through the piercing
+    /// point.
+    pub det_tilt_v_deg: f64,
 }
 
 impl Default for Perturbation {
@@ -37,7 +61,27 @@ impl Default for Perturbation {
 }
 
 /// The keys accepted by [`Perturbation::parse`].
-pub const PERTURBATION_KEYS: &str = "df, alpha, dcx, dcy, skew, sx, sy";
+pub const PERTURBATION_KEYS: &str = "df, alpha, dcx, dcy, skew, sx, sy (intrinsic, px); src_dx_mm, \
+     src_dy_mm, src_dz_mm, det_dx_mm, det_dy_mm, det_dz_mm, det_roll_deg, det_tilt_u_deg, det_tilt_v_deg \
+     (physical)";
+
+/// The physical keys, in spec order.
+pub const PHYSICAL_KEYS: [&str; 9] = [
+    "src_dx_mm",
+    "src_dy_mm",
+    "src_dz_mm",
+    "det_dx_mm",
+    "det_dy_mm",
+    "det_dz_mm",
+    "det_roll_deg",
+    "det_tilt_u_deg",
+    "det_tilt_v_deg",
+];
+
+/// Largest |displacement| (mm) and |rotation| (degrees) a physical key accepts: far beyond any C-arm
+/// calibration error, short of geometry that no longer images anything.
+pub const MAX_PHYSICAL_MM: f64 = 500.0;
+pub const MAX_PHYSICAL_DEG: f64 = 45.0;
 
 impl Perturbation {
     pub const NONE: Perturbation = Perturbation {
@@ -48,6 +92,15 @@ impl Perturbation {
         skew_px: 0.0,
         sx: 1.0,
         sy: 1.0,
+        src_dx_mm: 0.0,
+        src_dy_mm: 0.0,
+        src_dz_mm: 0.0,
+        det_dx_mm: 0.0,
+        det_dy_mm: 0.0,
+        det_dz_mm: 0.0,
+        det_roll_deg: 0.0,
+        det_tilt_u_deg: 0.0,
+        det_tilt_v_deg: 0.0,
     };
 
     /// A focal offset of `df` px.
@@ -67,7 +120,53 @@ impl Perturbation {
         }
     }
 
-    /// Parses a comma-separated spec such as `df=300,dcx=20,dcy=-10`. An empty string or `none` is no change.
+    /// Every key with its value and its no-change value, in spec order.
+    fn entries(&self) -> [(&'static str, f64, f64); 16] {
+        [
+            ("df", self.df_px, 0.0),
+            ("alpha", self.alpha_f, 1.0),
+            ("dcx", self.dcx_px, 0.0),
+            ("dcy", self.dcy_px, 0.0),
+            ("skew", self.skew_px, 0.0),
+            ("sx", self.sx, 1.0),
+            ("sy", self.sy, 1.0),
+            ("src_dx_mm", self.src_dx_mm, 0.0),
+            ("src_dy_mm", self.src_dy_mm, 0.0),
+            ("src_dz_mm", self.src_dz_mm, 0.0),
+            ("det_dx_mm", self.det_dx_mm, 0.0),
+            ("det_dy_mm", self.det_dy_mm, 0.0),
+            ("det_dz_mm", self.det_dz_mm, 0.0),
+            ("det_roll_deg", self.det_roll_deg, 0.0),
+            ("det_tilt_u_deg", self.det_tilt_u_deg, 0.0),
+            ("det_tilt_v_deg", self.det_tilt_v_deg, 0.0),
+        ]
+    }
+
+    /// The field a key names, or `None` for an unknown key.
+    fn slot(&mut self, key: &str) -> Option<&mut f64> {
+        Some(match key {
+            "df" => &mut self.df_px,
+            "alpha" => &mut self.alpha_f,
+            "dcx" => &mut self.dcx_px,
+            "dcy" => &mut self.dcy_px,
+            "skew" => &mut self.skew_px,
+            "sx" => &mut self.sx,
+            "sy" => &mut self.sy,
+            "src_dx_mm" => &mut self.src_dx_mm,
+            "src_dy_mm" => &mut self.src_dy_mm,
+            "src_dz_mm" => &mut self.src_dz_mm,
+            "det_dx_mm" => &mut self.det_dx_mm,
+            "det_dy_mm" => &mut self.det_dy_mm,
+            "det_dz_mm" => &mut self.det_dz_mm,
+            "det_roll_deg" => &mut self.det_roll_deg,
+            "det_tilt_u_deg" => &mut self.det_tilt_u_deg,
+            "det_tilt_v_deg" => &mut self.det_tilt_v_deg,
+            _ => return None,
+        })
+    }
+
+    /// Parses a comma-separated spec such as `df=300,dcx=20,dcy=-10` or `det_dz_mm=5,det_roll_deg=0.5`.
+    /// An empty string or `none` is no change.
     pub fn parse(spec: &str) -> Result<Self> {
         let mut p = Self::NONE;
         let spec = spec.trim();
@@ -103,24 +202,30 @@ impl Perturbation {
                     "must be finite",
                 ));
             }
-            let slot = match key {
-                "df" => &mut p.df_px,
-                "alpha" => &mut p.alpha_f,
-                "dcx" => &mut p.dcx_px,
-                "dcy" => &mut p.dcy_px,
-                "skew" => &mut p.skew_px,
-                "sx" => &mut p.sx,
-                "sy" => &mut p.sy,
-                other => {
-                    return Err(Error::invalid(
-                        "perturbation",
-                        format!("unknown key '{other}' (keys: {PERTURBATION_KEYS})"),
-                    ));
-                }
-            };
+            let slot = p.slot(key).ok_or_else(|| {
+                Error::invalid(
+                    "perturbation",
+                    format!("unknown key '{key}' (keys: {PERTURBATION_KEYS})"),
+                )
+            })?;
             *slot = value;
         }
-        for (name, v) in [("alpha", p.alpha_f), ("sx", p.sx), ("sy", p.sy)] {
+        p.check()?;
+        Ok(p)
+    }
+
+    /// Checks the domain of every key: positive scales, finite values, physical keys within
+    /// ±[`MAX_PHYSICAL_MM`] mm and ±[`MAX_PHYSICAL_DEG`]°.
+    pub fn check(&self) -> Result<()> {
+        for (name, v, _) in self.entries() {
+            if !v.is_finite() {
+                return Err(Error::invalid(
+                    format!("perturbation {name}"),
+                    format!("must be finite, got {v}"),
+                ));
+            }
+        }
+        for (name, v) in [("alpha", self.alpha_f), ("sx", self.sx), ("sy", self.sy)] {
             if v <= 0.0 {
                 return Err(Error::invalid(
                     format!("perturbation {name}"),
@@ -128,7 +233,22 @@ impl Perturbation {
                 ));
             }
         }
-        Ok(p)
+        for (name, v, _) in self.entries().into_iter().skip(7) {
+            let (limit, unit) = if name.ends_with("_deg") {
+                (MAX_PHYSICAL_DEG, "°")
+            } else {
+                (MAX_PHYSICAL_MM, " mm")
+            };
+            if v.abs() > limit {
+                return Err(Error::invalid(
+                    format!("perturbation {name}"),
+                    format!(
+                        "{v}{unit} is beyond ±{limit}{unit}, far past any C-arm calibration error"
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// True when the perturbation changes nothing.
@@ -136,8 +256,49 @@ impl Perturbation {
         *self == Self::NONE
     }
 
-    /// The perturbed intrinsics; fails if the result is not a valid camera (e.g. a focal length ≤ 0).
+    /// True when a physical key (focal spot or detector displacement, detector rotation) is set: the
+    /// perturbation then moves the camera, not only `K`.
+    pub fn is_physical(&self) -> bool {
+        self.entries()
+            .into_iter()
+            .skip(7)
+            .any(|(_, v, default)| v != default)
+    }
+
+    /// The intrinsic part alone (physical keys cleared).
+    pub fn intrinsic_part(&self) -> Perturbation {
+        Perturbation {
+            src_dx_mm: 0.0,
+            src_dy_mm: 0.0,
+            src_dz_mm: 0.0,
+            det_dx_mm: 0.0,
+            det_dy_mm: 0.0,
+            det_dz_mm: 0.0,
+            det_roll_deg: 0.0,
+            det_tilt_u_deg: 0.0,
+            det_tilt_v_deg: 0.0,
+            ..*self
+        }
+    }
+
+    /// The intrinsics under the intrinsic part alone; fails if the result is not a valid camera (e.g.
+    /// a focal length ≤ 0), or if a physical key is set (that changes the camera, not only `K`: use
+    /// [`crate::geometry::View::perturbed`]).
     pub fn apply(&self, k: &Intrinsics) -> Result<Intrinsics> {
+        if self.is_physical() {
+            return Err(Error::invalid(
+                "perturbation",
+                format!(
+                    "'{self}' moves the focal spot or the detector, which changes the camera's pose \
+                     as well as K; this analysis takes intrinsic perturbations only"
+                ),
+            ));
+        }
+        self.apply_intrinsic(k)
+    }
+
+    /// `K` changed by the intrinsic part (physical keys ignored).
+    pub(crate) fn apply_intrinsic(&self, k: &Intrinsics) -> Result<Intrinsics> {
         let out = Intrinsics {
             fx: (self.alpha_f * k.fx + self.df_px) * self.sx,
             fy: (self.alpha_f * k.fy + self.df_px) * self.sy,
@@ -155,19 +316,12 @@ impl Perturbation {
 impl fmt::Display for Perturbation {
     /// The canonical spec string (only non-default keys), parseable by [`Perturbation::parse`].
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let items: Vec<String> = [
-            ("df", self.df_px, 0.0),
-            ("alpha", self.alpha_f, 1.0),
-            ("dcx", self.dcx_px, 0.0),
-            ("dcy", self.dcy_px, 0.0),
-            ("skew", self.skew_px, 0.0),
-            ("sx", self.sx, 1.0),
-            ("sy", self.sy, 1.0),
-        ]
-        .iter()
-        .filter(|(_, v, default)| v != default)
-        .map(|(k, v, _)| format!("{k}={v}"))
-        .collect();
+        let items: Vec<String> = self
+            .entries()
+            .iter()
+            .filter(|(_, v, default)| v != default)
+            .map(|(k, v, _)| format!("{k}={v}"))
+            .collect();
         if items.is_empty() {
             write!(f, "none")
         } else {
@@ -187,6 +341,8 @@ mod tests {
             "df=300",
             "alpha=1.05,dcx=20,dcy=-10",
             "skew=1.5,sx=1.01,sy=0.99",
+            "src_dx_mm=2,det_dz_mm=-5,det_roll_deg=0.5",
+            "df=100,det_tilt_u_deg=1,det_tilt_v_deg=-2",
         ] {
             let p = Perturbation::parse(s).unwrap();
             assert_eq!(p.to_string(), s);
@@ -207,6 +363,9 @@ mod tests {
             "df=1,,dcx=2",
             "none,df=1",
             "=3",
+            "det_dz=5",
+            "det_dz_mm=600",
+            "det_roll_deg=90",
         ] {
             let e = Perturbation::parse(s).unwrap_err().to_string();
             assert!(e.contains("perturbation"), "{s}: {e}");

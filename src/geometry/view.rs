@@ -18,6 +18,11 @@ pub struct View {
     pub name: String,
     pub intrinsics: Intrinsics,
     pub world_to_camera: RigidTransform,
+    /// The source-to-detector distance (mm): the camera z of the detector plane, known when the view
+    /// came from a geometry file with a physical detector (`sdd_mm` and `pixel_spacing_mm`, not an
+    /// explicit `K`). Physical perturbations ([`Perturbation::is_physical`]) need it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sdd_mm: Option<f64>,
 }
 
 impl View {
@@ -30,6 +35,15 @@ impl View {
             name: name.into(),
             intrinsics,
             world_to_camera,
+            sdd_mm: None,
+        }
+    }
+
+    /// The same view with its source-to-detector distance (mm) known.
+    pub fn with_sdd(self, sdd_mm: f64) -> View {
+        View {
+            sdd_mm: Some(sdd_mm),
+            ..self
         }
     }
 
@@ -83,12 +97,29 @@ impl View {
         }
     }
 
-    /// The same view with perturbed intrinsics (extrinsics unchanged).
+    /// The assumed view under `p`: its physical part moves the camera
+    /// ([`super::physical::assumed_camera`], which needs [`View::sdd_mm`]), then its intrinsic part
+    /// changes `K` with the extrinsics fixed.
     pub fn perturbed(&self, p: &Perturbation) -> crate::Result<View> {
+        let moved = if p.is_physical() {
+            let sdd = self.sdd_mm.ok_or_else(|| {
+                crate::Error::invalid(
+                    "perturbation",
+                    format!(
+                        "'{p}' moves the focal spot or the detector in mm, but view '{}' has no \
+                         known source-to-detector distance (its geometry gives an explicit K): \
+                         give [detector] sdd_mm and pixel_spacing_mm instead of K",
+                        self.name
+                    ),
+                )
+            })?;
+            super::physical::assumed_camera(self, p, sdd)?
+        } else {
+            self.clone()
+        };
         Ok(View {
-            name: self.name.clone(),
-            intrinsics: p.apply(&self.intrinsics)?,
-            world_to_camera: self.world_to_camera,
+            intrinsics: p.apply_intrinsic(&moved.intrinsics)?,
+            ..moved
         })
     }
 
@@ -119,7 +150,16 @@ impl View {
                 ..k
             },
             world_to_camera: self.world_to_camera,
+            sdd_mm: self.sdd_mm,
         })
+    }
+
+    /// Whether `other` has this view's source and orientation (to 1e-9 mm and 1e-12), so that the two
+    /// images are related by the homography [`View::homography_to`].
+    pub fn same_pose(&self, other: &View) -> bool {
+        let (a, b) = (&self.world_to_camera, &other.world_to_camera);
+        (a.rotation - b.rotation).abs_diff_eq(DMat3::ZERO, 1e-12)
+            && (a.translation - b.translation).length() <= 1e-9
     }
 
     /// The homography `H = K' K⁻¹` that maps this view's pixels to those of `other` when both share

@@ -57,7 +57,19 @@ pub struct Sidecar {
     /// The unperturbed intrinsics of the view.
     #[serde(rename = "K_reference")]
     pub k_reference: [[f64; 3]; 3],
+    /// The extrinsics the image was rendered with (moved, if a physical perturbation was applied).
     pub world_to_camera: [[f64; 4]; 4],
+    /// The unperturbed extrinsics of the view (absent in sidecars older than the physical
+    /// perturbations, whose `world_to_camera` is always the reference's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world_to_camera_reference: Option<[[f64; 4]; 4]>,
+    /// The projection matrix the image was rendered with, `P = K [R | t]` (3 × 4, row-major, pixels
+    /// from homogeneous world mm).
+    #[serde(default, rename = "P", skip_serializing_if = "Option::is_none")]
+    pub p: Option<[[f64; 4]; 3]>,
+    /// The view's true source-to-detector distance (mm), when its geometry gives one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sdd_mm: Option<f64>,
     /// Units of the pixel values.
     pub units: String,
     pub view: String,
@@ -83,7 +95,8 @@ impl Sidecar {
         reference: &View,
         perturbation: &Perturbation,
     ) -> Result<Self> {
-        let k = perturbation.apply(&reference.intrinsics)?;
+        let rendered = reference.perturbed(perturbation)?;
+        let k = rendered.intrinsics;
         Ok(Sidecar {
             tool: "spinedrr".into(),
             version: crate::VERSION.into(),
@@ -92,7 +105,10 @@ impl Sidecar {
             height: k.height,
             k: k.matrix_rows(),
             k_reference: reference.intrinsics.matrix_rows(),
-            world_to_camera: reference.world_to_camera.to_rows(),
+            world_to_camera: rendered.world_to_camera.to_rows(),
+            world_to_camera_reference: Some(reference.world_to_camera.to_rows()),
+            p: Some(crate::geometry::physical::projection_matrix(&rendered)),
+            sdd_mm: reference.sdd_mm,
             units: units.into(),
             view: reference.name.clone(),
             perturbation_spec: perturbation.to_string(),
@@ -142,6 +158,22 @@ impl Sidecar {
         Ok(View::new(self.view.clone(), k, t))
     }
 
+    /// The unperturbed view the image's perturbation was applied to.
+    pub fn reference_view(&self, path: &Path) -> Result<View> {
+        let k = crate::geometry::Intrinsics::from_matrix(self.k_reference, self.width, self.height)
+            .map_err(|e| Error::format(path, format!("K_reference: {e}")))?;
+        let rows = self
+            .world_to_camera_reference
+            .unwrap_or(self.world_to_camera);
+        let t = crate::geometry::RigidTransform::from_rows(rows, "world_to_camera_reference")
+            .map_err(|e| Error::format(path, e.to_string()))?;
+        let v = View::new(self.view.clone(), k, t);
+        Ok(match self.sdd_mm {
+            Some(s) => v.with_sdd(s),
+            None => v,
+        })
+    }
+
     /// Writes the sidecar atomically as pretty JSON.
     pub fn write(&self, path: &Path) -> Result<()> {
         super::write_json(path, self)
@@ -174,15 +206,32 @@ mod tests {
     fn sidecar_round_trip() {
         let c = CArm::default_paper();
         let ap = c.view("ap").unwrap();
-        let p = Perturbation::parse("df=300,dcx=20").unwrap();
-        let s = Sidecar::new("drr", "mm", ap, &p).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("x.json");
-        s.write(&path).unwrap();
-        let back = Sidecar::read(&path).unwrap();
-        assert_eq!(back, s);
-        let v = back.rendered_view(&path).unwrap();
-        assert_eq!(v, ap.perturbed(&p).unwrap());
+        for spec in [
+            "df=300,dcx=20",
+            "df=50,det_dz_mm=8,src_dx_mm=-3,det_roll_deg=1",
+        ] {
+            let p = Perturbation::parse(spec).unwrap();
+            let s = Sidecar::new("drr", "mm", ap, &p).unwrap();
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("x.json");
+            s.write(&path).unwrap();
+            let back = Sidecar::read(&path).unwrap();
+            assert_eq!(back, s);
+            let v = back.rendered_view(&path).unwrap();
+            let pv = ap.perturbed(&p).unwrap();
+            assert_eq!(
+                (v.intrinsics, v.world_to_camera),
+                (pv.intrinsics, pv.world_to_camera)
+            );
+            assert_eq!(back.reference_view(&path).unwrap(), *ap);
+            // P projects like the rendered view.
+            let x = glam::DVec3::new(20.0, -10.0, 30.0);
+            let m = back.p.unwrap();
+            let h: [f64; 3] =
+                std::array::from_fn(|i| m[i][0] * x.x + m[i][1] * x.y + m[i][2] * x.z + m[i][3]);
+            let px = glam::DVec2::new(h[0] / h[2], h[1] / h[2]);
+            assert!((px - pv.project(x)).length() < 1e-9);
+        }
     }
 
     #[test]

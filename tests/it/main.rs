@@ -24,6 +24,7 @@ mod nifti_io;
 mod output_sets;
 mod outputs_spare_inputs;
 mod phantom_morphometry;
+mod physical_geometry;
 mod readers_hardening;
 mod real_ct;
 mod registration_cli;

@@ -297,7 +297,9 @@ fn landmarks(
     np: &NamedPerturbation,
     reference: &[Option<DVec2>],
 ) -> Result<Vec<LandmarkRow>> {
-    let h = view.homography_to(pv);
+    // The analytic prediction: the homography law when the perturbation keeps the pose, else (a
+    // physical perturbation) the landmark's exact projection through the assumed camera P'.
+    let h = view.same_pose(pv).then(|| view.homography_to(pv));
     let q = &np.perturbation;
     let mut rows = Vec::new();
     for (m, x_ref) in t.markers.iter().zip(reference) {
@@ -305,7 +307,10 @@ fn landmarks(
         let nan = DVec2::splat(f64::NAN);
         let x = x_ref.unwrap_or(nan);
         let y = measure(ctx, m, pv)?.unwrap_or(nan);
-        let p = apply_homography(&h, x);
+        let p = match &h {
+            Some(h) => apply_homography(h, x),
+            None => pv.project(m.position),
+        };
         rows.push(LandmarkRow {
             target: t.name.clone(),
             view: view.name.clone(),
