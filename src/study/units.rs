@@ -44,6 +44,10 @@ impl Unit {
     /// A file-name-safe, unique id.
     pub fn id(&self) -> String {
         let raw = match self {
+            Unit::Projection { target, view, p } if p.family == Family::Physical => {
+                let spec = p.perturbation.to_string().replace(['=', ','], "");
+                format!("proj_{target}_{view}_physical_{spec}")
+            }
             Unit::Projection { target, view, p } => {
                 let q = &p.perturbation;
                 format!(
@@ -130,11 +134,13 @@ pub fn derive_seed(seed: u64, key: &str, index: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The projection perturbations of the grid, in table order ([`PerturbationGrid::cells`]).
+/// The projection perturbations of the grid, in table order ([`PerturbationGrid::cells`]); the
+/// physical family only with the projection experiment (its table holds projection metrics).
 pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
     cfg.perturbations
         .cells()
         .into_iter()
+        .filter(|(family, _)| *family != Family::Physical || cfg.runs(Experiment::Projection))
         .map(|(family, perturbation)| NamedPerturbation {
             family,
             perturbation,

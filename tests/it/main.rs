@@ -41,6 +41,7 @@ mod study_folder_safety;
 mod study_hardening;
 mod study_intensity;
 mod study_meshes;
+mod study_physical;
 mod study_physics;
 mod study_report;
 mod study_resume;

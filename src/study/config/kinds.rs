@@ -301,6 +301,8 @@ pub enum Family {
     Skew,
     /// Anisotropic pixel scale alone.
     Scale,
+    /// A physical geometry error alone (focal spot or detector moved, detector rotated).
+    Physical,
 }
 
 impl Family {
@@ -312,6 +314,7 @@ impl Family {
             Family::Joint => "joint",
             Family::Skew => "skew",
             Family::Scale => "scale",
+            Family::Physical => "physical",
         }
     }
 
@@ -323,6 +326,7 @@ impl Family {
             Family::Joint => "perturbations.df_px / perturbations.piercing_px",
             Family::Skew => "perturbations.skew_px",
             Family::Scale => "perturbations.pixel_scale",
+            Family::Physical => "perturbations.physical",
         }
     }
 }

@@ -64,7 +64,12 @@ impl StudyConfig {
             + nonzero
             + g.df_px.len().min(nonzero)
             + g.skew_px.len()
-            + g.pixel_scale.len());
+            + g.pixel_scale.len()
+            + if self.runs(Experiment::Projection) {
+                g.physical.keys().iter().map(|(_, v)| v.len()).sum()
+            } else {
+                0
+            });
         let projection_units =
             if self.runs(Experiment::Projection) || self.runs(Experiment::Landmarks) {
                 n_targets

@@ -18,6 +18,7 @@ pub mod dataset;
 mod intensity;
 mod kinds;
 mod limits;
+mod physical;
 mod validate;
 
 pub use anatomy::{AnatomyConfig, CtTarget, MeshTarget};
@@ -27,6 +28,7 @@ pub use kinds::{Experiment, Family, RegistrationMethod};
 pub use limits::{
     MAX_INTENSITY_STARTS, MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate,
 };
+pub use physical::{PhysicalGrid, cell_key as physical_cell_key};
 
 /// The default landmark observation noise σ (px per axis): sub-pixel localisation of a marker's centre
 /// on a 0.3 mm detector (about 0.15 mm), so the registration trials of a cell differ and their mean has
@@ -83,6 +85,9 @@ pub struct PerturbationGrid {
     pub skew_px: Vec<f64>,
     /// Anisotropic pixel-scale factors applied to fy (family `scale`).
     pub pixel_scale: Vec<f64>,
+    /// `[perturbations.physical]`: focal spot and detector displacements (mm) and detector rotations
+    /// (degrees), each value alone (family `physical`).
+    pub physical: PhysicalGrid,
 }
 
 impl PerturbationGrid {
@@ -127,6 +132,14 @@ impl PerturbationGrid {
             };
             (Family::Scale, q)
         }));
+        // `validate` refuses a physical grid whose cells fail to parse, before any cell is used.
+        out.extend(
+            self.physical
+                .cells()
+                .unwrap_or_default()
+                .into_iter()
+                .map(|q| (Family::Physical, q)),
+        );
         out
     }
 }
@@ -202,6 +215,7 @@ impl Default for PerturbationGrid {
             // SDD error of 7–27 mm at fy = 4500 px); the report's Setup states them so.
             skew_px: vec![2.0, 5.0, 10.0],
             pixel_scale: vec![1.005, 1.01, 1.02],
+            physical: PhysicalGrid::default(),
         }
     }
 }
@@ -263,6 +277,7 @@ impl StudyConfig {
             perturbations: PerturbationGrid {
                 df_px: vec![100.0, 500.0],
                 piercing_px: vec![0.0, 50.0],
+                physical: self.perturbations.physical.first_only(),
                 ..self.perturbations
             },
             registration: RegistrationConfig {

@@ -118,9 +118,10 @@ impl StudyConfig {
             .map(|(family, q)| (family.config_keys(), q))
             .collect();
         let views: Vec<_> = self.studied_views(carm).collect();
+        self.perturbations.physical.cells()?;
         for (key, q) in &cells {
             for v in &views {
-                q.apply(&v.intrinsics).map_err(|e| {
+                v.perturbed(q).map_err(|e| {
                     Error::invalid(*key, format!("perturbation {q} in view '{}': {e}", v.name))
                 })?;
             }

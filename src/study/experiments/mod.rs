@@ -9,6 +9,7 @@ mod calibration_intensity;
 mod ct;
 mod intensity;
 mod on_detector;
+mod physical;
 mod projection;
 pub use projection::OUTLINE_KEY;
 mod registration;

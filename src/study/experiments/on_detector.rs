@@ -7,7 +7,6 @@ use glam::DVec3;
 use super::{Context, Target};
 use crate::geometry::View;
 use crate::study::config::Experiment;
-use crate::study::schema::Family;
 use crate::study::units::projection_perturbations;
 use crate::{Error, Result};
 
@@ -30,7 +29,7 @@ impl Context {
                     let pv = view.perturbed(&np.perturbation)?;
                     if !lands_on_detector(vertices(t), &pv) {
                         return Err(Error::invalid(
-                            family_keys(np.family),
+                            np.family.config_keys(),
                             format!(
                                 "target '{}' is not on the detector in view '{}' under perturbation \
                                  {} (family {}): its vertices {}",
@@ -149,15 +148,4 @@ fn where_it_lands(points: impl Iterator<Item = DVec3>, view: &View) -> String {
         "project to u ∈ [{:.1}, {:.1}], v ∈ [{:.1}, {:.1}] px, the detector is {} × {} px",
         lo.x, hi.x, lo.y, hi.y, k.width, k.height
     )
-}
-
-/// The config keys a perturbation family's values come from.
-fn family_keys(f: Family) -> &'static str {
-    match f {
-        Family::Focal => "perturbations.df_px",
-        Family::Piercing => "perturbations.piercing_px",
-        Family::Joint => "perturbations.df_px / perturbations.piercing_px",
-        Family::Skew => "perturbations.skew_px",
-        Family::Scale => "perturbations.pixel_scale",
-    }
 }

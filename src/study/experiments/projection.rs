@@ -53,8 +53,14 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
         };
         tm.time(Phase::Metrics, 1, || -> Result<()> {
             let silhouettes = (a, &b);
-            rows.projection
-                .push(whole_object(ctx, t, view, np, silhouettes, images)?);
+            let whole = whole_object(ctx, t, view, np, silhouettes, images)?;
+            if np.family == Family::Physical {
+                // Its own table: the intrinsic families' tables and analyses stay as they were.
+                rows.physical
+                    .push(super::physical::row(t, view, &pv, np, &whole)?);
+                return Ok(());
+            }
+            rows.projection.push(whole);
             rows.structures = structures(t, view, np, a, &b)?;
             let q = &np.perturbation;
             let is_heatmap_df = ctx.cfg.heatmaps_df_px.contains(&q.df_px);
@@ -79,7 +85,7 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
             Ok(())
         })?;
     }
-    if ctx.cfg.runs(Experiment::Landmarks) {
+    if ctx.cfg.runs(Experiment::Landmarks) && np.family != Family::Physical {
         rows.landmarks = landmarks(ctx, t, view, &pv, np, &reference.markers)?;
     }
     Ok(rows)

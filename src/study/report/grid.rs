@@ -13,7 +13,7 @@ fn list(v: &[f64], show: impl Fn(f64) -> String) -> String {
 }
 
 /// A number with at most `d` decimals and no trailing zeros.
-fn short(x: f64, d: usize) -> String {
+pub(super) fn short(x: f64, d: usize) -> String {
     let s = format!("{x:.d$}");
     if s.contains('.') {
         s.trim_end_matches('0').trim_end_matches('.').to_string()
@@ -23,7 +23,7 @@ fn short(x: f64, d: usize) -> String {
 }
 
 /// `short` with a sign: `+0.5`, `−1.96` (a minus sign, not a hyphen).
-fn signed(x: f64, d: usize) -> String {
+pub(super) fn signed(x: f64, d: usize) -> String {
     let s = short(x.abs(), d);
     if s.trim_matches(|c| c == '0' || c == '.').is_empty() {
         s
@@ -157,6 +157,7 @@ mod tests {
             piercing_px: vec![0.0, 50.0],
             skew_px: vec![4.5],
             pixel_scale: vec![1.02],
+            physical: crate::study::config::PhysicalGrid::none(),
         };
         let mut md = String::new();
         table(&mut md, &g, &k, Some([0.3, 0.3]), Some(1350.0));

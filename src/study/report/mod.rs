@@ -10,6 +10,7 @@ mod grid;
 mod intensity;
 pub mod latex;
 mod layout;
+mod physical;
 mod registration;
 mod setup;
 mod shift_ratio;
@@ -67,6 +68,7 @@ configuration is `study.toml`.\n",
     let experiments = [
         (!tables.projection.is_empty(), PROJECTION),
         (!tables.landmarks.is_empty(), LANDMARKS),
+        (!tables.physical.is_empty(), physical::HEADING),
         (!tables.registration_summary.is_empty(), REGISTRATION),
         (!tables.calibration.is_empty(), calibration::HEADING),
         (!tables.intensity_summary.is_empty(), intensity::HEADING),
@@ -123,6 +125,8 @@ configuration is `study.toml`.\n",
         layout::figures(&mut md, &figs, Section::Landmarks, &mut n);
         landmark_section(&mut md, &tables.landmarks, &paper, &first);
     }
+    let carm = cfg.carm().ok();
+    physical::section(&mut md, &tables.physical, carm.as_ref(), &first);
     if !tables.registration_summary.is_empty() {
         let _ = writeln!(md, "## {REGISTRATION}\n");
         layout::figures(&mut md, &figs, Section::Registration, &mut n);

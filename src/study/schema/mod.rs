@@ -9,6 +9,7 @@ mod calibration;
 pub mod cohort;
 mod intensity;
 pub mod num;
+mod physical;
 mod tables;
 
 use serde::{Deserialize, Serialize};
@@ -20,6 +21,7 @@ pub use calibration::{
     CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, TOLERANCE_THRESHOLDS_PX,
 };
 pub use intensity::{IntensityBinRow, IntensityRow, IntensitySummaryRow};
+pub use physical::PhysicalRow;
 pub use tables::{
     SOLVER_SPREAD, StudyTables, TableRow, ci95_half_width, mean_sd, read_rows, write_rows,
 };
@@ -216,4 +218,6 @@ pub struct UnitRows {
     pub calibration: Vec<CalibrationRow>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub intensity: Vec<IntensityRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub physical: Vec<PhysicalRow>,
 }

@@ -7,7 +7,7 @@ use serde::de::DeserializeOwned;
 
 use super::{
     CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, IntensityBinRow,
-    IntensityRow, IntensitySummaryRow, LandmarkRow, ProjectionRow, RegistrationRow,
+    IntensityRow, IntensitySummaryRow, LandmarkRow, PhysicalRow, ProjectionRow, RegistrationRow,
     RegistrationSummaryRow, StructureRow, UnitRows,
 };
 use crate::io::write_atomic_bytes;
@@ -51,6 +51,9 @@ impl TableRow for IntensityBinRow {
 impl TableRow for IntensitySummaryRow {
     const TABLE: &'static str = "intensity_registration_summary";
 }
+impl TableRow for PhysicalRow {
+    const TABLE: &'static str = "physical";
+}
 
 fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
     dir.join(format!("{}.csv", R::TABLE))
@@ -93,6 +96,7 @@ pub struct StudyTables {
     pub intensity: Vec<IntensityRow>,
     pub intensity_bins: Vec<IntensityBinRow>,
     pub intensity_summary: Vec<IntensitySummaryRow>,
+    pub physical: Vec<PhysicalRow>,
 }
 
 impl StudyTables {
@@ -107,6 +111,7 @@ impl StudyTables {
             t.registration.extend(u.registration);
             t.calibration.extend(u.calibration);
             t.intensity.extend(u.intensity);
+            t.physical.extend(u.physical);
         }
         t.registration_summary = summarize_registration(&t.registration);
         t.calibration_tolerance = super::calibration::tolerance(&t.calibration);
@@ -137,6 +142,7 @@ impl StudyTables {
         put(dir, &self.intensity, &mut n)?;
         put(dir, &self.intensity_bins, &mut n)?;
         put(dir, &self.intensity_summary, &mut n)?;
+        put(dir, &self.physical, &mut n)?;
         Ok(n)
     }
 
@@ -155,6 +161,7 @@ impl StudyTables {
             intensity: read_rows(&dir)?,
             intensity_bins: read_rows(&dir)?,
             intensity_summary: read_rows(&dir)?,
+            physical: read_rows(&dir)?,
         })
     }
 }

@@ -1,0 +1,55 @@
+//! `physical.csv`: the projection metrics of the physical geometry errors (family `physical`), one row
+//! per (target, view, cell), beside the assumed camera each error amounts to.
+
+use serde::{Deserialize, Serialize};
+
+use super::num;
+
+/// One physical cell of one target in one view (table `physical.csv`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhysicalRow {
+    pub target: String,
+    pub view: String,
+    /// The physical key (`det_dz_mm`, …) and its value (mm or degrees, as the key's suffix says).
+    pub key: String,
+    #[serde(with = "num")]
+    pub value: f64,
+    /// The assumed camera's intrinsics (px), as the QR of the moved detector gives them.
+    #[serde(with = "num")]
+    pub fx_px: f64,
+    #[serde(with = "num")]
+    pub fy_px: f64,
+    #[serde(with = "num")]
+    pub skew_px: f64,
+    #[serde(with = "num")]
+    pub cx_px: f64,
+    #[serde(with = "num")]
+    pub cy_px: f64,
+    /// How far the assumed camera centre (the source) moved (mm) and its axes turned (degrees).
+    #[serde(with = "num")]
+    pub camera_moved_mm: f64,
+    #[serde(with = "num")]
+    pub camera_turned_deg: f64,
+    /// The reference or the perturbed silhouette touches the detector's edge.
+    pub cut_by_edge: bool,
+    #[serde(with = "num")]
+    pub dice: f64,
+    #[serde(with = "num")]
+    pub iou: f64,
+    #[serde(with = "num")]
+    pub chamfer_mean_px: f64,
+    #[serde(with = "num")]
+    pub hd95_px: f64,
+    /// NCC over the anatomy's region (as in `projection.csv`).
+    #[serde(with = "num")]
+    pub ncc: f64,
+    /// Landmarks whose reference projection lies on the detector, and their shift between the true and
+    /// the assumed camera (exact projections), in px and in mm at the detector (px × pixel pitch).
+    pub landmarks: usize,
+    #[serde(with = "num")]
+    pub landmark_shift_mean_px: f64,
+    #[serde(with = "num")]
+    pub landmark_shift_max_px: f64,
+    #[serde(with = "num")]
+    pub landmark_shift_mean_mm: f64,
+}

@@ -1,0 +1,108 @@
+//! The study's physical family (`[perturbations.physical]`): its own table, analytic checks of the
+//! assumed cameras and of the landmark shift of a detector moved in its plane, the report's section,
+//! and a geometry without a known SDD refused before any work.
+
+use std::path::Path;
+
+use spinedrr::study::StudyTables;
+use spinedrr::study::schema::Family;
+
+use crate::common::Spinedrr;
+
+const CONFIG: &str = "experiments = [\"projection\"]\n\
+    [anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.0\nmarker_radius_mm = 4.0\n\
+    [perturbations]\ndf_px = [100.0]\npiercing_px = [0.0]\nskew_px = []\npixel_scale = []\n\
+    [perturbations.physical]\nsrc_dx_mm = [4.0]\ndet_dx_mm = [3.0]\ndet_dz_mm = [20.0]\n\
+    det_roll_deg = [1.5]\n";
+
+fn study(dir: &Path, config: &str) -> (bool, String) {
+    let cfg = dir.join("study.toml");
+    std::fs::write(&cfg, config).unwrap();
+    Spinedrr::new()
+        .args(["study", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .outcome()
+}
+
+#[test]
+fn physical_cells_have_their_own_table_analytic_cameras_and_a_report_section() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, err) = study(dir.path(), CONFIG);
+    assert!(ok, "{err}");
+    let out = dir.path().join("out");
+    let t = StudyTables::load(&out).unwrap();
+    // The intrinsic tables hold no physical row; the physical table one per (view, cell).
+    assert!(t.projection.iter().all(|r| r.family != Family::Physical));
+    assert_eq!(t.physical.len(), 2 * 4);
+    // The default detector: SDD 1350 mm, 0.3 mm pixels, fx 4500 px, piercing point 511.5.
+    let (s, p, f, c) = (1350.0, 0.3, 4500.0, 511.5);
+    for r in &t.physical {
+        let at = |x: f64, y: f64| (x - y).abs() < 1e-6;
+        match r.key.as_str() {
+            // The focal spot 4 mm along u: the camera moves 4 mm and the foot of its perpendicular
+            // 4/p px along u.
+            "src_dx_mm" => {
+                assert!(at(r.camera_moved_mm, 4.0) && at(r.cx_px, c + 4.0 / p) && at(r.fx_px, f))
+            }
+            // The detector 3 mm along u: every landmark slides by exactly 3/p px.
+            "det_dx_mm" => {
+                assert!(at(r.cx_px, c - 3.0 / p) && at(r.camera_moved_mm, 0.0));
+                assert!(
+                    at(r.landmark_shift_mean_px, 3.0 / p) && at(r.landmark_shift_max_px, 3.0 / p),
+                    "{r:?}"
+                );
+                assert!(at(r.landmark_shift_mean_mm, 3.0), "{r:?}");
+                assert!(r.landmarks > 0);
+            }
+            // 20 mm farther from the source: focal lengths × (S + 20)/S, nothing else.
+            "det_dz_mm" => assert!(at(r.fx_px, f * (s + 20.0) / s) && at(r.cx_px, c)),
+            // Rolled 1.5°: K as it was, the camera turned 1.5°.
+            "det_roll_deg" => assert!(at(r.fx_px, f) && at(r.camera_turned_deg, 1.5)),
+            other => panic!("unexpected key {other}"),
+        }
+        assert!(r.dice < 1.0 && r.dice > 0.5, "{r:?}");
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("## Physical geometry errors"));
+    assert!(
+        report.contains(
+            "| det_dx_mm = 3 | AP | fx 0, fy 0, cx −10, cy 0 | 0 / 0 | 10 px = 3 mm (10 px)"
+        ),
+        "{report}"
+    );
+    assert!(out.join("tables/physical.csv").is_file());
+}
+
+#[test]
+fn a_physical_grid_needs_a_geometry_with_a_known_sdd() {
+    let dir = tempfile::tempdir().unwrap();
+    let geometry = dir.path().join("k.toml");
+    std::fs::write(
+        &geometry,
+        "[detector]\nwidth = 256\nheight = 256\npixel_spacing_mm = [1.2, 1.2]\nsdd_mm = 1350.0\n\
+         K = [[1125.0, 0.0, 127.5], [0.0, 1125.0, 127.5], [0.0, 0.0, 1.0]]\n\
+         [[view]]\nname = \"ap\"\nsource_mm = [0.0, -1000.0, 0.0]\ntarget_mm = [0.0, 0.0, 0.0]\n\
+         [[view]]\nname = \"lat\"\nsource_mm = [-900.0, -25.0, 20.0]\ntarget_mm = [0.0, -25.0, 20.0]\n",
+    )
+    .unwrap();
+    let config = format!("[geometry]\nfile = \"{}\"\n{CONFIG}", geometry.display()).replacen(
+        "experiments = [\"projection\"]\n",
+        "",
+        1,
+    );
+    let config = format!("experiments = [\"projection\"]\n{config}");
+    let started = std::time::Instant::now();
+    let (ok, err) = study(dir.path(), &config);
+    assert!(
+        !ok,
+        "a physical grid on an explicit-K geometry was accepted"
+    );
+    assert!(
+        err.contains("perturbations.physical") && err.contains("source-to-detector distance"),
+        "{err}"
+    );
+    assert!(!dir.path().join("out/tables").exists());
+    assert!(started.elapsed().as_secs() < 30);
+}
