@@ -40,6 +40,7 @@ pub struct VertebraShape {
     pub params: ShapeParams,
     parts: Vec<(Structure, Placed)>,
     landmarks: BTreeMap<String, DVec3>,
+    pedicle_targets: BTreeMap<String, DVec3>,
 }
 
 /// Where a level's superior facet joint sits (local x for the right side, y): above the medial part of
@@ -146,6 +147,7 @@ impl VertebraShape {
         let lamina_up = DVec3::new(0.0, slope.sin(), slope.cos());
         let round = s.process_rounding_mm;
         let mut pedicle_centres = [DVec3::ZERO; 2];
+        let mut pedicle_targets = BTreeMap::new();
         for (k, side) in [-1.0_f64, 1.0].into_iter().enumerate() {
             let pedicle = if side < 0.0 {
                 Structure::PedicleLeft
@@ -178,6 +180,14 @@ impl VertebraShape {
             pedicle_centres[k] = c + dir * t_mark;
             // Lamina: from the pedicle's posterior end to just past the midline.
             let end = c + dir * (lp / 2.0 / theta.cos());
+            // A planned screw along the pedicle axis: entry at the pedicle's posterior end, through the
+            // isthmus centre, tip in the anterior third of the body (60 % of its half-depth anterior of
+            // the centre).
+            let tip_t = (0.6 * d - c.y) / theta.cos();
+            let name = if side < 0.0 { "left" } else { "right" };
+            for (what, p) in [("entry", end), ("isthmus", c), ("tip", c - dir * tip_t)] {
+                pedicle_targets.insert(format!("{name}_pedicle_{what}"), p);
+            }
             // The oblique bar's anterior face at the midline (its half-thickness over the cosine of its
             // angle to the coronal plane, plus ~1 mm that the fillet between the two laminae fills) lies on
             // the canal's posterior border.
@@ -266,6 +276,7 @@ impl VertebraShape {
             params: s,
             parts,
             landmarks: BTreeMap::new(),
+            pedicle_targets,
         };
         // The spinous tip is the process's most posterior point: the tip ellipsoid's support point in −y.
         let axes = tip_frame.axes;
@@ -362,6 +373,20 @@ impl VertebraShape {
     /// The named landmarks in the local frame (exact, from the parameters).
     pub fn local_landmarks(&self) -> &BTreeMap<String, DVec3> {
         &self.landmarks
+    }
+
+    /// The clinical target points of a planned pedicle screw on each side (`{left,right}_pedicle_entry`,
+    /// `_isthmus`, `_tip`: the pedicle axis's posterior end, the isthmus centre, and the tip in the
+    /// anterior third of the body), mapped to world by `to_world`.
+    pub fn pedicle_targets(&self, to_world: impl Fn(DVec3) -> DVec3) -> Landmarks {
+        Landmarks {
+            level: self.level.name().to_string(),
+            points: self
+                .pedicle_targets
+                .iter()
+                .map(|(k, &v)| (k.clone(), to_world(v)))
+                .collect(),
+        }
     }
 
     /// Landmarks mapped to world by `to_world`.

@@ -15,6 +15,7 @@ mod pnp;
 mod problem;
 mod request;
 mod synth;
+pub mod tracking;
 
 use glam::DVec3;
 use serde::Serialize;

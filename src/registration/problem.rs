@@ -121,6 +121,16 @@ impl RegistrationProblem {
         Ok(out)
     }
 
+    /// The same observations with every view replaced (the solver's *assumed* camera: a physical
+    /// perturbation changes the pose as well as K).
+    pub fn with_views(&self, f: impl Fn(&View) -> Result<View>) -> Result<Self> {
+        let mut out = self.clone();
+        for ov in &mut out.views {
+            ov.view = f(&ov.view)?;
+        }
+        Ok(out)
+    }
+
     /// Only the named views (in the given order).
     pub fn select_views(&self, names: &[String]) -> Result<Self> {
         let mut out = self.clone();

@@ -141,6 +141,7 @@ pub fn restrict_config(cfg: &StudyConfig, units: &[&Unit]) -> StudyConfig {
                 Unit::Calibration(_) => &calibration,
                 // Built from the phantom by the experiment itself.
                 Unit::Intensity(c) => &c.target,
+                Unit::Tracking(c) => &c.target,
             };
             groups
                 .get(t)

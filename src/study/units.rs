@@ -4,6 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use super::config::{
     CalibrationCell, Experiment, IntensityCell, RegistrationMethod, SEGMENT_TARGET, StudyConfig,
+    TrackingCell,
 };
 use super::schema::{Family, UnitRows};
 use crate::Result;
@@ -38,6 +39,8 @@ pub enum Unit {
     Calibration(CalibrationCell),
     /// Every start of one initial-mTRE bin of one intensity-registration cell.
     Intensity(IntensityCell),
+    /// One tracking cell: a target registered at two poses under one perturbation.
+    Tracking(TrackingCell),
 }
 
 impl Unit {
@@ -65,6 +68,7 @@ impl Unit {
             } => format!("reg_{target}_{method}_df{df_px}_p{piercing_px}_t{first}"),
             Unit::Calibration(c) => c.id(),
             Unit::Intensity(c) => c.id(),
+            Unit::Tracking(c) => c.id(),
         };
         raw.replace('+', "_")
     }
@@ -90,6 +94,7 @@ impl Unit {
             ),
             Unit::Calibration(c) => c.describe(),
             Unit::Intensity(c) => c.describe(),
+            Unit::Tracking(c) => c.describe(),
         }
     }
 
@@ -99,6 +104,7 @@ impl Unit {
         match self {
             Unit::Projection { target, .. } | Unit::Registration { target, .. } => Some(target),
             Unit::Intensity(c) => Some(&c.target),
+            Unit::Tracking(c) => Some(&c.target),
             Unit::Calibration(_) => None,
         }
     }
@@ -219,6 +225,21 @@ pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
                 .into_iter()
                 .map(Unit::Intensity),
         );
+    }
+    if cfg.runs(Experiment::Tracking) {
+        let cells = cfg.tracking.perturbations(cfg);
+        for target in targets(cfg) {
+            for method in &cfg.tracking.methods {
+                for (family, perturbation) in &cells {
+                    units.push(Unit::Tracking(TrackingCell {
+                        target: target.clone(),
+                        method: *method,
+                        family: *family,
+                        perturbation: *perturbation,
+                    }));
+                }
+            }
+        }
     }
     Ok(units)
 }

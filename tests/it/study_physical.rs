@@ -9,7 +9,7 @@ use spinedrr::study::schema::Family;
 
 use crate::common::Spinedrr;
 
-const CONFIG: &str = "experiments = [\"projection\"]\n\
+const CONFIG: &str = "experiments = [\"projection\", \"tracking\"]\n\
     [anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.0\nmarker_radius_mm = 4.0\n\
     [perturbations]\ndf_px = [100.0]\npiercing_px = [0.0]\nskew_px = []\npixel_scale = []\n\
     [perturbations.physical]\nsrc_dx_mm = [4.0]\ndet_dx_mm = [3.0]\ndet_dz_mm = [20.0]\n\
@@ -73,6 +73,21 @@ fn physical_cells_have_their_own_table_analytic_cameras_and_a_report_section() {
         "{report}"
     );
     assert!(out.join("tables/physical.csv").is_file());
+
+    // Tracking (the default [tracking]): L1 × 3 methods × (Δf 100 and 500 + the 4 physical cells), one
+    // noise-free row each.
+    assert_eq!(t.tracking.len(), 3 * 6);
+    for r in &t.tracking {
+        assert!(r.converged, "{r:?}");
+        // A detector rolled about its central ray turns that view's camera about its own centre: for
+        // one view, a rigid motion of the whole C-arm, which cancels from the relative pose.
+        if r.perturbation == "det_roll_deg=1.5" && r.method.views().len() == 1 {
+            assert!(r.rel_tre_mm < 1e-6 && r.abs_tre_mm > 0.05, "{r:?}");
+        }
+        // The motion: 10 mm and 5° (the default [tracking]).
+        assert!((r.motion_mm - 10.0).abs() < 1e-12 && (r.motion_deg - 5.0).abs() < 1e-9);
+    }
+    assert!(report.contains("## Relative (tracking) error"));
 }
 
 #[test]
@@ -87,12 +102,12 @@ fn a_physical_grid_needs_a_geometry_with_a_known_sdd() {
          [[view]]\nname = \"lat\"\nsource_mm = [-900.0, -25.0, 20.0]\ntarget_mm = [0.0, -25.0, 20.0]\n",
     )
     .unwrap();
-    let config = format!("[geometry]\nfile = \"{}\"\n{CONFIG}", geometry.display()).replacen(
-        "experiments = [\"projection\"]\n",
-        "",
-        1,
+    // The experiments line first (a top-level key), then the geometry table, then the rest.
+    let (experiments, rest) = CONFIG.split_once('\n').unwrap();
+    let config = format!(
+        "{experiments}\n[geometry]\nfile = \"{}\"\n{rest}",
+        geometry.display()
     );
-    let config = format!("experiments = [\"projection\"]\n{config}");
     let started = std::time::Instant::now();
     let (ok, err) = study(dir.path(), &config);
     assert!(

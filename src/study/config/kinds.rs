@@ -26,25 +26,29 @@ pub enum Experiment {
     Calibration,
     /// Intensity-based 2D–3D registration (DRR against fixed image) under perturbed intrinsics.
     IntensityRegistration,
+    /// Relative (tracking) error: one target registered at two poses with the same wrong geometry.
+    Tracking,
 }
 
 impl Experiment {
     /// Every experiment.
-    pub const ALL: [Experiment; 5] = [
+    pub const ALL: [Experiment; 6] = [
         Experiment::Projection,
         Experiment::Landmarks,
         Experiment::Registration,
         Experiment::Calibration,
         Experiment::IntensityRegistration,
+        Experiment::Tracking,
     ];
 
-    /// The experiments of the default config: all five (calibration on a small grid).
-    pub const DEFAULT: [Experiment; 5] = [
+    /// The experiments of the default config: all six (calibration on a small grid).
+    pub const DEFAULT: [Experiment; 6] = [
         Experiment::Projection,
         Experiment::Landmarks,
         Experiment::Registration,
         Experiment::IntensityRegistration,
         Experiment::Calibration,
+        Experiment::Tracking,
     ];
 
     /// The config spelling.
@@ -55,6 +59,7 @@ impl Experiment {
             Experiment::Registration => "registration",
             Experiment::Calibration => "calibration",
             Experiment::IntensityRegistration => "intensity-registration",
+            Experiment::Tracking => "tracking",
         }
     }
 }

@@ -27,7 +27,8 @@ pub struct WorkEstimate {
     pub registration_units: u64,
     /// Registration trials: cells × trials.
     pub registration_trials: u64,
-    /// Calibration units (phantoms × σ × trial chunks) and intensity-registration units (targets ×
+    /// Calibration units (phantoms × σ × trial chunks), tracking units (targets × methods × cells) and
+    /// intensity-registration units (targets ×
     /// view sets × Δf × piercing × initial-mTRE bins).
     pub other_units: u64,
     /// Intensity-registration starts: intensity units × starts per bin.
@@ -106,8 +107,19 @@ impl StudyConfig {
         } else {
             0
         };
+        let tr = &self.tracking;
+        let physical_cells: usize = g.physical.keys().iter().map(|(_, v)| v.len()).sum();
+        let tracking_units = if self.runs(Experiment::Tracking) {
+            n_targets
+                .saturating_mul(n(tr.methods.len()))
+                .saturating_mul(n(tr.df_px.len() + physical_cells))
+        } else {
+            0
+        };
         WorkEstimate {
-            other_units: calibration_units.saturating_add(intensity_units),
+            other_units: calibration_units
+                .saturating_add(intensity_units)
+                .saturating_add(tracking_units),
             intensity_starts: intensity_units.saturating_mul(n(i.starts_per_bin)),
             projection_units,
             registration_cells: cells,

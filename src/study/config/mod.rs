@@ -19,6 +19,7 @@ mod intensity;
 mod kinds;
 mod limits;
 mod physical;
+mod tracking;
 mod validate;
 
 pub use anatomy::{AnatomyConfig, CtTarget, MeshTarget};
@@ -29,6 +30,7 @@ pub use limits::{
     MAX_INTENSITY_STARTS, MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate,
 };
 pub use physical::{PhysicalGrid, cell_key as physical_cell_key};
+pub use tracking::{TrackingCell, TrackingSection};
 
 /// The default landmark observation noise σ (px per axis): sub-pixel localisation of a marker's centre
 /// on a 0.3 mm detector (about 0.15 mm), so the registration trials of a cell differ and their mean has
@@ -54,6 +56,8 @@ pub struct StudyConfig {
     pub calibration: CalibrationSection,
     /// `[intensity_registration]`: intensity-based 2D–3D registration under perturbed intrinsics.
     pub intensity_registration: IntensitySection,
+    /// `[tracking]`: relative (tracking) error of a target registered at two poses.
+    pub tracking: TrackingSection,
     /// Δf values (px, focal family) at which difference heatmaps are written. Each must be in
     /// `perturbations.df_px` (else the config is refused); the default, [`DEFAULT_HEATMAPS_DF_PX`], draws
     /// those of its values the focal grid renders.
@@ -86,7 +90,10 @@ pub struct PerturbationGrid {
     /// Anisotropic pixel-scale factors applied to fy (family `scale`).
     pub pixel_scale: Vec<f64>,
     /// `[perturbations.physical]`: focal spot and detector displacements (mm) and detector rotations
-    /// (degrees), each value alone (family `physical`).
+    /// (degrees), each value alone (family `physical`). The default study has the literature's cells
+    /// ([`PhysicalGrid::default`]); a `[perturbations]` table without this one has none, so a config
+    /// written before the family existed runs the same units as it did.
+    #[serde(default = "PhysicalGrid::none")]
     pub physical: PhysicalGrid,
 }
 
@@ -178,6 +185,7 @@ impl Default for StudyConfig {
             registration: RegistrationConfig::default(),
             calibration: CalibrationSection::default(),
             intensity_registration: IntensitySection::default(),
+            tracking: TrackingSection::default(),
             heatmaps_df_px: DEFAULT_HEATMAPS_DF_PX.to_vec(),
         }
     }

@@ -87,6 +87,33 @@ impl StudyConfig {
             self.intensity_registration
                 .validate(&carm, &self.geometry.views)?;
         }
+        if self.runs(super::Experiment::Tracking) {
+            self.tracking.validate()?;
+            for m in &self.tracking.methods {
+                for v in m.views() {
+                    carm.view(v).map_err(|e| {
+                        Error::invalid("tracking.methods", format!("{}: {e}", m.name()))
+                    })?;
+                }
+            }
+            for (family, q) in self.tracking.perturbations(self) {
+                for m in &self.tracking.methods {
+                    for name in m.views() {
+                        let v = carm.view(name)?;
+                        v.perturbed(&q).map_err(|e| {
+                            Error::invalid(
+                                if family == super::Family::Focal {
+                                    "tracking.df_px"
+                                } else {
+                                    "perturbations.physical"
+                                },
+                                format!("perturbation {q} in view '{name}': {e}"),
+                            )
+                        })?;
+                    }
+                }
+            }
+        }
         self.validate_grid_intrinsics(&carm)?;
         // A listed heatmap the focal grid never renders would silently never be drawn; the default list
         // (not the user's) draws what the grid has of it.
@@ -274,7 +301,7 @@ fn positive(key: &str, v: f64) -> Result<()> {
 }
 
 /// A finite list without repeats (a repeated value would run the same cells twice).
-fn finite_list(key: &str, v: &[f64]) -> Result<()> {
+pub(super) fn finite_list(key: &str, v: &[f64]) -> Result<()> {
     if let Some(x) = v.iter().find(|x| !x.is_finite()) {
         return Err(Error::invalid(key, format!("{x} is not finite")));
     }

@@ -13,6 +13,7 @@ mod physical;
 mod projection;
 pub use projection::OUTLINE_KEY;
 mod registration;
+mod tracking;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -339,6 +340,7 @@ impl Context {
             Unit::Registration { .. } => registration::run(self, unit),
             Unit::Calibration(c) => calibration::run(self, c),
             Unit::Intensity(c) => intensity::run(self, c),
+            Unit::Tracking(c) => tracking::run(self, c),
         }
     }
 }

@@ -14,6 +14,7 @@ mod physical;
 mod registration;
 mod setup;
 mod shift_ratio;
+mod tracking;
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -72,6 +73,7 @@ configuration is `study.toml`.\n",
         (!tables.registration_summary.is_empty(), REGISTRATION),
         (!tables.calibration.is_empty(), calibration::HEADING),
         (!tables.intensity_summary.is_empty(), intensity::HEADING),
+        (!tables.tracking.is_empty(), tracking::HEADING),
     ];
     let mut headings = vec![setup::HEADING.to_string(), "Findings".to_string()];
     if !cfg.anatomy.dataset.is_empty() {
@@ -140,6 +142,7 @@ configuration is `study.toml`.\n",
     }
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
+    tracking::section(&mut md, cfg, &tables.tracking, &first);
     renderers_section(&mut md, cfg);
     // The .tex tables first: the products list names what is on disk.
     write_latex_tables(out, tables, &paper, &first)?;

@@ -220,4 +220,42 @@ pub struct UnitRows {
     pub intensity: Vec<IntensityRow>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub physical: Vec<PhysicalRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub tracking: Vec<TrackingRow>,
+}
+
+/// One tracking cell (table `tracking.csv`): the absolute errors at the two poses and the error of
+/// the relative pose `T₁⁻¹ T₂` (see [`crate::registration::tracking`]). Noise-free: one row per cell.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrackingRow {
+    pub target: String,
+    pub method: RegistrationMethod,
+    pub family: Family,
+    /// The assumed geometry's perturbation (canonical spec).
+    pub perturbation: String,
+    /// The motion between the poses: translation length (mm) and rotation angle (degrees).
+    #[serde(with = "num")]
+    pub motion_mm: f64,
+    #[serde(with = "num")]
+    pub motion_deg: f64,
+    /// Pose 1: rotation and translation error and mean target registration error over the landmarks.
+    #[serde(with = "num")]
+    pub abs_rot_err_deg: f64,
+    #[serde(with = "num")]
+    pub abs_trans_err_mm: f64,
+    #[serde(with = "num")]
+    pub abs_tre_mm: f64,
+    /// Pose 2's mean target registration error.
+    #[serde(with = "num")]
+    pub abs_tre_2_mm: f64,
+    /// The relative pose's rotation and translation error and its mean TRE over the landmarks.
+    #[serde(with = "num")]
+    pub rel_rot_err_deg: f64,
+    #[serde(with = "num")]
+    pub rel_trans_err_mm: f64,
+    #[serde(with = "num")]
+    pub rel_tre_mm: f64,
+    #[serde(with = "num")]
+    pub residual_px: f64,
+    pub converged: bool,
 }

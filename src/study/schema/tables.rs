@@ -8,7 +8,7 @@ use serde::de::DeserializeOwned;
 use super::{
     CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, IntensityBinRow,
     IntensityRow, IntensitySummaryRow, LandmarkRow, PhysicalRow, ProjectionRow, RegistrationRow,
-    RegistrationSummaryRow, StructureRow, UnitRows,
+    RegistrationSummaryRow, StructureRow, TrackingRow, UnitRows,
 };
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
@@ -54,6 +54,9 @@ impl TableRow for IntensitySummaryRow {
 impl TableRow for PhysicalRow {
     const TABLE: &'static str = "physical";
 }
+impl TableRow for TrackingRow {
+    const TABLE: &'static str = "tracking";
+}
 
 fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
     dir.join(format!("{}.csv", R::TABLE))
@@ -97,6 +100,7 @@ pub struct StudyTables {
     pub intensity_bins: Vec<IntensityBinRow>,
     pub intensity_summary: Vec<IntensitySummaryRow>,
     pub physical: Vec<PhysicalRow>,
+    pub tracking: Vec<TrackingRow>,
 }
 
 impl StudyTables {
@@ -112,6 +116,7 @@ impl StudyTables {
             t.calibration.extend(u.calibration);
             t.intensity.extend(u.intensity);
             t.physical.extend(u.physical);
+            t.tracking.extend(u.tracking);
         }
         t.registration_summary = summarize_registration(&t.registration);
         t.calibration_tolerance = super::calibration::tolerance(&t.calibration);
@@ -143,6 +148,7 @@ impl StudyTables {
         put(dir, &self.intensity_bins, &mut n)?;
         put(dir, &self.intensity_summary, &mut n)?;
         put(dir, &self.physical, &mut n)?;
+        put(dir, &self.tracking, &mut n)?;
         Ok(n)
     }
 
@@ -162,6 +168,7 @@ impl StudyTables {
             intensity_bins: read_rows(&dir)?,
             intensity_summary: read_rows(&dir)?,
             physical: read_rows(&dir)?,
+            tracking: read_rows(&dir)?,
         })
     }
 }

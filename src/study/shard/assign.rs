@@ -166,6 +166,8 @@ impl CostModel {
                 self.render_ms(target) + metrics
             }
             Unit::Registration { count, .. } => TRIAL_MS * *count as f64,
+            // Two noise-free solves.
+            Unit::Tracking(_) => 2.0 * TRIAL_MS,
             Unit::Calibration(c) => {
                 let (protocols, trials) = self.calibration_intensity;
                 let intensity = trials.saturating_sub(c.first).min(c.count) * protocols;
@@ -189,6 +191,7 @@ impl CostModel {
                 (self.target(target).0, Some((target.clone(), view.clone())))
             }
             Unit::Registration { target, .. } => (self.target(target).0, None),
+            Unit::Tracking(c) => (self.target(&c.target).0, None),
             Unit::Calibration(_) => (self.target(&self.calibration_target).0, None),
             // The experiment builds its own levels (with the study's phantom).
             Unit::Intensity(_) => (InputGroup::Phantom, None),
@@ -261,7 +264,10 @@ fn items(model: &CostModel, units: &[Unit], costs: &[f64], n: usize) -> Vec<Item
         let cost: f64 = idx.iter().map(|&i| costs[i]).sum();
         let ref_ms = match &units[idx[0]] {
             Unit::Projection { target, .. } => model.render_ms(target),
-            Unit::Registration { .. } | Unit::Calibration(_) | Unit::Intensity(_) => 0.0,
+            Unit::Registration { .. }
+            | Unit::Calibration(_)
+            | Unit::Intensity(_)
+            | Unit::Tracking(_) => 0.0,
         };
         let pieces = ((cost / limit).ceil() as usize).clamp(1, idx.len());
         let per = idx.len().div_ceil(pieces);
