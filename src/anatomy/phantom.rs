@@ -159,6 +159,15 @@ impl Phantom {
     pub fn landmarks(&self) -> Vec<Landmarks> {
         self.vertebrae.iter().map(|v| v.landmarks.clone()).collect()
     }
+
+    /// Each level's planned pedicle-screw target points in world
+    /// ([`super::vertebra::VertebraShape::pedicle_targets`]), cranial to caudal.
+    pub fn pedicle_targets(&self) -> Vec<Landmarks> {
+        self.vertebrae
+            .iter()
+            .map(|v| v.shape.pedicle_targets(|p| v.local_to_world.apply(p)))
+            .collect()
+    }
 }
 
 /// Poses of every level from the first to the last requested (see the placement rule).

@@ -401,3 +401,31 @@ impl VertebraShape {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::anatomy::morphometry::MorphometryTable;
+
+    #[test]
+    fn pedicle_targets_follow_a_screw_path_through_the_bone() {
+        let table = MorphometryTable::default();
+        for level in Level::ALL {
+            let v = VertebraShape::new(level, &table);
+            let t = v.pedicle_targets(|p| p);
+            for side in ["left", "right"] {
+                let at = |w: &str| t.points[&format!("{side}_pedicle_{w}")];
+                let (entry, isthmus, tip) = (at("entry"), at("isthmus"), at("tip"));
+                // The isthmus and the tip lie inside the vertebra (negative signed distance), the tip in
+                // the body's anterior half, the entry posterior of the isthmus.
+                assert!(v.sdf(isthmus) < 0.0 && v.sdf(tip) < 0.0, "{level:?} {side}");
+                assert!(tip.y > 0.0 && entry.y < isthmus.y, "{level:?} {side}");
+                // One straight screw path: entry, isthmus and tip collinear.
+                let off = (tip - entry).cross(isthmus - entry).length() / (tip - entry).length();
+                assert!(off < 1e-9, "{level:?} {side}: {off}");
+                // Left is −x (RAS+).
+                assert_eq!(isthmus.x < 0.0, side == "left");
+            }
+        }
+    }
+}

@@ -63,6 +63,27 @@ pub struct Tracking {
     pub residual_px: f64,
     /// Both solves stopped by their tolerances at poses that can be the anatomy.
     pub converged: bool,
+    /// The estimated poses (None where a solve failed), for errors at other points.
+    pub estimates: [Option<RigidTransform>; 2],
+}
+
+impl Tracking {
+    /// The largest absolute error (mm) at `points` at pose 1, and the largest error of the relative pose
+    /// there (its estimate against `moved`); NaN where a solve failed or there is no point.
+    pub fn max_errors_at(&self, points: &[DVec3], moved: &RigidTransform) -> (f64, f64) {
+        let worst = |est: &RigidTransform, truth: &RigidTransform| {
+            points
+                .iter()
+                .map(|&x| (est.apply(x) - truth.apply(x)).length())
+                .fold(f64::NAN, f64::max)
+        };
+        let abs = self.estimates[0].map_or(f64::NAN, |e| worst(&e, &RigidTransform::IDENTITY));
+        let rel = match self.estimates {
+            [Some(a), Some(b)] => worst(&a.inverse().compose(&b), moved),
+            _ => f64::NAN,
+        };
+        (abs, rel)
+    }
 }
 
 /// How each registration starts: the truth turned by `rot_deg` about a random axis through the
@@ -132,6 +153,7 @@ pub fn track(
         relative,
         residual_px: residual,
         converged,
+        estimates: [estimates[0], estimates[1]],
     })
 }
 

@@ -83,11 +83,27 @@ fn physical_cells_have_their_own_table_analytic_cameras_and_a_report_section() {
         // one view, a rigid motion of the whole C-arm, which cancels from the relative pose.
         if r.perturbation == "det_roll_deg=1.5" && r.method.views().len() == 1 {
             assert!(r.rel_tre_mm < 1e-6 && r.abs_tre_mm > 0.05, "{r:?}");
+            assert!(r.pedicle_rel_err_max_mm < 1e-6 && r.pedicle_abs_err_max_mm > 0.05);
         }
         // The motion: 10 mm and 5° (the default [tracking]).
         assert!((r.motion_mm - 10.0).abs() < 1e-12 && (r.motion_deg - 5.0).abs() < 1e-9);
     }
     assert!(report.contains("## Relative (tracking) error"));
+    // The pedicle sentence counts the rows it says it counts (all converged: checked above).
+    let over = |f: fn(&spinedrr::study::schema::TrackingRow) -> f64, mm: f64| {
+        t.tracking.iter().filter(|r| f(r) > mm).count()
+    };
+    let sentence = format!(
+        "of the {} converged single-level cells above (targets × methods × assumed geometries), {} put a \
+         pedicle target more than 1 mm off and {} more than 2 mm in the absolute pose; in the relative \
+         pose, {} and {}.",
+        t.tracking.len(),
+        over(|r| r.pedicle_abs_err_max_mm, 1.0),
+        over(|r| r.pedicle_abs_err_max_mm, 2.0),
+        over(|r| r.pedicle_rel_err_max_mm, 1.0),
+        over(|r| r.pedicle_rel_err_max_mm, 2.0)
+    );
+    assert!(report.contains(&sentence), "{sentence}");
 }
 
 #[test]

@@ -143,6 +143,10 @@ pub struct Target {
     /// CT volume DRR masked to the target's labels (CT targets): image metrics and heatmaps.
     pub volume: Option<VolumeRenderer>,
     pub landmarks: Vec<(String, DVec3)>,
+    /// Clinical target points (world mm): the phantom's planned pedicle-screw entry, isthmus and tip per
+    /// side, or a user target's landmarks whose name contains `pedicle`. Errors there are what a screw's
+    /// 1–2 mm margin is measured against.
+    pub clinical: Vec<(String, DVec3)>,
     pub markers: Vec<Marker>,
     /// How a CT target was moved where the views aim (recorded in its reference sidecars).
     pub placement: Option<crate::anatomy::ct::Placed>,
@@ -409,14 +413,32 @@ fn build_target(
     };
     let backend = cfg.geometry.backend;
     let renderer = timings.time(Phase::Scene, 1, || backend.renderer(phantom_scene(sub)?))?;
-    target_with_landmarks(
+    let mut t = target_with_landmarks(
         cfg,
         name,
         renderer,
         sub.landmarks(),
         name == SEGMENT_TARGET,
         timings,
-    )
+    )?;
+    t.clinical = named_points(sub.pedicle_targets(), name == SEGMENT_TARGET);
+    Ok(t)
+}
+
+/// The points of landmark sets, each name prefixed with its level when `prefix_level`.
+fn named_points(sets: Vec<crate::anatomy::Landmarks>, prefix_level: bool) -> Vec<(String, DVec3)> {
+    let mut out = Vec::new();
+    for set in sets {
+        for (n, &p) in &set.points {
+            let full = if prefix_level {
+                format!("{}/{n}", set.level)
+            } else {
+                n.clone()
+            };
+            out.push((full, p));
+        }
+    }
+    out
 }
 
 /// A target with its landmarks (prefixed with the level when `prefix_level`) and, when the landmark
@@ -429,17 +451,7 @@ fn target_with_landmarks(
     prefix_level: bool,
     timings: &Timings,
 ) -> Result<Target> {
-    let mut landmarks = Vec::new();
-    for set in sets {
-        for (n, &p) in &set.points {
-            let full = if prefix_level {
-                format!("{}/{n}", set.level)
-            } else {
-                n.clone()
-            };
-            landmarks.push((full, p));
-        }
-    }
+    let landmarks = named_points(sets, prefix_level);
     let markers = if cfg.runs(Experiment::Landmarks) {
         timings.time(Phase::Scene, landmarks.len() as u64, || {
             landmarks
@@ -450,11 +462,19 @@ fn target_with_landmarks(
     } else {
         Vec::new()
     };
+    // A user's pedicle landmarks are its clinical targets (the phantom's replace them, see
+    // `build_target`).
+    let clinical = landmarks
+        .iter()
+        .filter(|(n, _)| n.contains("pedicle"))
+        .cloned()
+        .collect();
     Ok(Target {
         name: name.to_string(),
         renderer,
         volume: None,
         landmarks,
+        clinical,
         markers,
         placement: None,
     })

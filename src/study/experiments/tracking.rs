@@ -49,6 +49,8 @@ pub fn run(ctx: &Context, c: &TrackingCell) -> Result<UnitRows> {
             start,
         )
     })?;
+    let clinical: Vec<DVec3> = t.clinical.iter().map(|(_, p)| *p).collect();
+    let (pedicle_abs, pedicle_rel) = result.max_errors_at(&clinical, &moved);
     let mut rows = UnitRows::default();
     rows.tracking.push(TrackingRow {
         target: c.target.clone(),
@@ -64,6 +66,8 @@ pub fn run(ctx: &Context, c: &TrackingCell) -> Result<UnitRows> {
         rel_rot_err_deg: result.relative.rot_deg,
         rel_trans_err_mm: result.relative.trans_mm,
         rel_tre_mm: result.relative.tre_mm,
+        pedicle_abs_err_max_mm: pedicle_abs,
+        pedicle_rel_err_max_mm: pedicle_rel,
         residual_px: result.residual_px,
         converged: result.converged,
     });

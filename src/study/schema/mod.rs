@@ -255,6 +255,12 @@ pub struct TrackingRow {
     pub rel_trans_err_mm: f64,
     #[serde(with = "num")]
     pub rel_tre_mm: f64,
+    /// The largest error (mm) at the target's clinical points (planned pedicle-screw entry, isthmus and
+    /// tip; NaN without any): absolute at pose 1, and of the relative pose.
+    #[serde(with = "num")]
+    pub pedicle_abs_err_max_mm: f64,
+    #[serde(with = "num")]
+    pub pedicle_rel_err_max_mm: f64,
     #[serde(with = "num")]
     pub residual_px: f64,
     pub converged: bool,
