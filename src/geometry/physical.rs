@@ -28,8 +28,8 @@
 //! `fx, fy` (and the skew) by `(S + dz) / S` with `c` fixed; source and detector displaced together by
 //! the same vector leave `K` unchanged and only translate the camera; a roll keeps `K` and rotates the
 //! camera about its axis. A rigid tilt of a detector whose pixel axes are orthogonal produces **no skew
-//! and equal focal lengths** in the camera aligned with the tilted detector (`K' = diag(S cos θ / s)` plus
-//! a piercing shift of `S tan θ`-like size): the skew and unequal focal lengths one sometimes attributes
+//! and equal focal lengths** in the camera aligned with the tilted detector (`fx' = fy' = S cos θ / s`, the
+//! piercing point moved `S sin θ / s` px across the tilt axis): the skew and unequal focal lengths one attributes
 //! to a tilt appear only if the tilt is forced into `K` with the rotation held at the calibrated `R`,
 //! and then `K` is a general homography, not upper triangular. Skew in `K'` comes from skew in `K`.
 
