@@ -20,15 +20,16 @@ pub fn section(md: &mut String, cfg: &StudyConfig, rows: &[TrackingRow], first: 
     let _ = writeln!(md, "## {HEADING}\n");
     let _ = writeln!(
         md,
-        "Each target is registered (landmarks, noise-free, `direct` solver) at two true poses with the same \
-assumed geometry: at its place, and moved by a rotation of {:?}° (axis-angle, world axes) about its \
-landmarks' centroid followed by a translation of {:?} mm (`[tracking]`). The absolute error is the pose 1 \
+        "Each target is registered from its landmarks (noise-free, by the row's method) at two true poses with the same \
+assumed geometry: at its place, and moved by a rotation of ({})° (axis-angle, world axes) about its \
+landmarks' centroid followed by a translation of ({}) mm (`[tracking]`). The absolute error is the pose 1 \
 estimate's mean target registration error over the landmarks (TRE); the relative error is that of the \
 estimated relative pose T₁⁻¹T₂ against the true one — what a navigation system tracking the vertebra \
 between two acquisitions, or relative to an instrument in the same images, would get wrong. An error of \
 the assumed geometry that is a rigid motion of the whole C-arm cancels from the relative pose exactly \
 (Jain et al., MICCAI 2005); the rows show how much of each error here does (`tables/tracking.csv`).\n",
-        tr.rotation_deg, tr.translation_mm
+        triple(tr.rotation_deg),
+        triple(tr.translation_mm)
     );
     let _ = writeln!(
         md,
@@ -123,4 +124,9 @@ pedicle screw has about 1–2 mm of margin.\n",
         over(rel, 1.0),
         over(rel, 2.0)
     );
+}
+
+/// `(x, y, z)` with at most 3 decimals each.
+fn triple(v: [f64; 3]) -> String {
+    v.map(|x| short(x, 3)).join(", ")
 }
