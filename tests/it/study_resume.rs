@@ -101,6 +101,38 @@ fn bad_configs_fail_before_work_and_name_the_key() {
     bad_config("[geometry]\nviews = [\"oblique\"]\n", "geometry.views");
     bad_config("[anatomy]\nvoxel_mm = -1.0\n", "anatomy.voxel_mm");
     bad_config("experiments = [\"everything\"]\n", "experiments");
+    // The physical family and the tracking experiment.
+    for (text, key) in [
+        (
+            "[perturbations.physical]\ndet_dz_mm = [0.0]\n",
+            "perturbations.physical.det_dz_mm",
+        ),
+        (
+            "[perturbations.physical]\ndet_dz_mm = [5.0, 5.0]\n",
+            "perturbations.physical.det_dz_mm",
+        ),
+        (
+            "[perturbations.physical]\nsrc_dx_mm = [900.0]\n",
+            "perturbations.physical.src_dx_mm",
+        ),
+        ("[perturbations.physical]\ndet_dz = [5.0]\n", "det_dz"),
+        ("[tracking]\nmethods = []\n", "tracking.methods"),
+        ("[tracking]\ndf_px = [-5000.0]\n", "tracking.df_px"),
+        (
+            "[tracking]\ntranslation_mm = [1e9, 0.0, 0.0]\n",
+            "tracking.translation_mm",
+        ),
+        (
+            "[tracking]\nrotation_deg = [0.0, 0.0, 0.0]\ntranslation_mm = [0.0, 0.0, 0.0]\n",
+            "the motion is zero",
+        ),
+        (
+            "[tracking]\nmethods = [\"direct-ap\", \"direct-ap\"]\n",
+            "tracking.methods",
+        ),
+    ] {
+        bad_config(text, key);
+    }
 }
 
 #[test]
