@@ -33,6 +33,25 @@ pub struct Landmarks {
     pub points: BTreeMap<String, DVec3>,
 }
 
+impl Landmarks {
+    /// The points of several sets as one named list, each name prefixed with its level (`L2/center`)
+    /// when `prefix_level` (sets of several levels share names).
+    pub fn named_points(sets: Vec<Landmarks>, prefix_level: bool) -> Vec<(String, DVec3)> {
+        let mut out = Vec::new();
+        for set in sets {
+            for (n, &p) in &set.points {
+                let full = if prefix_level {
+                    format!("{}/{n}", set.level)
+                } else {
+                    n.clone()
+                };
+                out.push((full, p));
+            }
+        }
+        out
+    }
+}
+
 #[derive(Serialize, Deserialize)]
 struct LevelJson {
     level: String,

@@ -421,24 +421,9 @@ fn build_target(
         name == SEGMENT_TARGET,
         timings,
     )?;
-    t.clinical = named_points(sub.pedicle_targets(), name == SEGMENT_TARGET);
+    t.clinical =
+        crate::anatomy::Landmarks::named_points(sub.pedicle_targets(), name == SEGMENT_TARGET);
     Ok(t)
-}
-
-/// The points of landmark sets, each name prefixed with its level when `prefix_level`.
-fn named_points(sets: Vec<crate::anatomy::Landmarks>, prefix_level: bool) -> Vec<(String, DVec3)> {
-    let mut out = Vec::new();
-    for set in sets {
-        for (n, &p) in &set.points {
-            let full = if prefix_level {
-                format!("{}/{n}", set.level)
-            } else {
-                n.clone()
-            };
-            out.push((full, p));
-        }
-    }
-    out
 }
 
 /// A target with its landmarks (prefixed with the level when `prefix_level`) and, when the landmark
@@ -451,7 +436,7 @@ fn target_with_landmarks(
     prefix_level: bool,
     timings: &Timings,
 ) -> Result<Target> {
-    let landmarks = named_points(sets, prefix_level);
+    let landmarks = crate::anatomy::Landmarks::named_points(sets, prefix_level);
     let markers = if cfg.runs(Experiment::Landmarks) {
         timings.time(Phase::Scene, landmarks.len() as u64, || {
             landmarks

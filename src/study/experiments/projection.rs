@@ -303,9 +303,8 @@ fn landmarks(
     np: &NamedPerturbation,
     reference: &[Option<DVec2>],
 ) -> Result<Vec<LandmarkRow>> {
-    // The analytic prediction: the homography law when the perturbation keeps the pose, else (a
-    // physical perturbation) the landmark's exact projection through the assumed camera P'.
-    let h = view.same_pose(pv).then(|| view.homography_to(pv));
+    // Intrinsic families only (the physical family's shifts are exact projections, in physical.csv).
+    let h = view.homography_to(pv);
     let q = &np.perturbation;
     let mut rows = Vec::new();
     for (m, x_ref) in t.markers.iter().zip(reference) {
@@ -313,10 +312,7 @@ fn landmarks(
         let nan = DVec2::splat(f64::NAN);
         let x = x_ref.unwrap_or(nan);
         let y = measure(ctx, m, pv)?.unwrap_or(nan);
-        let p = match &h {
-            Some(h) => apply_homography(h, x),
-            None => pv.project(m.position),
-        };
+        let p = apply_homography(&h, x);
         rows.push(LandmarkRow {
             target: t.name.clone(),
             view: view.name.clone(),
