@@ -137,3 +137,57 @@ fn a_physical_grid_needs_a_geometry_with_a_known_sdd() {
     assert!(!dir.path().join("out/tables").exists());
     assert!(started.elapsed().as_secs() < 30);
 }
+
+#[test]
+fn the_literature_section_prints_this_runs_tracking_cells() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = "experiments = [\"tracking\"]\n\
+        [anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.0\nmarker_radius_mm = 4.0\n\
+        [perturbations.physical]\nsrc_dx_mm = [4.0]\nsrc_dz_mm = [2.0, 50.0]\ndet_dx_mm = [4.0]\n\
+        det_roll_deg = [2.0]\n\
+        [tracking]\ndf_px = [500.0]\n";
+    let (ok, err) = study(dir.path(), config);
+    assert!(ok, "{err}");
+    let out = dir.path().join("out");
+    let t = StudyTables::load(&out).unwrap();
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let section = report
+        .split("## The literature beside ours")
+        .nth(1)
+        .expect("the literature section")
+        .split("\n## ")
+        .next()
+        .unwrap();
+    // Every row names its cell (method, perturbation, column) and prints that cell of tracking.csv.
+    let mut rows = 0;
+    for line in section
+        .lines()
+        .filter(|l| l.contains("`abs_") || l.contains("`rel_"))
+    {
+        let cols: Vec<&str> = line.split('|').map(str::trim).collect();
+        let cell: Vec<&str> = cols[3].split(", ").collect();
+        let (method, pert, column) = (cell[0], cell[1], cell[2].trim_matches('`'));
+        let r = t
+            .tracking
+            .iter()
+            .find(|r| r.target == "L1" && r.method.name() == method && r.perturbation == pert)
+            .unwrap_or_else(|| panic!("no tracking row for {line}"));
+        let v = match column {
+            "abs_tre_mm" => r.abs_tre_mm,
+            "abs_trans_err_mm" => r.abs_trans_err_mm,
+            "abs_rot_err_deg" => r.abs_rot_err_deg,
+            "rel_trans_err_mm" => r.rel_trans_err_mm,
+            "rel_rot_err_deg" => r.rel_rot_err_deg,
+            other => panic!("column {other}"),
+        };
+        let printed: f64 = cols[4]
+            .trim_end_matches(" mm")
+            .trim_end_matches('°')
+            .parse()
+            .unwrap_or_else(|_| panic!("not a number: {line}"));
+        assert!((printed - v).abs() <= 5e-4, "{line}: tracking.csv has {v}");
+        rows += 1;
+    }
+    assert_eq!(rows, 7, "{section}");
+    assert!(!section.contains("not in this run"));
+}

@@ -27,10 +27,13 @@ impl Default for PhysicalGrid {
     /// The sizes the literature reports (Warmerdam et al.: a 4 mm source or panel translation
     /// orthogonal to the imaging axis, a 2° panel rotation about it, panel tilts and magnification
     /// changes), one each: the focal spot and the detector 4 mm along u, the detector 10 mm farther
-    /// from the source (+z), rolled 2° about the central ray and tilted 2° about its row axis.
+    /// from the source (+z), rolled 2° about the central ray and tilted 2° about its row axis; and the
+    /// focal spot 2 mm and 50 mm along the central ray (Tersi & Stagni's worst-case focus-distance error,
+    /// Jain et al.'s largest focal-spot mis-calibration).
     fn default() -> Self {
         PhysicalGrid {
             src_dx_mm: vec![4.0],
+            src_dz_mm: vec![2.0, 50.0],
             det_dx_mm: vec![4.0],
             det_dz_mm: vec![10.0],
             det_roll_deg: vec![2.0],

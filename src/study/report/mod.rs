@@ -10,6 +10,7 @@ mod grid;
 mod intensity;
 pub mod latex;
 mod layout;
+pub mod literature;
 mod physical;
 mod registration;
 mod setup;
@@ -74,6 +75,7 @@ configuration is `study.toml`.\n",
         (!tables.calibration.is_empty(), calibration::HEADING),
         (!tables.intensity_summary.is_empty(), intensity::HEADING),
         (!tables.tracking.is_empty(), tracking::HEADING),
+        (!tables.tracking.is_empty(), literature::HEADING),
     ];
     let mut headings = vec![setup::HEADING.to_string(), "Findings".to_string()];
     if !cfg.anatomy.dataset.is_empty() {
@@ -143,6 +145,7 @@ configuration is `study.toml`.\n",
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
     tracking::section(&mut md, cfg, &tables.tracking, &first);
+    literature::section(&mut md, &tables.tracking, &first)?;
     renderers_section(&mut md, cfg);
     // The .tex tables first: the products list names what is on disk.
     write_latex_tables(out, tables, &paper, &first)?;
