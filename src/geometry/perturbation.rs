@@ -268,16 +268,14 @@ impl Perturbation {
     /// The intrinsic part alone (physical keys cleared).
     pub fn intrinsic_part(&self) -> Perturbation {
         Perturbation {
-            src_dx_mm: 0.0,
-            src_dy_mm: 0.0,
-            src_dz_mm: 0.0,
-            det_dx_mm: 0.0,
-            det_dy_mm: 0.0,
-            det_dz_mm: 0.0,
-            det_roll_deg: 0.0,
-            det_tilt_u_deg: 0.0,
-            det_tilt_v_deg: 0.0,
-            ..*self
+            df_px: self.df_px,
+            alpha_f: self.alpha_f,
+            dcx_px: self.dcx_px,
+            dcy_px: self.dcy_px,
+            skew_px: self.skew_px,
+            sx: self.sx,
+            sy: self.sy,
+            ..Self::NONE
         }
     }
 

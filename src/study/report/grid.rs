@@ -34,6 +34,21 @@ pub(super) fn signed(x: f64, d: usize) -> String {
     }
 }
 
+/// `lo–hi (n levels)` of per-level values with at most `d` decimals, `n/a` without any.
+pub(super) fn level_range(levels: &[f64], d: usize) -> String {
+    if levels.is_empty() {
+        return "n/a".to_string();
+    }
+    let lo = levels.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = levels.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    format!(
+        "{}–{} ({} levels)",
+        short(lo, d),
+        short(hi, d),
+        levels.len()
+    )
+}
+
 /// Writes the grid table: family, steps, and their meaning at `k` (the detector's K) with `spacing`
 /// (mm per px, u and v; `None` for a geometry given as K) and `sdd` (mm).
 pub fn table(

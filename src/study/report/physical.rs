@@ -103,18 +103,7 @@ camera, counted when it lands on the detector{}.\n",
             .map(|r| r.landmark_shift_mean_px)
             .filter(|x| x.is_finite())
             .collect();
-        let range = if levels.is_empty() {
-            "n/a".to_string()
-        } else {
-            let lo = levels.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = levels.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            format!(
-                "{}–{} ({} levels)",
-                short(lo, 2),
-                short(hi, 2),
-                levels.len()
-            )
-        };
+        let range = super::grid::level_range(&levels, 2);
         let _ = writeln!(
             md,
             "| {key} = {} | {} | {dk} | {pose} | {shift} | {loss} | {range} |",

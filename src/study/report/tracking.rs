@@ -76,18 +76,7 @@ relative TRE, range (mm) |\n|---|---|---|---|---|---|---|"
             .filter(|r| !is_segment(&r.target) && r.converged && r.rel_tre_mm.is_finite())
             .map(|r| r.rel_tre_mm)
             .collect();
-        let range = if levels.is_empty() {
-            "n/a".to_string()
-        } else {
-            let lo = levels.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = levels.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            format!(
-                "{}–{} ({} levels)",
-                short(lo, 3),
-                short(hi, 3),
-                levels.len()
-            )
-        };
+        let range = super::grid::level_range(&levels, 3);
         let _ = writeln!(
             md,
             "| {method} | {pert} | {abs} | {rel} | {rot} | {pedicle} | {range} |"
