@@ -142,6 +142,7 @@ pub fn restrict_config(cfg: &StudyConfig, units: &[&Unit]) -> StudyConfig {
                 // Built from the phantom by the experiment itself.
                 Unit::Intensity(c) => &c.target,
                 Unit::Tracking(c) => &c.target,
+                Unit::RegistrationPhysical(c) => &c.target,
             };
             groups
                 .get(t)

@@ -3,8 +3,8 @@
 use serde::{Deserialize, Serialize};
 
 use super::config::{
-    CalibrationCell, Experiment, IntensityCell, RegistrationMethod, SEGMENT_TARGET, StudyConfig,
-    TrackingCell,
+    CalibrationCell, Experiment, IntensityCell, RegistrationMethod, RegistrationPhysicalCell,
+    SEGMENT_TARGET, StudyConfig, TrackingCell,
 };
 use super::schema::{Family, UnitRows};
 use crate::Result;
@@ -35,6 +35,8 @@ pub enum Unit {
         first: usize,
         count: usize,
     },
+    /// Trials of one registration cell under a physical error (`[perturbations.physical]`).
+    RegistrationPhysical(RegistrationPhysicalCell),
     /// Trials of one (phantom, σ) of the calibration experiment.
     Calibration(CalibrationCell),
     /// Every start of one initial-mTRE bin of one intensity-registration cell.
@@ -66,6 +68,7 @@ impl Unit {
                 first,
                 ..
             } => format!("reg_{target}_{method}_df{df_px}_p{piercing_px}_t{first}"),
+            Unit::RegistrationPhysical(c) => c.id(),
             Unit::Calibration(c) => c.id(),
             Unit::Intensity(c) => c.id(),
             Unit::Tracking(c) => c.id(),
@@ -92,6 +95,7 @@ impl Unit {
                  {piercing_px} px, trials {first}..{}",
                 first + count
             ),
+            Unit::RegistrationPhysical(c) => c.describe(),
             Unit::Calibration(c) => c.describe(),
             Unit::Intensity(c) => c.describe(),
             Unit::Tracking(c) => c.describe(),
@@ -105,6 +109,7 @@ impl Unit {
             Unit::Projection { target, .. } | Unit::Registration { target, .. } => Some(target),
             Unit::Intensity(c) => Some(&c.target),
             Unit::Tracking(c) => Some(&c.target),
+            Unit::RegistrationPhysical(c) => Some(&c.target),
             Unit::Calibration(_) => None,
         }
     }
@@ -120,6 +125,7 @@ impl Unit {
                 piercing_px,
                 ..
             } => format!("reg/{target}/{method}/{df_px}/{piercing_px}"),
+            Unit::RegistrationPhysical(c) => c.seed_key(),
             Unit::Calibration(c) => c.seed_key(),
             Unit::Intensity(c) => c.seed_key(),
             other => other.id(),
@@ -152,6 +158,12 @@ pub fn projection_perturbations(cfg: &StudyConfig) -> Vec<NamedPerturbation> {
             perturbation,
         })
         .collect()
+}
+
+/// The physical cells the landmark-registration experiment runs beside its Δf × piercing grid: those
+/// of `[perturbations.physical]` (validated before any unit is made).
+pub fn registration_physical_cells(cfg: &StudyConfig) -> Vec<Perturbation> {
+    cfg.perturbations.physical.cells().unwrap_or_default()
 }
 
 /// The targets: each phantom level, then `segment` when enabled, then the mesh targets, then per
@@ -210,6 +222,17 @@ pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
                                 count: r.trials_per_unit.min(r.trials - first),
                             });
                         }
+                    }
+                }
+                for perturbation in registration_physical_cells(cfg) {
+                    for first in (0..r.trials).step_by(r.trials_per_unit) {
+                        units.push(Unit::RegistrationPhysical(RegistrationPhysicalCell {
+                            target: target.clone(),
+                            method: *method,
+                            perturbation,
+                            first,
+                            count: r.trials_per_unit.min(r.trials - first),
+                        }));
                     }
                 }
             }
@@ -298,6 +321,7 @@ mod tests {
                 .iter()
                 .map(|u| match u {
                     Unit::Registration { count, .. } => *count,
+                    Unit::RegistrationPhysical(c) => c.count,
                     _ => 0,
                 })
                 .sum();

@@ -105,13 +105,14 @@ fn runaway_threads_and_work_are_refused_with_the_limit_and_the_estimate() {
         "/nonexistent/x",
     ]);
     refused(&o, &["--threads 10000", "between 1 and"]);
-    // The default grid has 6 targets × 6 methods × 6 Δf × 6 piercing shifts = 1296 registration cells.
+    // The default grid has 6 targets × 6 methods × (6 Δf × 6 piercing shifts + 7 physical cells) = 1548
+    // registration cells.
     bad_config(
         "[registration]\ntrials = 1000000000\n",
         &[
             "registration.trials",
-            "1296 registration cells",
-            "1296000000000 trials",
+            "1548 registration cells",
+            "1548000000000 trials",
         ],
     );
     bad_config(

@@ -191,3 +191,78 @@ fn the_literature_section_prints_this_runs_tracking_cells() {
     assert_eq!(rows, 7, "{section}");
     assert!(!section.contains("not in this run"));
 }
+
+/// Landmark registration under the physical cells (`registration_physical.csv`): a detector rolled
+/// about the central ray turns the one-view camera rigidly about that ray, so a noise-free one-view
+/// registration lands on the true pose turned by exactly the roll about the view's central ray — its
+/// translation error is the world origin's distance from that ray × 2 sin(θ/2), computed here from the
+/// default geometry alone. The intrinsic table holds no physical row, and the report prints the rows.
+#[test]
+fn a_detector_roll_registers_one_view_to_the_pose_turned_about_its_central_ray() {
+    use glam::DVec3;
+    use spinedrr::geometry::{CArm, DEFAULT_GEOMETRY_TOML};
+
+    let dir = tempfile::tempdir().unwrap();
+    let config = "experiments = [\"registration\"]\n\
+        [anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.0\nmarker_radius_mm = 4.0\n\
+        [perturbations]\ndf_px = [100.0]\npiercing_px = [0.0]\nskew_px = []\npixel_scale = []\n\
+        [perturbations.physical]\ndet_roll_deg = [1.5]\ndet_dx_mm = [3.0]\n\
+        [registration]\nmethods = [\"direct-ap\", \"direct-lat\", \"direct-ap+lat\"]\n\
+        df_px = [0.0]\npiercing_px = [0.0]\ntrials = 2\ntrials_per_unit = 2\nnoise_px = 0.0\n";
+    let (ok, err) = study(dir.path(), config);
+    assert!(ok, "{err}");
+    let out = dir.path().join("out");
+    let t = StudyTables::load(&out).unwrap();
+    assert_eq!(t.registration.len(), 3 * 2);
+    assert_eq!(t.registration_physical.len(), 3 * 2 * 2);
+    let carm = CArm::from_toml_str(DEFAULT_GEOMETRY_TOML, "default").unwrap();
+    let theta = 1.5_f64.to_radians();
+    for r in &t.registration_physical {
+        assert!(r.converged, "{r:?}");
+        // Every row has its twin trial (noise-free: the same answer from another start).
+        let twin = t
+            .registration_physical
+            .iter()
+            .find(|o| o.method == r.method && o.key == r.key && o.trial != r.trial)
+            .unwrap();
+        assert!((twin.tre_mm - r.tre_mm).abs() < 1e-6, "{r:?} {twin:?}");
+        assert!(r.pedicle_err_max_mm.is_finite() && r.tre_mm.is_finite());
+        let view = match r.method.name() {
+            "direct-ap" => "ap",
+            "direct-lat" => "lat",
+            _ => continue,
+        };
+        if r.key != "det_roll_deg" {
+            continue;
+        }
+        let v = carm.view(view).unwrap();
+        let s = v.source_world();
+        let d = v
+            .world_to_camera
+            .inverse()
+            .apply_vector(DVec3::Z)
+            .normalize();
+        let off_axis = (s - s.dot(d) * d).length();
+        let expected = 2.0 * off_axis * (theta / 2.0).sin();
+        assert!((r.rot_err_deg - 1.5).abs() < 1e-6, "{r:?}");
+        assert!(
+            (r.trans_err_mm - expected).abs() < 1e-5,
+            "{view}: translation error {} against {expected} (origin {off_axis} mm off the ray)",
+            r.trans_err_mm
+        );
+    }
+    // The LAT ray passes 32 mm from the origin, the AP ray through it: the check is not vacuous.
+    let lat = t
+        .registration_physical
+        .iter()
+        .find(|r| r.method.name() == "direct-lat" && r.key == "det_roll_deg")
+        .unwrap();
+    assert!(lat.trans_err_mm > 0.5, "{lat:?}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains("### Landmark registration of L1 under the physical errors"),
+        "{report}"
+    );
+    assert!(report.contains("| det_roll_deg = 1.5 | direct-lat | 1.500 (all 2 agree) |"));
+    assert!(out.join("tables/registration_physical.csv").is_file());
+}

@@ -21,7 +21,7 @@ pub const MAX_INTENSITY_STARTS: u64 = 10_000;
 pub struct WorkEstimate {
     /// Projection units: targets × views × perturbations.
     pub projection_units: u64,
-    /// Registration cells: targets × methods × Δf values × piercing shifts.
+    /// Registration cells: targets × methods × (Δf values × piercing shifts + physical cells).
     pub registration_cells: u64,
     /// Registration units: cells × ⌈trials / trials_per_unit⌉.
     pub registration_units: u64,
@@ -80,11 +80,13 @@ impl StudyConfig {
                 0
             };
         let r = &self.registration;
+        let physical_cells: usize = g.physical.keys().iter().map(|(_, v)| v.len()).sum();
         let (cells, chunks) = if self.runs(Experiment::Registration) {
-            let cells = n_targets
-                .saturating_mul(n(r.methods.len()))
-                .saturating_mul(n(r.df_px.len()))
-                .saturating_mul(n(r.piercing_px.len()));
+            let cells = n_targets.saturating_mul(n(r.methods.len())).saturating_mul(
+                n(r.df_px.len())
+                    .saturating_mul(n(r.piercing_px.len()))
+                    .saturating_add(n(physical_cells)),
+            );
             (cells, n(r.trials.div_ceil(r.trials_per_unit.max(1))))
         } else {
             (0, 0)
@@ -108,7 +110,6 @@ impl StudyConfig {
             0
         };
         let tr = &self.tracking;
-        let physical_cells: usize = g.physical.keys().iter().map(|(_, v)| v.len()).sum();
         let tracking_units = if self.runs(Experiment::Tracking) {
             n_targets
                 .saturating_mul(n(tr.methods.len()))
@@ -150,7 +151,8 @@ impl StudyConfig {
             return Err(Error::invalid(
                 "registration.trials",
                 format!(
-                    "{} trials × {} registration cells (targets × methods × df_px × piercing_px) = {} \
+                    "{} trials × {} registration cells (targets × methods × (df_px × piercing_px + the \
+                     cells of [perturbations.physical])) = {} \
                      trials; at most {MAX_REGISTRATION_TRIALS}",
                     r.trials, w.registration_cells, w.registration_trials
                 ),

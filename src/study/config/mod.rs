@@ -29,7 +29,7 @@ pub use kinds::{Experiment, Family, RegistrationMethod};
 pub use limits::{
     MAX_INTENSITY_STARTS, MAX_REGISTRATION_TRIALS, MAX_TRIALS_PER_UNIT, MAX_UNITS, WorkEstimate,
 };
-pub use physical::{PhysicalGrid, cell_key as physical_cell_key};
+pub use physical::{PhysicalGrid, RegistrationPhysicalCell, cell_key as physical_cell_key};
 pub use tracking::{TrackingCell, TrackingSection};
 
 /// The default landmark observation noise σ (px per axis): sub-pixel localisation of a marker's centre

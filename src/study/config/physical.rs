@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::RegistrationMethod;
 use crate::geometry::{PHYSICAL_KEYS, Perturbation};
 use crate::{Error, Result};
 
@@ -118,6 +119,48 @@ impl PhysicalGrid {
             }
         }
         g
+    }
+}
+
+/// Trials `first..first + count` of the Monte-Carlo landmark registration of `target` by `method`
+/// under one physical cell (table `registration_physical.csv`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegistrationPhysicalCell {
+    pub target: String,
+    pub method: RegistrationMethod,
+    pub perturbation: Perturbation,
+    pub first: usize,
+    pub count: usize,
+}
+
+impl RegistrationPhysicalCell {
+    /// File-name-safe id (`+` of a method name is replaced by the caller's id rule).
+    pub fn id(&self) -> String {
+        let spec = self.perturbation.to_string().replace(['=', ','], "");
+        format!(
+            "regphys_{}_{}_{spec}_t{}",
+            self.target, self.method, self.first
+        )
+    }
+
+    /// The key of the cell's random draws (without the trial chunk: a trial draws the same numbers
+    /// whatever `trials_per_unit` is).
+    pub fn seed_key(&self) -> String {
+        format!(
+            "regphys/{}/{}/{}",
+            self.target, self.method, self.perturbation
+        )
+    }
+
+    pub fn describe(&self) -> String {
+        format!(
+            "registration of target '{}' by {} under the physical error {}, trials {}..{}",
+            self.target,
+            self.method,
+            self.perturbation,
+            self.first,
+            self.first + self.count
+        )
     }
 }
 

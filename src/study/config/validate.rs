@@ -173,6 +173,22 @@ impl StudyConfig {
                 }
             }
         }
+        // The physical cells the registration runs, in the views its methods observe.
+        for q in self.perturbations.physical.cells()? {
+            for m in &r.methods {
+                for name in m.views() {
+                    carm.view(name)?.perturbed(&q).map_err(|e| {
+                        Error::invalid(
+                            "perturbations.physical",
+                            format!(
+                                "perturbation {q} in view '{name}' (registration by {}): {e}",
+                                m.name()
+                            ),
+                        )
+                    })?;
+                }
+            }
+        }
         Ok(())
     }
 

@@ -345,6 +345,7 @@ impl Context {
             Unit::Calibration(c) => calibration::run(self, c),
             Unit::Intensity(c) => intensity::run(self, c),
             Unit::Tracking(c) => tracking::run(self, c),
+            Unit::RegistrationPhysical(c) => registration::run_physical(self, c),
         }
     }
 }

@@ -27,7 +27,7 @@ pub use layout::slug;
 
 use super::config::StudyConfig;
 use super::figures::{self, Section};
-use super::schema::{LandmarkRow, ProjectionRow, RegistrationSummaryRow, StudyTables};
+use super::schema::{LandmarkRow, ProjectionRow, StudyTables};
 use super::timings::{RunFacts, TimingRow, to_markdown};
 use super::units::targets;
 use crate::Result;
@@ -71,7 +71,10 @@ configuration is `study.toml`.\n",
         (!tables.projection.is_empty(), PROJECTION),
         (!tables.landmarks.is_empty(), LANDMARKS),
         (!tables.physical.is_empty(), physical::HEADING),
-        (!tables.registration_summary.is_empty(), REGISTRATION),
+        (
+            !tables.registration_summary.is_empty() || !tables.registration_physical.is_empty(),
+            REGISTRATION,
+        ),
         (!tables.calibration.is_empty(), calibration::HEADING),
         (!tables.intensity_summary.is_empty(), intensity::HEADING),
         (!tables.tracking.is_empty(), tracking::HEADING),
@@ -131,16 +134,10 @@ configuration is `study.toml`.\n",
     }
     let carm = cfg.carm().ok();
     physical::section(&mut md, &tables.physical, carm.as_ref(), &first);
-    if !tables.registration_summary.is_empty() {
+    if !tables.registration_summary.is_empty() || !tables.registration_physical.is_empty() {
         let _ = writeln!(md, "## {REGISTRATION}\n");
         layout::figures(&mut md, &figs, Section::Registration, &mut n);
-        registration_section(
-            &mut md,
-            &tables.registration_summary,
-            &paper,
-            &first,
-            cfg.registration.noise_px,
-        );
+        registration_section(&mut md, tables, &paper, &first, cfg.registration.noise_px);
     }
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
@@ -358,21 +355,25 @@ fn landmark_section(md: &mut String, rows: &[LandmarkRow], paper: &PaperResults,
 
 fn registration_section(
     md: &mut String,
-    rows: &[RegistrationSummaryRow],
+    tables: &StudyTables,
     paper: &PaperResults,
     first: &str,
     noise_px: f64,
 ) {
-    let t = comparison::registration_table(rows, paper, first);
-    let _ = writeln!(md, "### {}\n", t.caption);
-    let _ = write!(md, "{}", t.to_markdown());
-    let t = registration::cells_table(rows, first, noise_px);
-    let _ = writeln!(md, "\n### {}\n", t.caption);
-    let _ = write!(md, "{}", t.to_markdown());
-    let _ = writeln!(
-        md,
-        "\nSingle-view methods (direct-ap, direct-lat, opencv-*) cannot separate a focal error from depth: \
+    let rows = &tables.registration_summary;
+    if !rows.is_empty() {
+        let t = comparison::registration_table(rows, paper, first);
+        let _ = writeln!(md, "### {}\n", t.caption);
+        let _ = write!(md, "{}", t.to_markdown());
+        let t = registration::cells_table(rows, first, noise_px);
+        let _ = writeln!(md, "\n### {}\n", t.caption);
+        let _ = write!(md, "{}", t.to_markdown());
+        let _ = writeln!(
+            md,
+            "\nSingle-view methods (direct-ap, direct-lat, opencv-*) cannot separate a focal error from depth: \
 their translation error is about z·Δf/f along the central ray (see registration_summary.csv). \
 Landmarks whose marker falls off the detector (far levels of the segment in LAT) have NaN measurements in landmarks.csv.\n"
-    );
+        );
+    }
+    registration::physical_section(md, &tables.registration_physical, first, noise_px);
 }

@@ -53,3 +53,32 @@ pub struct PhysicalRow {
     #[serde(with = "num")]
     pub landmark_shift_mean_mm: f64,
 }
+
+/// One landmark-registration trial under a physical cell (table `registration_physical.csv`): the
+/// landmarks observed through the true cameras (plus the registration's noise), solved with the
+/// cameras the assumed geometry amounts to, errors against the true pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RegistrationPhysicalRow {
+    pub target: String,
+    pub method: crate::study::config::RegistrationMethod,
+    /// The physical key (`det_dz_mm`, …) and its value (mm or degrees, as the key's suffix says).
+    pub key: String,
+    #[serde(with = "num")]
+    pub value: f64,
+    pub trial: usize,
+    #[serde(with = "num")]
+    pub rot_err_deg: f64,
+    #[serde(with = "num")]
+    pub trans_err_mm: f64,
+    /// Mean target registration error over the target's landmarks (mm).
+    #[serde(with = "num")]
+    pub tre_mm: f64,
+    /// The largest error (mm) at the target's clinical points (planned pedicle-screw entry, isthmus
+    /// and tip; NaN without any).
+    #[serde(with = "num")]
+    pub pedicle_err_max_mm: f64,
+    #[serde(with = "num")]
+    pub residual_px: f64,
+    pub iterations: usize,
+    pub converged: bool,
+}

@@ -7,8 +7,9 @@ use serde::de::DeserializeOwned;
 
 use super::{
     CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, IntensityBinRow,
-    IntensityRow, IntensitySummaryRow, LandmarkRow, PhysicalRow, ProjectionRow, RegistrationRow,
-    RegistrationSummaryRow, StructureRow, TrackingRow, UnitRows,
+    IntensityRow, IntensitySummaryRow, LandmarkRow, PhysicalRow, ProjectionRow,
+    RegistrationPhysicalRow, RegistrationRow, RegistrationSummaryRow, StructureRow, TrackingRow,
+    UnitRows,
 };
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
@@ -57,6 +58,9 @@ impl TableRow for PhysicalRow {
 impl TableRow for TrackingRow {
     const TABLE: &'static str = "tracking";
 }
+impl TableRow for RegistrationPhysicalRow {
+    const TABLE: &'static str = "registration_physical";
+}
 
 fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
     dir.join(format!("{}.csv", R::TABLE))
@@ -101,6 +105,7 @@ pub struct StudyTables {
     pub intensity_summary: Vec<IntensitySummaryRow>,
     pub physical: Vec<PhysicalRow>,
     pub tracking: Vec<TrackingRow>,
+    pub registration_physical: Vec<RegistrationPhysicalRow>,
 }
 
 impl StudyTables {
@@ -117,6 +122,7 @@ impl StudyTables {
             t.intensity.extend(u.intensity);
             t.physical.extend(u.physical);
             t.tracking.extend(u.tracking);
+            t.registration_physical.extend(u.registration_physical);
         }
         t.registration_summary = summarize_registration(&t.registration);
         t.calibration_tolerance = super::calibration::tolerance(&t.calibration);
@@ -149,6 +155,7 @@ impl StudyTables {
         put(dir, &self.intensity_summary, &mut n)?;
         put(dir, &self.physical, &mut n)?;
         put(dir, &self.tracking, &mut n)?;
+        put(dir, &self.registration_physical, &mut n)?;
         Ok(n)
     }
 
@@ -169,6 +176,7 @@ impl StudyTables {
             intensity_summary: read_rows(&dir)?,
             physical: read_rows(&dir)?,
             tracking: read_rows(&dir)?,
+            registration_physical: read_rows(&dir)?,
         })
     }
 }

@@ -166,6 +166,7 @@ impl CostModel {
                 self.render_ms(target) + metrics
             }
             Unit::Registration { count, .. } => TRIAL_MS * *count as f64,
+            Unit::RegistrationPhysical(c) => TRIAL_MS * c.count as f64,
             // Two noise-free solves.
             Unit::Tracking(_) => 2.0 * TRIAL_MS,
             Unit::Calibration(c) => {
@@ -192,6 +193,7 @@ impl CostModel {
             }
             Unit::Registration { target, .. } => (self.target(target).0, None),
             Unit::Tracking(c) => (self.target(&c.target).0, None),
+            Unit::RegistrationPhysical(c) => (self.target(&c.target).0, None),
             Unit::Calibration(_) => (self.target(&self.calibration_target).0, None),
             // The experiment builds its own levels (with the study's phantom).
             Unit::Intensity(_) => (InputGroup::Phantom, None),
@@ -265,6 +267,7 @@ fn items(model: &CostModel, units: &[Unit], costs: &[f64], n: usize) -> Vec<Item
         let ref_ms = match &units[idx[0]] {
             Unit::Projection { target, .. } => model.render_ms(target),
             Unit::Registration { .. }
+            | Unit::RegistrationPhysical(_)
             | Unit::Calibration(_)
             | Unit::Intensity(_)
             | Unit::Tracking(_) => 0.0,
