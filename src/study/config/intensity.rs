@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::PhysicalGrid;
 use crate::anatomy::parse_levels;
 use crate::geometry::{CArm, Perturbation};
 use crate::registration::intensity::Similarity;
@@ -49,11 +50,17 @@ pub struct IntensitySection {
     pub df_px: Vec<f64>,
     /// Piercing shifts p (px) of the assumed K, applied as (p, p); every Δf with every p.
     pub piercing_px: Vec<f64>,
+    /// `[intensity_registration.physical]`: physical errors of the assumed geometry (focal spot or
+    /// detector moved, detector rotated), each value of each key alone, after the Δf × piercing cells.
+    /// A section without this table has none.
+    #[serde(default = "PhysicalGrid::none")]
+    pub physical: PhysicalGrid,
 }
 
 impl Default for IntensitySection {
-    /// The default study's small grid: L3, AP / LAT / AP+LAT, two coarse levels, Δf {0, 300} ×
-    /// piercing {0, 30}, starts in 0–5 and 5–10 mm.
+    /// The default study's small grid: L3, AP+LAT, two coarse levels, Δf {0, 300} × piercing {0, 30},
+    /// and two physical errors, the focal spot 4 mm along u and the detector rolled 2° (Warmerdam et
+    /// al.'s sizes); starts in 0–5 and 5–10 mm.
     fn default() -> Self {
         IntensitySection {
             targets: vec!["L3".into()],
@@ -68,17 +75,26 @@ impl Default for IntensitySection {
             starts_per_bin: 1,
             df_px: vec![0.0, 300.0],
             piercing_px: vec![0.0, 30.0],
+            physical: PhysicalGrid {
+                src_dx_mm: vec![4.0],
+                det_roll_deg: vec![2.0],
+                ..PhysicalGrid::none()
+            },
         }
     }
 }
 
-/// One work cell: every start of one initial-mTRE bin of one (target, view set, Δf, piercing).
+/// One work cell: every start of one initial-mTRE bin of one (target, view set, Δf, piercing) or (target,
+/// view set, physical error).
 #[derive(Debug, Clone, PartialEq)]
 pub struct IntensityCell {
     pub target: String,
     pub views: String,
+    /// Δf and piercing shift (0 for a physical cell).
     pub df_px: f64,
     pub piercing_px: f64,
+    /// The physical error of a physical cell (one key alone), else None.
+    pub physical: Option<Perturbation>,
     pub bin: usize,
     pub lo_mm: f64,
     pub hi_mm: f64,
@@ -88,36 +104,59 @@ pub struct IntensityCell {
 impl IntensityCell {
     /// File-name-safe id.
     pub fn id(&self) -> String {
-        format!(
-            "int_{}_{}_df{}_p{}_b{}",
-            self.target,
-            self.views.replace('+', "_"),
-            self.df_px,
-            self.piercing_px,
-            self.bin
-        )
+        let views = self.views.replace('+', "_");
+        match &self.physical {
+            Some(p) => format!(
+                "int_{}_{views}_{}_b{}",
+                self.target,
+                p.to_string().replace(['=', ','], ""),
+                self.bin
+            ),
+            None => format!(
+                "int_{}_{views}_df{}_p{}_b{}",
+                self.target, self.df_px, self.piercing_px, self.bin
+            ),
+        }
+    }
+
+    /// The assumed geometry's error in words.
+    pub fn error_text(&self) -> String {
+        match &self.physical {
+            Some(p) => format!("the physical error {p}"),
+            None => format!("Δf = {} px, piercing = {} px", self.df_px, self.piercing_px),
+        }
     }
 
     pub fn describe(&self) -> String {
         format!(
-            "intensity registration of '{}' in {} at Δf = {} px, piercing = {} px, initial mTRE {}–{} mm",
-            self.target, self.views, self.df_px, self.piercing_px, self.lo_mm, self.hi_mm
+            "intensity registration of '{}' in {} under {}, initial mTRE {}–{} mm",
+            self.target,
+            self.views,
+            self.error_text(),
+            self.lo_mm,
+            self.hi_mm
         )
     }
 
     /// The seed key of this cell's starts.
     pub fn seed_key(&self) -> String {
-        format!(
-            "int/{}/{}/{}/{}/{}",
-            self.target, self.views, self.df_px, self.piercing_px, self.bin
-        )
+        match &self.physical {
+            Some(p) => format!("int/{}/{}/{p}/{}", self.target, self.views, self.bin),
+            None => format!(
+                "int/{}/{}/{}/{}/{}",
+                self.target, self.views, self.df_px, self.piercing_px, self.bin
+            ),
+        }
     }
 
-    /// The assumed K's perturbation.
+    /// The assumed geometry's perturbation (intrinsic, or the physical error).
     pub fn perturbation(&self) -> Perturbation {
-        Perturbation {
-            df_px: self.df_px,
-            ..Perturbation::piercing(self.piercing_px, self.piercing_px)
+        match self.physical {
+            Some(p) => p,
+            None => Perturbation {
+                df_px: self.df_px,
+                ..Perturbation::piercing(self.piercing_px, self.piercing_px)
+            },
         }
     }
 }
@@ -140,6 +179,7 @@ impl IntensitySection {
             starts_per_bin: 1,
             df_px: vec![0.0, 300.0],
             piercing_px: vec![0.0],
+            physical: self.physical.first_only(),
             ..self.clone()
         }
     }
@@ -155,25 +195,34 @@ impl IntensitySection {
         set.split('+').collect()
     }
 
-    /// Every cell in table order: target, view set, Δf, piercing, bin.
+    /// Every cell in table order: target, view set, then Δf, piercing, bin, then each physical error
+    /// (validated before; a grid that fails to parse has none here), bin.
     pub fn cells(&self) -> Vec<IntensityCell> {
         let mut out = Vec::new();
+        let physical = self.physical.cells().unwrap_or_default();
         for t in &self.targets {
             for v in &self.views {
+                let cell = |df_px, piercing_px, physical, bin, w: &[f64]| IntensityCell {
+                    target: t.clone(),
+                    views: v.clone(),
+                    df_px,
+                    piercing_px,
+                    physical,
+                    bin,
+                    lo_mm: w[0],
+                    hi_mm: w[1],
+                    starts: self.starts_per_bin,
+                };
                 for &df_px in &self.df_px {
                     for &piercing_px in &self.piercing_px {
                         for (bin, w) in self.init_mtre_mm.windows(2).enumerate() {
-                            out.push(IntensityCell {
-                                target: t.clone(),
-                                views: v.clone(),
-                                df_px,
-                                piercing_px,
-                                bin,
-                                lo_mm: w[0],
-                                hi_mm: w[1],
-                                starts: self.starts_per_bin,
-                            });
+                            out.push(cell(df_px, piercing_px, None, bin, w));
                         }
+                    }
+                }
+                for p in &physical {
+                    for (bin, w) in self.init_mtre_mm.windows(2).enumerate() {
+                        out.push(cell(0.0, 0.0, Some(*p), bin, w));
                     }
                 }
             }
@@ -310,17 +359,17 @@ impl IntensitySection {
                 }
             }
         }
+        self.physical.cells_of(&key("physical"))?;
         for c in self.cells().iter().filter(|c| c.bin == 0) {
             for n in Self::view_names(&c.views) {
                 let v = carm.view(n)?;
-                c.perturbation().apply(&v.intrinsics).map_err(|e| {
-                    Error::invalid(
-                        key("df_px"),
-                        format!(
-                            "Δf {} with piercing {} in view '{n}': {e}",
-                            c.df_px, c.piercing_px
-                        ),
-                    )
+                v.perturbed(&c.perturbation()).map_err(|e| {
+                    let k = if c.physical.is_some() {
+                        "physical"
+                    } else {
+                        "df_px"
+                    };
+                    Error::invalid(key(k), format!("{} in view '{n}': {e}", c.error_text()))
                 })?;
             }
         }

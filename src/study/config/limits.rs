@@ -29,7 +29,7 @@ pub struct WorkEstimate {
     pub registration_trials: u64,
     /// Calibration units (phantoms × σ × trial chunks), tracking units (targets × methods × cells) and
     /// intensity-registration units (targets ×
-    /// view sets × Δf × piercing × initial-mTRE bins).
+    /// view sets × (Δf × piercing + physical errors) × initial-mTRE bins).
     pub other_units: u64,
     /// Intensity-registration starts: intensity units × starts per bin.
     pub intensity_starts: u64,
@@ -101,10 +101,14 @@ impl StudyConfig {
         };
         let i = &self.intensity_registration;
         let intensity_units = if self.runs(Experiment::IntensityRegistration) {
+            let physical: usize = i.physical.keys().iter().map(|(_, v)| v.len()).sum();
             n(i.targets.len())
                 .saturating_mul(n(i.views.len()))
-                .saturating_mul(n(i.df_px.len()))
-                .saturating_mul(n(i.piercing_px.len()))
+                .saturating_mul(
+                    n(i.df_px.len())
+                        .saturating_mul(n(i.piercing_px.len()))
+                        .saturating_add(n(physical)),
+                )
                 .saturating_mul(n(i.init_mtre_mm.len().saturating_sub(1)))
         } else {
             0

@@ -80,9 +80,14 @@ impl PhysicalGrid {
     /// perturbation syntax refuses (0, non-finite, beyond its limit, repeated) is an error naming
     /// `perturbations.physical.KEY`.
     pub fn cells(&self) -> Result<Vec<Perturbation>> {
+        self.cells_of("perturbations.physical")
+    }
+
+    /// [`Self::cells`] of the grid at `table` (its errors name `TABLE.KEY`).
+    pub fn cells_of(&self, table: &str) -> Result<Vec<Perturbation>> {
         let mut out = Vec::new();
         for (key, values) in self.keys() {
-            let field = format!("perturbations.physical.{key}");
+            let field = format!("{table}.{key}");
             for (i, v) in values.iter().enumerate() {
                 if *v == 0.0 {
                     return Err(Error::invalid(

@@ -138,7 +138,7 @@ fn options(s: &IntensitySection, seed: u64) -> Result<IntensityOptions> {
 }
 
 /// The pose of the landmark registration of `landmarks` seen exactly through `truth` views and solved
-/// with `assumed` views (direct LM, started at the truth); `None` when it fails.
+/// with `assumed` views (K and pose; direct LM, started at the truth); `None` when it fails.
 fn landmark_optimum(
     landmarks: &[(String, DVec3)],
     truth: &[View],
@@ -148,11 +148,11 @@ fn landmark_optimum(
     let points = landmarks.iter().map(|(_, p)| *p).collect();
     let solve = || -> Result<RigidTransform> {
         let observed = RegistrationProblem::synthesize(names, points, truth, &TRUTH)?;
-        let problem = observed.with_intrinsics(|v| {
+        let problem = observed.with_views(|v| {
             assumed
                 .iter()
                 .find(|a| a.name == v.name)
-                .map(|a| a.intrinsics)
+                .cloned()
                 .ok_or_else(|| Error::Internal(format!("no assumed view '{}'", v.name)))
         })?;
         let opts = RegistrationOptions {
@@ -280,6 +280,7 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
             views: cell.views.clone(),
             df_px: cell.df_px,
             piercing_px: cell.piercing_px,
+            physical: cell.physical.map(|p| p.to_string()).unwrap_or_default(),
             bin: cell.bin,
             bin_lo_mm: cell.lo_mm,
             bin_hi_mm: cell.hi_mm,

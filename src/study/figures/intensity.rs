@@ -10,9 +10,11 @@ use super::{FigureEntry, Mark, Panel, Section, Series, distinct, panel_chart};
 use crate::Result;
 use crate::study::schema::{IntensityBinRow, IntensitySummaryRow, StudyTables};
 
-/// `Δf 300, p 30` or `K true`.
-fn k_label(df: f64, p: f64) -> String {
-    if df == 0.0 && p == 0.0 {
+/// `Δf 300, p 30`, `K true` or the physical error (`det_roll_deg=2`).
+fn k_label(df: f64, p: f64, physical: &str) -> String {
+    if !physical.is_empty() {
+        physical.replace('=', " = ")
+    } else if df == 0.0 && p == 0.0 {
         "K true".into()
     } else {
         format!("Δf {df} px, piercing ({p}, {p}) px")
@@ -20,7 +22,11 @@ fn k_label(df: f64, p: f64) -> String {
 }
 
 fn mtre_panel(rows: &[&IntensitySummaryRow], views: &str) -> Panel {
-    let rows: Vec<&&IntensitySummaryRow> = rows.iter().filter(|r| r.views == views).collect();
+    // The focal axis has the Δf × piercing cells only.
+    let rows: Vec<&&IntensitySummaryRow> = rows
+        .iter()
+        .filter(|r| r.views == views && r.physical.is_empty())
+        .collect();
     let mut series = Vec::new();
     let piercings = {
         let mut p = distinct(rows.iter().map(|r| r.piercing_px));
@@ -59,17 +65,20 @@ fn mtre_panel(rows: &[&IntensitySummaryRow], views: &str) -> Panel {
 
 fn success_panel(rows: &[&IntensityBinRow], views: &str, reached: bool) -> Panel {
     let rows: Vec<&&IntensityBinRow> = rows.iter().filter(|r| r.views == views).collect();
-    let cells = distinct(
-        rows.iter()
-            .map(|r| (r.df_px.to_bits(), r.piercing_px.to_bits())),
-    );
+    let cells = distinct(rows.iter().map(|r| {
+        (
+            r.df_px.to_bits(),
+            r.piercing_px.to_bits(),
+            r.physical.clone(),
+        )
+    }));
     let series = cells
         .into_iter()
-        .map(|(df, p)| {
+        .map(|(df, p, physical)| {
             let (df, p) = (f64::from_bits(df), f64::from_bits(p));
             let points = rows
                 .iter()
-                .filter(|r| r.df_px == df && r.piercing_px == p)
+                .filter(|r| r.df_px == df && r.piercing_px == p && r.physical == physical)
                 .map(|r| {
                     let rate = if reached {
                         r.reached_optimum_rate
@@ -79,7 +88,7 @@ fn success_panel(rows: &[&IntensityBinRow], views: &str, reached: bool) -> Panel
                     (0.5 * (r.bin_lo_mm + r.bin_hi_mm), 100.0 * rate)
                 })
                 .collect();
-            Series::line(k_label(df, p), points)
+            Series::line(k_label(df, p, &physical), points)
         })
         .collect();
     Panel {
@@ -126,7 +135,8 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
                 "a panel per view set; per piercing shift the mTRE of the intensity optimum (registration \
                  started at the truth), the median final mTRE over {trials} starts, the mTRE of the \
                  landmark registration under the same assumed K, and the mTRE between the two optima \
-                 (equal biases can be different poses)"
+                 (equal biases can be different poses); the physical errors are in the table, not on \
+                 this focal axis"
             ),
             true,
         ));
@@ -154,7 +164,8 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
             Section::Intensity,
             &file,
             &title,
-            "a column per view set, a line per assumed K (true, and each Δf and piercing shift); top: \
+            "a column per view set, a line per assumed geometry (true, each Δf and piercing shift, each \
+             physical error); top: \
              success (final mTRE to the truth < 2 mm; the capture range is the last bin edge of the \
              leading run at ≥ 95 %, stated only with ≥ 10 starts per bin), bottom: the start ended within 2 mm of the intensity optimum \
              under its K (the registration started at the truth), capture without the bias",

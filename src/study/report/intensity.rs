@@ -46,7 +46,7 @@ pub fn section(
     let _ = writeln!(
         md,
         "The level's pose is registered by matching DRRs rendered with the **assumed** K (true, or \
-perturbed by Δf ∈ {{{}}} px and piercing shifts (p, p), p ∈ {{{}}} px) to fixed images rendered with the \
+perturbed by Δf ∈ {{{}}} px and piercing shifts (p, p), p ∈ {{{}}} px){} to fixed images rendered with the \
 true K: {fixed}, {noise}. Similarity {}, summed over the views of a set; pyramid binning {:?} of the study \
 detector{}, then Levenberg–Marquardt at every level. Starts: {} per bin of initial mTRE {:?} mm (uniform \
 in the bin, random direction in the six pose parameters), measured over the level's cortical surface \
@@ -56,6 +56,7 @@ under the same assumed K (direct LM over the same views, the landmarks' exact tr
 observed, started at the truth), its mTRE over the same target points.\n",
         list(&s.df_px),
         list(&s.piercing_px),
+        physical_words(s),
         s.similarity,
         s.levels,
         if s.global {
@@ -79,6 +80,39 @@ counts of a few starts, not rates)",
     layout::figures(md, figs, Section::Intensity, n);
     summary_table(md, rows);
     comparison(md, rows);
+}
+
+/// The physical errors of the section in words (empty without any).
+fn physical_words(s: &crate::study::config::IntensitySection) -> String {
+    let cells: Vec<String> = s
+        .physical
+        .cells()
+        .unwrap_or_default()
+        .iter()
+        .map(|p| format!("`{p}`"))
+        .collect();
+    if cells.is_empty() {
+        return String::new();
+    }
+    format!(
+        ", or with the camera of a physical error of the focal spot or detector ({}; see *{}*: K and \
+the camera's pose both change)",
+        cells.join(", "),
+        super::physical::HEADING
+    )
+}
+
+/// The assumed geometry of a cell in words.
+fn assumed(r: &IntensitySummaryRow) -> String {
+    if r.physical.is_empty() {
+        format!(
+            "Δf = {} px with piercing ({p}, {p}) px",
+            r.df_px,
+            p = r.piercing_px
+        )
+    } else {
+        format!("the physical error `{}`", r.physical)
+    }
 }
 
 fn list(v: &[f64]) -> String {
@@ -107,16 +141,27 @@ fn successes_mtre(r: &IntensitySummaryRow) -> String {
 fn summary_table(md: &mut String, rows: &[IntensitySummaryRow]) {
     let _ = writeln!(
         md,
-        "| target | views | Δf (px) | piercing (px) | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        "| target | views | Δf (px) | piercing (px) | physical error | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     );
     for r in rows {
+        let (df, p, physical) = if r.physical.is_empty() {
+            (
+                r.df_px.to_string(),
+                r.piercing_px.to_string(),
+                "—".to_string(),
+            )
+        } else {
+            (
+                "—".to_string(),
+                "—".to_string(),
+                r.physical.replace('=', " = "),
+            )
+        };
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {:.0} % | {} | {} | {} | {} | {:.0} % | {} | {}, {} | {:.0} |",
+            "| {} | {} | {df} | {p} | {physical} | {} | {:.0} % | {} | {} | {} | {} | {:.0} % | {} | {}, {} | {:.0} |",
             r.target,
             r.views,
-            r.df_px,
-            r.piercing_px,
             r.trials,
             100.0 * r.success_rate,
             capture(r.capture_range_mm),
@@ -147,11 +192,16 @@ fn comparison(md: &mut String, rows: &[IntensitySummaryRow]) {
                 .iter()
                 .filter(|r| r.target == target && r.views == views)
                 .collect();
-            let truth = cell.iter().find(|r| r.df_px == 0.0 && r.piercing_px == 0.0);
-            let worst = cell
+            let truth = cell
                 .iter()
-                .filter(|r| r.df_px != 0.0 || r.piercing_px != 0.0)
-                .max_by(|a, b| a.landmark_mtre_mm.total_cmp(&b.landmark_mtre_mm));
+                .find(|r| r.df_px == 0.0 && r.piercing_px == 0.0 && r.physical.is_empty());
+            // The worst intrinsic cell and the worst physical one, each by its landmark mTRE.
+            let worst_of = |physical: bool| {
+                cell.iter()
+                    .filter(|r| r.physical.is_empty() != physical)
+                    .filter(|r| r.df_px != 0.0 || r.piercing_px != 0.0 || physical)
+                    .max_by(|a, b| a.landmark_mtre_mm.total_cmp(&b.landmark_mtre_mm))
+            };
             let mut words = format!("**{target}, {views}.** ");
             if let Some(t) = truth {
                 let _ = write!(
@@ -178,7 +228,7 @@ only through magnification, which the DRR barely shows, so the depth stays where
                     );
                 }
             }
-            if let Some(w) = worst {
+            for w in [worst_of(false), worst_of(true)].into_iter().flatten() {
                 let (i, l) = (w.optimum_mtre_mm, w.landmark_mtre_mm);
                 let (d, dc, da) = (
                     w.optimum_to_landmark_mm,
@@ -187,11 +237,11 @@ only through magnification, which the DRR barely shows, so the depth stays where
                 );
                 let _ = write!(
                     words,
-                    "Under Δf = {} px with piercing ({p}, {p}) px, both started at the truth, the landmark \
+                    "Under {}, both started at the truth, the landmark \
 registration ends {} mm from it and the intensity-based one {} mm, the two optima {} mm apart (their \
 centres {} mm, their orientations {}°); from the spread starts the intensity median is {} mm, {:.0} % of \
 them reaching the intensity optimum under this K and {:.0} % within {SUCCESS_MTRE_MM} mm of the truth. ",
-                    w.df_px,
+                    assumed(w),
                     num(l, 3),
                     num(i, 3),
                     num(d, 3),
@@ -200,7 +250,6 @@ them reaching the intensity optimum under this K and {:.0} % within {SUCCESS_MTR
                     num(w.final_mtre_median_mm, 3),
                     100.0 * w.reached_optimum_rate,
                     100.0 * w.success_rate,
-                    p = w.piercing_px
                 );
                 let floor = truth.map_or(0.0, |t| t.optimum_mtre_mm.max(0.0));
                 if !(d.is_finite() && l.is_finite() && l > 0.0) {
@@ -209,16 +258,16 @@ them reaching the intensity optimum under this K and {:.0} % within {SUCCESS_MTR
                     let _ = write!(
                         words,
                         "The two optima agree (within 10 % of the bias or the intensity registration's floor \
-at the true K): the calibration error, not the way the pose is measured, sets the error — a wrong K \
+at the true K): the calibration error, not the way the pose is measured, sets the error — a wrong geometry \
 moves both to the pose whose projection through it best matches the true projections, and the level's \
 landmarks and its projected density agree on that pose. "
                     );
                 } else {
                     let _ = write!(
                         words,
-                        "A wrong K cannot be absorbed exactly by a rigid pose (a focal error scales points at \
-different depths differently, a piercing shift is a rotation about the source only to first order, and \
-two views can ask for different corrections), so each method settles on a compromise weighted by what it \
+                        "A wrong geometry cannot in general be absorbed exactly by a rigid pose (a focal error \
+scales points at different depths differently, a piercing shift is a rotation about the source only to \
+first order, and two views can ask for different corrections), so each method settles on a compromise weighted by what it \
 matches: the landmark registration by a handful of points, the image similarity by every edge and \
 density of the projected vertebra. "
                     );

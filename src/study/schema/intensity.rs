@@ -19,6 +19,10 @@ pub struct IntensityRow {
     pub df_px: f64,
     #[serde(with = "num")]
     pub piercing_px: f64,
+    /// The physical error of a physical cell (`src_dx_mm=4`; Δf and piercing are then 0), empty for
+    /// a Δf × piercing cell.
+    #[serde(default)]
+    pub physical: String,
     pub bin: usize,
     #[serde(with = "num")]
     pub bin_lo_mm: f64,
@@ -92,6 +96,10 @@ pub struct IntensityBinRow {
     pub df_px: f64,
     #[serde(with = "num")]
     pub piercing_px: f64,
+    /// The physical error of a physical cell (`src_dx_mm=4`; Δf and piercing are then 0), empty for
+    /// a Δf × piercing cell.
+    #[serde(default)]
+    pub physical: String,
     #[serde(with = "num")]
     pub bin_lo_mm: f64,
     #[serde(with = "num")]
@@ -117,6 +125,10 @@ pub struct IntensitySummaryRow {
     pub df_px: f64,
     #[serde(with = "num")]
     pub piercing_px: f64,
+    /// The physical error of a physical cell (`src_dx_mm=4`; Δf and piercing are then 0), empty for
+    /// a Δf × piercing cell.
+    #[serde(default)]
+    pub physical: String,
     pub trials: usize,
     pub successes: usize,
     #[serde(with = "num")]
@@ -158,6 +170,7 @@ fn cells(rows: &[IntensityRow]) -> Vec<Vec<&IntensityRow>> {
                 && a.views == r.views
                 && a.df_px == r.df_px
                 && a.piercing_px == r.piercing_px
+                && a.physical == r.physical
         };
         match out.iter_mut().find(|c| same(c[0])) {
             Some(c) => c.push(r),
@@ -216,6 +229,7 @@ pub fn bins(rows: &[IntensityRow]) -> Vec<IntensityBinRow> {
                 views: r0.views.clone(),
                 df_px: r0.df_px,
                 piercing_px: r0.piercing_px,
+                physical: r0.physical.clone(),
                 bin_lo_mm: b.lo_mm,
                 bin_hi_mm: b.hi_mm,
                 trials: b.trials,
@@ -250,6 +264,7 @@ pub fn summary(rows: &[IntensityRow]) -> Vec<IntensitySummaryRow> {
                 views: r0.views.clone(),
                 df_px: r0.df_px,
                 piercing_px: r0.piercing_px,
+                physical: r0.physical.clone(),
                 trials: c.len(),
                 successes: ok.len(),
                 success_rate: ok.len() as f64 / c.len() as f64,
