@@ -135,6 +135,10 @@ class Recompute:
             return RULES[src["name"]]
         if kind == "config":
             return float(lookup(self.s.config, src["key"]))
+        if kind == "detector":
+            # A size in px at this detector in mm: px × the pixel pitch along u, SDD / fx of the sidecar.
+            side = json.loads((self.s.out / src["reference"]).read_text())
+            return src["px"] * side["sdd_mm"] / side["K"][0][0]
         if kind == "count_word":
             return float(sum(self.word(f) == src["word"] for f in src["facts"]))
         raise AssertionError(f"unknown source {kind}")

@@ -231,9 +231,12 @@ fn lat_over_ap_shift_ratio_is_the_ratio_of_distances_from_the_piercing_point() {
     let md = std::fs::read_to_string(quick_out().join("report.md")).unwrap();
     let row = md
         .lines()
-        .find(|l| l.starts_with("| L1 | ") && l.contains(" | 500 | "))
+        .find(|l| l.starts_with("| L1 | ") && l.contains(" | 500 ("))
         .expect("L1 ratio row");
     let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+    // The quick grid bins the built-in 0.3 mm detector 2×: 0.6 mm pixels, so Δf = 500 px is an SDD
+    // error of 300 mm (f = SDD / pitch).
+    assert_eq!(cells[3], "500 (300 mm)", "{row}");
     assert_eq!(cells[6], format!("{measured:.3}"), "{row}");
     assert_eq!(cells[10], format!("{predicted:.3}"), "{row}");
 }

@@ -377,6 +377,17 @@ impl StudyConfig {
 
     /// The geometry file (or the built-in one) as written, with the detector binned, and where it came
     /// from (for messages and the report's *Setup*).
+    /// The binned detector's pixel pitch along u (mm), where the geometry states it (None for an
+    /// explicit K, or a geometry that cannot be read): a focal offset of Δf px is an SDD error of
+    /// Δf × pitch mm, a piercing shift of p px a move of p × pitch mm on the detector.
+    pub fn pixel_pitch_mm(&self) -> Option<f64> {
+        let (g, _) = self.geometry_config().ok()?;
+        g.detector
+            .k
+            .is_none()
+            .then_some(g.detector.pixel_spacing_mm[0])
+    }
+
     pub fn geometry_config(&self) -> Result<(GeometryConfig, String)> {
         let (text, origin) = match &self.geometry.file {
             Some(path) => (

@@ -46,9 +46,23 @@ impl Conditions {
             |f| format!("the C-arm of {}", f.display()),
         );
         let views: Vec<String> = g.views.iter().map(|v| v.to_uppercase()).collect();
+        // Perturbation sizes in mm at this detector (as the Setup table gives them per step).
+        let sizes = cfg.pixel_pitch_mm().map_or(String::new(), |s| {
+            let mm = |px: f64| {
+                let v = format!("{:.2}", px * s);
+                v.trim_end_matches('0').trim_end_matches('.').to_string()
+            };
+            format!(
+                "; at its {} mm pixels a focal offset Δf of 100 px is an SDD error of {} mm and a piercing \
+                 shift of 10 px a move of {} mm on the detector",
+                mm(1.0),
+                mm(100.0),
+                mm(10.0)
+            )
+        });
         Conditions {
             geometry: format!(
-                "{carm}, views {}, detector binning {}, {} backend",
+                "{carm}, views {}, detector binning {}, {} backend{sizes}",
                 views.join(" and "),
                 g.binning,
                 g.backend_name()

@@ -68,7 +68,12 @@ fn as_stats(r: &CohortRow) -> Stats {
 }
 
 /// The population findings, one sentence each.
-fn findings(t: &StudyTables, rows: &[CohortRow], case_of: &CaseOf) -> Vec<String> {
+fn findings(
+    t: &StudyTables,
+    rows: &[CohortRow],
+    case_of: &CaseOf,
+    pitch: super::grid::Pitch,
+) -> Vec<String> {
     let mut items = Vec::new();
     let df_max = t
         .landmarks
@@ -88,9 +93,10 @@ fn findings(t: &StudyTables, rows: &[CohortRow], case_of: &CaseOf) -> Vec<String
             let lo = case_means.iter().copied().fold(f64::INFINITY, f64::min);
             let hi = case_means.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             items.push(format!(
-                "At Δf = {df_max} px the LAT/AP ratio of the mean landmark shift is {} across the \
+                "At {} the LAT/AP ratio of the mean landmark shift is {} across the \
                  cases' levels; per patient (mean over its levels) it ranges from {lo:.2} to {hi:.2} \
                  over {} patients.",
+                pitch.df_words(df_max),
                 range(&s, 2),
                 per_case.len()
             ));
@@ -109,9 +115,9 @@ fn findings(t: &StudyTables, rows: &[CohortRow], case_of: &CaseOf) -> Vec<String
             .max_by(|a, b| a.df_px.total_cmp(&b.df_px));
         if let Some(r) = last {
             items.push(format!(
-                "{} silhouette Dice at Δf = {} px: {}.",
+                "{} silhouette Dice at {}: {}.",
                 view.to_uppercase(),
-                r.df_px,
+                pitch.df_words(r.df_px),
                 range(&as_stats(r), 4)
             ));
         }
@@ -141,8 +147,9 @@ fn findings(t: &StudyTables, rows: &[CohortRow], case_of: &CaseOf) -> Vec<String
         .collect();
     if !parts.is_empty() {
         items.push(format!(
-            "Registration translation error at Δf = {reg_df} px (no piercing shift), per target the \
+            "Registration translation error at {} (no piercing shift), per target the \
              mean over its trials: {}.",
+            pitch.df_words(reg_df),
             parts.join("; ")
         ));
     }
@@ -155,7 +162,8 @@ pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, t: &StudyTables) 
         return;
     };
     let case_of = cohort::case_of(cfg, &m);
-    write_section(md, &out.join("figures"), &m, &rows, t, &case_of);
+    let pitch = super::grid::Pitch::of(cfg);
+    write_section(md, &out.join("figures"), &m, &rows, t, (&case_of, pitch));
 }
 
 fn write_section(
@@ -164,7 +172,7 @@ fn write_section(
     m: &Manifest,
     rows: &[CohortRow],
     t: &StudyTables,
-    case_of: &CaseOf,
+    (case_of, pitch): (&CaseOf, super::grid::Pitch),
 ) {
     let _ = writeln!(md, "## {HEADING}\n");
     let datasets = crate::study::figures::distinct(m.cases.iter().map(|c| c.dataset.clone()));
@@ -178,7 +186,7 @@ targets (the segment targets are not samples): median and 5th–95th percentile,
         case_of.len(),
         m.left_out.len()
     );
-    for f in findings(t, rows, case_of) {
+    for f in findings(t, rows, case_of, pitch) {
         let _ = writeln!(md, "- {f}");
     }
     let _ = writeln!(md);

@@ -1,6 +1,7 @@
 //! The paper's comparison tables (silhouette overlap, landmark shift per structure, registration
 //! ranges): the paper's figure beside ours, from the typed tables, as [`PaperTable`]s.
 
+use super::grid::Pitch;
 use super::latex::PaperTable;
 use crate::study::config::RegistrationMethod;
 use crate::study::paper::{self, PaperResults};
@@ -95,7 +96,12 @@ pub(super) fn paper_ranges(paper: &PaperResults) -> [PaperRange; 4] {
 
 /// Silhouette overlap of `first`, LAT Dice and IoU at Δf 100 and 500 px (joint and focal) and the AP
 /// Dice minimum, paper vs ours.
-pub fn silhouette_table(rows: &[ProjectionRow], paper: &PaperResults, first: &str) -> PaperTable {
+pub fn silhouette_table(
+    rows: &[ProjectionRow],
+    paper: &PaperResults,
+    first: &str,
+    pitch: Pitch,
+) -> PaperTable {
     let s = &paper.silhouette;
     type Metric = fn(&ProjectionRow) -> f64;
     let metrics: [(&str, &paper::AtDf, Metric); 2] = [
@@ -108,7 +114,7 @@ pub fn silhouette_table(rows: &[ProjectionRow], paper: &PaperResults, first: &st
             for family in [Family::Joint, Family::Focal] {
                 let ours = projection_row(rows, first, "lat", family, df).map(value);
                 body.push(vec![
-                    format!("lat {col} at Δf {df} px ({family})"),
+                    format!("lat {col} at {}, {family}", pitch.df_words(df)),
                     as_printed(theirs.at(df)),
                     show(ours),
                 ]);
@@ -132,7 +138,12 @@ pub fn silhouette_table(rows: &[ProjectionRow], paper: &PaperResults, first: &st
 
 /// Landmark shift (px) per landmark of `first`, AP and LAT: the paper's (whose Δf it does not state) beside
 /// ours under focal Δf = 100 px (measured, with the H·x prediction in parentheses).
-pub fn landmark_table(rows: &[LandmarkRow], paper: &PaperResults, first: &str) -> PaperTable {
+pub fn landmark_table(
+    rows: &[LandmarkRow],
+    paper: &PaperResults,
+    first: &str,
+    pitch: Pitch,
+) -> PaperTable {
     let df = 100.0;
     let names = crate::study::figures::distinct(
         rows.iter()
@@ -161,7 +172,8 @@ pub fn landmark_table(rows: &[LandmarkRow], paper: &PaperResults, first: &str) -
     PaperTable {
         name: "landmark_shift",
         caption: format!(
-            "Landmark shift (px), {first}: the paper's values (the paper does not state their Δf) beside ours at focal Δf = {df} px (measured from marker images; H·x predicted)"
+            "Landmark shift (px), {first}: the paper's values (the paper does not state their Δf) beside ours at focal {} (measured from marker images; H·x predicted)",
+            pitch.df_words(df)
         ),
         header: [
             "landmark",

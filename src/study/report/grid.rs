@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 
 use crate::geometry::Intrinsics;
-use crate::study::config::PerturbationGrid;
+use crate::study::config::{PerturbationGrid, StudyConfig};
 
 /// Values joined with ", " by `show`.
 fn list(v: &[f64], show: impl Fn(f64) -> String) -> String {
@@ -47,6 +47,67 @@ pub(super) fn level_range(levels: &[f64], d: usize) -> String {
         short(hi, d),
         levels.len()
     )
+}
+
+/// The binned detector's pixel pitch along u (mm per px), where the geometry states it (not for an
+/// explicit K): the report sizes every intrinsic perturbation in physical units with it — a focal offset
+/// Δf px is an SDD error of Δf × pitch mm (f = SDD / pitch), a piercing shift p px a move of p × pitch mm
+/// on the detector.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pitch(pub Option<f64>);
+
+impl Pitch {
+    pub fn of(cfg: &StudyConfig) -> Pitch {
+        Pitch(cfg.pixel_pitch_mm())
+    }
+
+    /// `px × pitch` in mm, at most 2 decimals (None without a pitch).
+    pub fn mm(&self, px: f64) -> Option<String> {
+        self.0.map(|s| short(px * s, 2))
+    }
+
+    /// [`Self::mm`] where it says something: not for 0 px.
+    fn nonzero_mm(&self, px: f64) -> Option<String> {
+        (px != 0.0).then(|| self.mm(px)).flatten()
+    }
+
+    /// A Δf in a table cell: `500 (150 mm)`, the SDD error in parentheses; `500` without a pitch.
+    pub fn df_cell(&self, df: f64) -> String {
+        match self.nonzero_mm(df) {
+            Some(mm) => format!("{} ({mm} mm)", short(df, 3)),
+            None => short(df, 3),
+        }
+    }
+
+    /// A piercing shift in a table cell: `50 (15 mm)`, its size on the detector in parentheses.
+    pub fn p_cell(&self, p: f64) -> String {
+        self.df_cell(p)
+    }
+
+    /// A Δf in prose: `Δf = 500 px (an SDD error of 150 mm)`.
+    pub fn df_words(&self, df: f64) -> String {
+        match self.nonzero_mm(df) {
+            Some(mm) => format!("Δf = {} px (an SDD error of {mm} mm)", short(df, 3)),
+            None => format!("Δf = {} px", short(df, 3)),
+        }
+    }
+
+    /// A piercing shift (p, p) in prose: `piercing (30, 30) px (9 mm along u and v on the detector)`.
+    pub fn p_words(&self, p: f64) -> String {
+        let p3 = short(p, 3);
+        match self.nonzero_mm(p) {
+            Some(mm) => format!("piercing ({p3}, {p3}) px ({mm} mm along u and v on the detector)"),
+            None => format!("piercing ({p3}, {p3}) px"),
+        }
+    }
+
+    /// The column header's unit note: `px (mm)` with a pitch, `px` without.
+    pub fn unit(&self, mm_is: &str) -> String {
+        match self.0 {
+            Some(_) => format!("px ({mm_is}, mm)"),
+            None => "px".into(),
+        }
+    }
 }
 
 /// Writes the grid table: family, steps, and their meaning at `k` (the detector's K) with `spacing`

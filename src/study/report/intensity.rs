@@ -4,6 +4,7 @@
 
 use std::fmt::Write as _;
 
+use super::grid::Pitch;
 use super::layout;
 use super::layout::{mean_text, num};
 use crate::registration::intensity::{CAPTURE_MIN_STARTS, CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
@@ -27,6 +28,7 @@ pub fn section(
         return;
     }
     let s = &cfg.intensity_registration;
+    let pitch = Pitch::of(cfg);
     let _ = writeln!(md, "## {HEADING}\n");
     let fixed = match s.fixed {
         FixedScope::Level => "the level alone".to_string(),
@@ -46,7 +48,7 @@ pub fn section(
     let _ = writeln!(
         md,
         "The level's pose is registered by matching DRRs rendered with the **assumed** K (true, or \
-perturbed by Δf ∈ {{{}}} px and piercing shifts (p, p), p ∈ {{{}}} px){} to fixed images rendered with the \
+perturbed by Δf ∈ {{{}}} px and piercing shifts (p, p), p ∈ {{{}}} px{}){} to fixed images rendered with the \
 true K: {fixed}, {noise}. Similarity {}, summed over the views of a set; pyramid binning {:?} of the study \
 detector{}, then Levenberg–Marquardt at every level. Starts: {} per bin of initial mTRE {:?} mm (uniform \
 in the bin, random direction in the six pose parameters), measured over the level's cortical surface \
@@ -56,6 +58,7 @@ under the same assumed K (direct LM over the same views, the landmarks' exact tr
 observed, started at the truth), its mTRE over the same target points.\n",
         list(&s.df_px),
         list(&s.piercing_px),
+        grid_mm(s, pitch),
         physical_words(s),
         s.similarity,
         s.levels,
@@ -78,8 +81,8 @@ counts of a few starts, not rates)",
         },
     );
     layout::figures(md, figs, Section::Intensity, n);
-    summary_table(md, rows);
-    comparison(md, rows);
+    summary_table(md, rows, pitch);
+    comparison(md, rows, pitch);
 }
 
 /// The physical errors of the section in words (empty without any).
@@ -102,16 +105,39 @@ the camera's pose both change)",
     )
 }
 
+/// The grid's Δf and piercing shifts in mm (empty without a pixel pitch).
+fn grid_mm(s: &crate::study::config::IntensitySection, pitch: Pitch) -> String {
+    let Some(mm) = pitch.0 else {
+        return String::new();
+    };
+    let of = |v: &[f64]| {
+        v.iter()
+            .filter_map(|x| pitch.mm(*x))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    format!(
+        "; at {} mm pixels an SDD error of {{{}}} mm and a move of {{{}}} mm along u and v on the detector",
+        super::grid::short(mm, 3),
+        of(&s.df_px),
+        of(&s.piercing_px)
+    )
+}
+
 /// The assumed geometry of a cell in words.
-fn assumed(r: &IntensitySummaryRow) -> String {
-    if r.physical.is_empty() {
-        format!(
-            "Δf = {} px with piercing ({p}, {p}) px",
-            r.df_px,
-            p = r.piercing_px
-        )
-    } else {
+fn assumed(r: &IntensitySummaryRow, pitch: Pitch) -> String {
+    if !r.physical.is_empty() {
         format!("the physical error `{}`", r.physical)
+    } else if r.df_px == 0.0 {
+        pitch.p_words(r.piercing_px)
+    } else if r.piercing_px == 0.0 {
+        pitch.df_words(r.df_px)
+    } else {
+        format!(
+            "{} with {}",
+            pitch.df_words(r.df_px),
+            pitch.p_words(r.piercing_px)
+        )
     }
 }
 
@@ -138,16 +164,18 @@ fn successes_mtre(r: &IntensitySummaryRow) -> String {
     }
 }
 
-fn summary_table(md: &mut String, rows: &[IntensitySummaryRow]) {
+fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
     let _ = writeln!(
         md,
-        "| target | views | Δf (px) | piercing (px) | physical error | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        "| target | views | Δf, {u} | piercing p, {v} | physical error | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        u = pitch.unit("SDD error"),
+        v = pitch.unit("on the detector")
     );
     for r in rows {
         let (df, p, physical) = if r.physical.is_empty() {
             (
-                r.df_px.to_string(),
-                r.piercing_px.to_string(),
+                pitch.df_cell(r.df_px),
+                pitch.p_cell(r.piercing_px),
                 "—".to_string(),
             )
         } else {
@@ -180,7 +208,7 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow]) {
 
 /// Per target and view set: the floor at the true K, the bias under the largest perturbation, and what
 /// differs from the landmark registration and why.
-fn comparison(md: &mut String, rows: &[IntensitySummaryRow]) {
+fn comparison(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
     let _ = writeln!(md, "### Intensity beside landmark registration\n");
     for target in distinct(rows.iter().map(|r| r.target.clone())) {
         for views in distinct(
@@ -241,7 +269,7 @@ only through magnification, which the DRR barely shows, so the depth stays where
 registration ends {} mm from it and the intensity-based one {} mm, the two optima {} mm apart (their \
 centres {} mm, their orientations {}°); from the spread starts the intensity median is {} mm, {:.0} % of \
 them reaching the intensity optimum under this K and {:.0} % within {SUCCESS_MTRE_MM} mm of the truth. ",
-                    assumed(w),
+                    assumed(w, pitch),
                     num(l, 3),
                     num(i, 3),
                     num(d, 3),

@@ -118,26 +118,34 @@ configuration is `study.toml`.\n",
             piercing: [at("ap"), at("lat")],
             noise_px: cfg.registration.noise_px,
             calibration_trials: cfg.calibration.trials,
+            pitch: grid::Pitch::of(cfg).0,
         },
     )?;
-    shift_ratio::table(&mut md, &ratios);
+    let pitch = grid::Pitch::of(cfg);
+    shift_ratio::table(&mut md, &ratios, pitch);
     cohort::section(&mut md, out, cfg, tables);
     if !tables.projection.is_empty() {
         let _ = writeln!(md, "## {PROJECTION}\n");
         layout::figures(&mut md, &figs, Section::Projection, &mut n);
-        silhouette_section(&mut md, &tables.projection, &paper, &first);
+        silhouette_section(&mut md, &tables.projection, &paper, &first, pitch);
     }
     if !tables.landmarks.is_empty() {
         let _ = writeln!(md, "## {LANDMARKS}\n");
         layout::figures(&mut md, &figs, Section::Landmarks, &mut n);
-        landmark_section(&mut md, &tables.landmarks, &paper, &first);
+        landmark_section(&mut md, &tables.landmarks, &paper, &first, pitch);
     }
     let carm = cfg.carm().ok();
     physical::section(&mut md, &tables.physical, carm.as_ref(), &first);
     if !tables.registration_summary.is_empty() || !tables.registration_physical.is_empty() {
         let _ = writeln!(md, "## {REGISTRATION}\n");
         layout::figures(&mut md, &figs, Section::Registration, &mut n);
-        registration_section(&mut md, tables, &paper, &first, cfg.registration.noise_px);
+        registration_section(
+            &mut md,
+            tables,
+            &paper,
+            &first,
+            (cfg.registration.noise_px, pitch),
+        );
     }
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
@@ -145,7 +153,7 @@ configuration is `study.toml`.\n",
     literature::section(&mut md, &tables.tracking, &first)?;
     renderers_section(&mut md, cfg);
     // The .tex tables first: the products list names what is on disk.
-    write_latex_tables(out, tables, &paper, &first)?;
+    write_latex_tables(out, tables, &paper, &first, pitch)?;
     layout::products(&mut md, out)?;
     timings_section(&mut md, rows, run);
     write_atomic_bytes(&out.join("report.md"), md.as_bytes())
@@ -185,13 +193,14 @@ fn write_latex_tables(
     tables: &StudyTables,
     paper: &PaperResults,
     first: &str,
+    pitch: grid::Pitch,
 ) -> Result<()> {
     let dir = out.join("tables");
     if !tables.projection.is_empty() {
-        silhouette_table(&tables.projection, paper, first).write_latex(&dir)?;
+        silhouette_table(&tables.projection, paper, first, pitch).write_latex(&dir)?;
     }
     if !tables.landmarks.is_empty() {
-        landmark_table(&tables.landmarks, paper, first).write_latex(&dir)?;
+        landmark_table(&tables.landmarks, paper, first, pitch).write_latex(&dir)?;
     }
     if !tables.registration_summary.is_empty() {
         registration_table(&tables.registration_summary, paper, first).write_latex(&dir)?;
@@ -335,8 +344,14 @@ in timings.csv.\n",
     let _ = writeln!(md, "{}", to_markdown(&rows));
 }
 
-fn silhouette_section(md: &mut String, rows: &[ProjectionRow], paper: &PaperResults, first: &str) {
-    let t = comparison::silhouette_table(rows, paper, first);
+fn silhouette_section(
+    md: &mut String,
+    rows: &[ProjectionRow],
+    paper: &PaperResults,
+    first: &str,
+    pitch: grid::Pitch,
+) {
+    let t = comparison::silhouette_table(rows, paper, first, pitch);
     let _ = writeln!(md, "### {}\n", t.caption);
     let _ = writeln!(md, "{}", t.to_markdown());
     let _ = writeln!(
@@ -347,8 +362,14 @@ what the model gives rather than tuning to the paper.\n"
     );
 }
 
-fn landmark_section(md: &mut String, rows: &[LandmarkRow], paper: &PaperResults, first: &str) {
-    let t = comparison::landmark_table(rows, paper, first);
+fn landmark_section(
+    md: &mut String,
+    rows: &[LandmarkRow],
+    paper: &PaperResults,
+    first: &str,
+    pitch: grid::Pitch,
+) {
+    let t = comparison::landmark_table(rows, paper, first, pitch);
     let _ = writeln!(md, "### {}\n", t.caption);
     let _ = writeln!(md, "{}", t.to_markdown());
 }
@@ -358,14 +379,14 @@ fn registration_section(
     tables: &StudyTables,
     paper: &PaperResults,
     first: &str,
-    noise_px: f64,
+    (noise_px, pitch): (f64, grid::Pitch),
 ) {
     let rows = &tables.registration_summary;
     if !rows.is_empty() {
         let t = comparison::registration_table(rows, paper, first);
         let _ = writeln!(md, "### {}\n", t.caption);
         let _ = write!(md, "{}", t.to_markdown());
-        let t = registration::cells_table(rows, first, noise_px);
+        let t = registration::cells_table(rows, first, noise_px, pitch);
         let _ = writeln!(md, "\n### {}\n", t.caption);
         let _ = write!(md, "{}", t.to_markdown());
         let _ = writeln!(

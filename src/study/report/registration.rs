@@ -21,7 +21,12 @@ pub fn cell_text(r: &RegistrationSummaryRow, mean: f64, ci95: f64) -> String {
 }
 
 /// The cells of `target` at piercing 0, Δf 0 (noise only) and the largest Δf, every method.
-pub fn cells_table(rows: &[RegistrationSummaryRow], target: &str, noise_px: f64) -> PaperTable {
+pub fn cells_table(
+    rows: &[RegistrationSummaryRow],
+    target: &str,
+    noise_px: f64,
+    pitch: super::grid::Pitch,
+) -> PaperTable {
     let mine: Vec<&RegistrationSummaryRow> = rows
         .iter()
         .filter(|r| r.target == target && r.piercing_px == 0.0)
@@ -33,7 +38,7 @@ pub fn cells_table(rows: &[RegistrationSummaryRow], target: &str, noise_px: f64)
         .map(|r| {
             vec![
                 r.method.to_string(),
-                format!("{}", r.df_px),
+                pitch.df_cell(r.df_px),
                 cell_text(r, r.rot_err_deg_mean, r.rot_err_deg_ci95),
                 cell_text(r, r.trans_err_mm_mean, r.trans_err_mm_ci95),
                 cell_text(r, r.residual_px_mean, r.residual_px_ci95),
@@ -50,14 +55,13 @@ pub fn cells_table(rows: &[RegistrationSummaryRow], target: &str, noise_px: f64)
              value"
         ),
         header: [
-            "method",
-            "Δf (px)",
-            "rotation error (°)",
-            "translation error (mm)",
-            "residual (px)",
-            "n (finite of trials)",
+            "method".to_string(),
+            format!("Δf, {}", pitch.unit("SDD error")),
+            "rotation error (°)".into(),
+            "translation error (mm)".into(),
+            "residual (px)".into(),
+            "n (finite of trials)".into(),
         ]
-        .map(String::from)
         .to_vec(),
         rows: body,
     }

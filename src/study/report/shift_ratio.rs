@@ -136,15 +136,16 @@ pub fn ratios(rows: &[LandmarkRow], piercing: &BTreeMap<String, (f64, f64)>) -> 
 }
 
 /// The decomposition table.
-pub fn table(md: &mut String, r: &[TargetRatio]) {
+pub fn table(md: &mut String, r: &[TargetRatio], pitch: super::grid::Pitch) {
     if r.is_empty() {
         return;
     }
     let _ = writeln!(
         md,
-        "| target | landmarks (left out) | Δf (px) | RMS shift AP (px) | RMS shift LAT (px) | LAT/AP \
+        "| target | landmarks (left out) | Δf, {} | RMS shift AP (px) | RMS shift LAT (px) | LAT/AP \
          measured | AP offset o, spread s (px) | LAT offset o, spread s (px) | √(o² + s²) AP, LAT (px) | \
-         LAT/AP predicted |\n|---|---|---|---|---|---|---|---|---|---|"
+         LAT/AP predicted |\n|---|---|---|---|---|---|---|---|---|---|",
+        pitch.unit("SDD error")
     );
     for t in r {
         let left = if t.left_out.is_empty() {
@@ -157,7 +158,7 @@ pub fn table(md: &mut String, r: &[TargetRatio]) {
             "| {} | {}{left} | {} | {:.3} | {:.3} | {:.3} | {:.1}, {:.1} | {:.1}, {:.1} | {:.1}, {:.1} | {:.3} |",
             t.target,
             t.landmarks.len(),
-            t.df_px,
+            pitch.df_cell(t.df_px),
             t.rms_shift_ap,
             t.rms_shift_lat,
             t.measured(),

@@ -4,7 +4,7 @@
 
 use std::fmt::Write as _;
 
-use super::grid::short;
+use super::grid::{Pitch, short};
 use super::shift_ratio::is_segment;
 use crate::study::config::StudyConfig;
 use crate::study::schema::TrackingRow;
@@ -17,6 +17,7 @@ pub fn section(md: &mut String, cfg: &StudyConfig, rows: &[TrackingRow], first: 
         return;
     }
     let tr = &cfg.tracking;
+    let pitch = Pitch::of(cfg);
     let _ = writeln!(md, "## {HEADING}\n");
     let _ = writeln!(
         md,
@@ -77,9 +78,17 @@ relative TRE, range (mm) |\n|---|---|---|---|---|---|---|"
             .map(|r| r.rel_tre_mm)
             .collect();
         let range = super::grid::level_range(&levels, 3);
+        // A focal cell with its SDD error beside it.
+        let geometry = match pert.strip_prefix("df=").and_then(|d| d.parse::<f64>().ok()) {
+            Some(df) if !pert.contains(',') => match pitch.mm(df) {
+                Some(mm) => format!("{pert} (an SDD error of {mm} mm)"),
+                None => pert.clone(),
+            },
+            _ => pert.clone(),
+        };
         let _ = writeln!(
             md,
-            "| {method} | {pert} | {abs} | {rel} | {rot} | {pedicle} | {range} |"
+            "| {method} | {geometry} | {abs} | {rel} | {rot} | {pedicle} | {range} |"
         );
     }
     let _ = writeln!(md);

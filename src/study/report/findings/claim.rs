@@ -178,6 +178,10 @@ pub enum Source {
     Rule { name: String },
     /// A value of the run's configuration (`study.toml`), `key` a dotted path.
     Config { key: String },
+    /// `px` × the detector's pixel pitch along u, `sdd_mm / K[0][0]` of the reference sidecar
+    /// `reference` (a path under the study folder): a focal offset's SDD error, or a piercing shift's move
+    /// on the detector, in mm.
+    Detector { px: f64, reference: String },
     /// How many of the facts (by id) have the word `word`.
     CountWord { facts: Vec<String>, word: String },
 }

@@ -2,7 +2,44 @@
 //! formulas and counts of other claims, and the rules that decide categorical words (interval, trend,
 //! tie, an order beyond the printed precision). `python/tests/test_findings.py` reimplements each.
 
+use super::Inputs;
 use super::claim::{Claim, Finding, Geometry, Op, Source, Stat, Table, Transform, Where};
+
+/// What a size in px is in mm: a focal offset's SDD error, or a piercing shift's move on the detector.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Mm {
+    Sdd,
+    Detector,
+}
+
+/// `px` in mm as the prose prints it beside the px — ` (an SDD error of 150 mm)` or
+/// ` (15 mm on the detector)` — recorded as the printed claim `id` ([`Source::Detector`]); empty where
+/// the study has no reference sidecar with a pixel pitch (an explicit-K geometry, no projection run).
+pub fn in_mm(f: &mut Finding, x: &Inputs, id: &str, px: f64, what: Mm) -> String {
+    let Some((reference, pitch)) = &x.pitch else {
+        return String::new();
+    };
+    let mm = f.say(mm_claim(id, px, *pitch, reference));
+    match what {
+        Mm::Sdd => format!(" (an SDD error of {mm} mm)"),
+        Mm::Detector => format!(" ({mm} mm on the detector)"),
+    }
+}
+
+/// The claim of `px` × `pitch` mm: whole millimetres without decimals, else one.
+pub fn mm_claim(id: &str, px: f64, pitch: f64, reference: &str) -> Claim {
+    let v = px * pitch;
+    let decimals = if (v - v.round()).abs() < 1e-6 { 0 } else { 1 };
+    Claim::new(
+        id,
+        v,
+        Source::Detector {
+            px,
+            reference: reference.into(),
+        },
+    )
+    .shown(decimals, "mm")
+}
 
 /// `interval`: where [a, b] lies against the paper's [lo, hi].
 pub fn interval(a: f64, b: f64, lo: f64, hi: f64) -> &'static str {

@@ -2,7 +2,7 @@
 //! its geometric decomposition, and the first target's shifts against the paper's.
 
 use super::claim::{Claim, Finding, Geometry, Op, Source, Stat, Transform, Where};
-use super::derive::{column, count, formula, points};
+use super::derive::{Mm, column, count, formula, in_mm, points};
 use super::{Inputs, sources};
 use crate::study::schema::LandmarkRow;
 
@@ -230,10 +230,11 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
             ),
         );
     }
+    let mm = in_mm(&mut f, x, "landmarks_versus_paper.df_mm", 100.0, Mm::Sdd);
     let k = f.say(count("landmarks.matched", &matched));
     let n = f.say(count("landmarks.paper", &theirs));
     f.text = format!(
-        "Over the {k} of the paper's {n} landmarks that {first} has, at focal Δf 100 px our mean shift is \
+        "Over the {k} of the paper's {n} landmarks that {first} has, at focal Δf 100 px{mm} our mean shift is \
 AP {} px, LAT {} px; the paper's table gives AP {}, LAT {} px (mean of all its landmarks) without stating \
 its Δf (and its text disagrees with its table), so only the LAT > AP ordering is comparable {}.",
         ours[0],

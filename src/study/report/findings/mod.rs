@@ -61,6 +61,9 @@ struct Inputs<'a> {
     piercing: [[f64; 2]; 2],
     /// The registration trials' landmark noise σ (px).
     noise_px: f64,
+    /// A reference sidecar (path under the study folder) and the detector's pixel pitch along u (mm):
+    /// what sizes the px of a perturbation in mm.
+    pitch: Option<(String, f64)>,
 }
 
 impl Inputs<'_> {
@@ -122,8 +125,9 @@ const ABOUT: &str = "Each finding is one bullet of report.md's Findings: its Mar
 (numbers) it prints (text) or builds on (text null), and its categorical facts. A claim's source says how \
 to recompute it from the CSV tables under tables/ (rows: 0-based data rows matching `where`, whose cells \
 are compared as text) or their points (points), from other claims (formula, count_greater) or facts \
-(count_word), from a list (count), from reference/paper-results.toml (paper) or study.toml (config), or \
-names a rule constant (rule). A fact's word follows from its rule applied to the claims it lists.";
+(count_word), from a list (count), from reference/paper-results.toml (paper) or study.toml (config), from a size \
+in px and a reference sidecar's pixel pitch (detector: px × sdd_mm / K[0][0], in mm), or names a rule \
+constant (rule). A fact's word follows from its rule applied to the claims it lists.";
 
 /// Everything the section needs beyond the tables.
 pub struct Context<'a> {
@@ -134,6 +138,8 @@ pub struct Context<'a> {
     pub piercing: [[f64; 2]; 2],
     pub noise_px: f64,
     pub calibration_trials: usize,
+    /// The detector's pixel pitch along u (mm), where the geometry states it.
+    pub pitch: Option<f64>,
 }
 
 /// Computes the findings, writes `tables/findings.json` and the *Findings* section (nothing when no
@@ -166,6 +172,7 @@ pub fn section(md: &mut String, t: &StudyTables, cx: &Context) -> Result<()> {
         ratios: cx.ratios,
         piercing: cx.piercing,
         noise_px: cx.noise_px,
+        pitch: pitch_reference(cx),
     };
     let findings: Vec<Finding> = [
         landmarks::ratio(&inputs),
@@ -201,6 +208,17 @@ pub fn section(md: &mut String, t: &StudyTables, cx: &Context) -> Result<()> {
     }
     let _ = writeln!(md);
     Ok(())
+}
+
+/// The first target's first reference sidecar (`references/<first>_<view>.json`) beside the pitch,
+/// where both exist.
+fn pitch_reference(cx: &Context) -> Option<(String, f64)> {
+    let pitch = cx.pitch?;
+    ["ap", "lat"]
+        .iter()
+        .map(|v| format!("references/{}_{v}.json", cx.first))
+        .find(|r| cx.out.join(r).is_file())
+        .map(|r| (r, pitch))
 }
 
 /// Links to the table of rows `R` and a figure, for the end of a finding.

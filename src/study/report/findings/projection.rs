@@ -2,7 +2,7 @@
 //! sensitive structures, and the first target's Dice against the paper's.
 
 use super::claim::{Claim, Finding, Source, Stat, Table, Transform, Where};
-use super::derive::{column, count, count_greater, greater, tie};
+use super::derive::{Mm, column, count, count_greater, greater, in_mm, mm_claim, tie};
 use super::{Inputs, sources};
 use crate::study::schema::{ProjectionRow, StructureRow};
 
@@ -54,17 +54,28 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
             }
             _ => c.cell(col, step),
         };
+        let id = |what: &str| format!("dice.{family}.{what}_mm");
         let where_ = match family {
-            "piercing" => format!("p = {top} px"),
-            "joint" => format!(
-                "Δf = {top} px with piercing ({p}, {p}) px",
-                p = t.number(t.select(&at)[0], "dcx_px")
+            "piercing" => format!(
+                "p = {top} px{}",
+                in_mm(&mut f, x, &id("p"), step, Mm::Detector)
             ),
+            "joint" => {
+                let p = t.number(t.select(&at)[0], "dcx_px");
+                format!(
+                    "Δf = {top} px{} with piercing ({p}, {p}) px{}",
+                    in_mm(&mut f, x, &id("df"), step, Mm::Sdd),
+                    in_mm(&mut f, x, &id("p"), p, Mm::Detector)
+                )
+            }
             "skew" => format!("skew {top} px"),
             "scale" => format!("pixel scale sy = {top}"),
-            _ => format!("Δf = {top} px"),
+            _ => format!(
+                "Δf = {top} px{}",
+                in_mm(&mut f, x, &id("df"), step, Mm::Sdd)
+            ),
         };
-        let mut text = format!("Under {what} ({where_})");
+        let mut text = format!("Under {what}, {where_},");
         if let [level] = &levels[..] {
             let mut one = |view: &str| {
                 let (v, src) = loss(t, &at, level, view)?;
@@ -268,7 +279,10 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
         .unwrap_or_else(|| "ap".into());
     let first = targets.first()?.clone();
     let fig = format!("structures_dice_{first}_{view}.png");
-    let df_text = &top;
+    let df_text = format!(
+        "{top} px{}",
+        in_mm(&mut f, x, "structures.df_mm", df, Mm::Sdd)
+    );
     if top_set.len() == loss.len() {
         let (lo, hi) = (
             f.say(loss[loss.len() - 1].2.clone()),
@@ -285,7 +299,7 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
             ],
         );
         f.text = format!(
-            "At focal Δf {df_text} px every structure loses alike (mean `1 − Dice` over {over} and both \
+            "At focal Δf {df_text} every structure loses alike (mean `1 − Dice` over {over} and both \
 views {lo}–{hi}, within {tol} % of each other) {}.",
             sources::<StructureRow>(&fig)
         );
@@ -318,7 +332,7 @@ views {lo}–{hi}, within {tol} % of each other) {}.",
     let (top_names, top_values, top_note) = group(&top_set, &mut f, "most");
     let (low_names, low_values, low_note) = group(&bottom, &mut f, "least");
     f.text = format!(
-        "At focal Δf {df_text} px the most sensitive structure{} {top_names} (mean `1 − Dice` over \
+        "At focal Δf {df_text} the most sensitive structure{} {top_names} (mean `1 − Dice` over \
 {over} and both views {top_values}{top_note}) and the least sensitive {low_names} \
 ({low_values}{low_note}) {}.",
         if top_set.len() > 1 { "s are" } else { " is" },
@@ -355,6 +369,26 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
         )
     };
     let (a, b) = (lat(&mut f, "100")?, lat(&mut f, "500")?);
+    let mm = match &x.pitch {
+        Some((reference, pitch)) => {
+            let (m100, m500) = (
+                f.say(mm_claim(
+                    "dice_versus_paper.df100_mm",
+                    100.0,
+                    *pitch,
+                    reference,
+                )),
+                f.say(mm_claim(
+                    "dice_versus_paper.df500_mm",
+                    500.0,
+                    *pitch,
+                    reference,
+                )),
+            );
+            format!(" (SDD errors of {m100} / {m500} mm)")
+        }
+        None => String::new(),
+    };
     let paper = |f: &mut Finding, key: &str, v: f64| {
         f.say(
             Claim::new(
@@ -405,7 +439,7 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
         format!(", and the smallest AP Dice over the joint schedule {m} against its > {pmin}")
     });
     f.text = format!(
-        "{first} LAT Dice at focal Δf 100 / 500 px is {a} / {b} against the paper's {pa} / {pb}{ap}: a \
+        "{first} LAT Dice at focal Δf 100 / 500 px{mm} is {a} / {b} against the paper's {pa} / {pb}{ap}: a \
 focal change scales the silhouette about the piercing point by `(f + Δf)/f`, so overlap falls in every \
 view; the paper's near-unity AP Dice cannot come from this pinhole model, and we report what the model gives \
 {}.",

@@ -3,7 +3,7 @@
 //! trends against the paper's.
 
 use super::claim::{Claim, Finding, Source, Stat, Table, Transform, Where};
-use super::derive::{column, count, count_greater, interval, trend};
+use super::derive::{Mm, column, count, count_greater, in_mm, interval, mm_claim, trend};
 use super::{Inputs, sources};
 use crate::study::schema::RegistrationSummaryRow;
 
@@ -81,11 +81,19 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
     let has = |m: &str| methods.iter().any(|x| x == m);
     let mut f = Finding::new("registration_by_family");
     let mut families = Vec::new();
+    let (df_v, p_v) = (
+        df_top.parse::<f64>().unwrap_or(f64::NAN),
+        p_top.parse::<f64>().unwrap_or(f64::NAN),
+    );
+    let (df_mm, p_mm) = (
+        in_mm(&mut f, x, "registration.df_mm", df_v, Mm::Sdd),
+        in_mm(&mut f, x, "registration.p_mm", p_v, Mm::Detector),
+    );
     if let Some(p0) = p_zero.filter(|_| df_top != "0") {
         families.push((
             "focal",
             "a focal error alone",
-            format!("Δf = {df_top} px"),
+            format!("Δf = {df_top} px{df_mm}"),
             df_top.clone(),
             p0,
         ));
@@ -94,7 +102,7 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
         families.push((
             "piercing",
             "a piercing shift alone",
-            format!("p = {p_top} px"),
+            format!("p = {p_top} px{p_mm}"),
             d0,
             p_top.clone(),
         ));
@@ -103,7 +111,7 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
         families.push((
             "joint",
             "both together",
-            format!("Δf = {df_top} px with p = {p_top} px"),
+            format!("Δf = {df_top} px{df_mm} with p = {p_top} px{p_mm}"),
             df_top.clone(),
             p_top.clone(),
         ));
@@ -183,7 +191,7 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
                 "single-view translation direct-ap {a} against direct-lat {l}, {direction}"
             ));
         }
-        parts.push(format!("under {what} ({cell}): {}", said.join("; ")));
+        parts.push(format!("under {what}, {cell}: {}", said.join("; ")));
     }
     if parts.is_empty() {
         return None;
@@ -293,6 +301,30 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
     };
     let (d0, d1) = span(&mut f, "df_px")?;
     let (p0, p1) = span(&mut f, "piercing_px")?;
+    // The spans in mm at this detector (the paper's px are at its own, unstated, detector).
+    let mm = match &x.pitch {
+        Some((reference, pitch)) => {
+            let mut m = |col: &str, name: &str| {
+                let v = f
+                    .value(&format!("registration.span.{col}.{name}"))
+                    .unwrap_or(f64::NAN);
+                f.say(mm_claim(
+                    &format!("registration.span.{col}.{name}_mm"),
+                    v,
+                    *pitch,
+                    reference,
+                ))
+            };
+            let (a, b, c, d) = (
+                m("df_px", "min"),
+                m("df_px", "max"),
+                m("piercing_px", "min"),
+                m("piercing_px", "max"),
+            );
+            format!(" (SDD errors of {a}–{b} mm, {c}–{d} mm on the detector)")
+        }
+        None => String::new(),
+    };
     let paper_trend = &x.paper.registration.trend_with_df;
     let g = &x.paper.geometry;
     let mut span_paper = Vec::new();
@@ -464,7 +496,7 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
         ));
     }
     f.text = format!(
-        "Registration of {first} against the paper, over Δf {d0}–{d1} px and piercing {p0}–{p1} px (the \
+        "Registration of {first} against the paper, over Δf {d0}–{d1} px and piercing {p0}–{p1} px{mm} (the \
 paper's ranges span Δf {}–{} px and piercing {}–{} px), by interval (inside, overlapping or outside the \
 paper's range) and by trend (the paper reports each error {said_trend} with Δf; ours is called rising or \
 falling when the change exceeds the two cells' confidence intervals together, else flat): {}. Our trials observe synthetic landmarks through the \
