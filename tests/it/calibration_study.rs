@@ -247,3 +247,76 @@ intensity_trials = 1
     );
     assert!(report.contains("Tolerance: how good must the calibration be?"));
 }
+
+/// `[calibration.physical]` at σ = 0 (each calibration exact): a **full** calibration of the displaced
+/// C-arm absorbs any error (no landmark shift, no registration error); the **intrinsic** protocol (the
+/// estimated K with the nominal poses) absorbs a detector moved along the central ray — a pure change of
+/// K, fx × (S + δ)/S — but not a focal spot moved across the beam, which moves the camera centre; the
+/// nominal geometry used uncalibrated errs under both. Against the nominal C-arm's rows of the same run.
+#[test]
+fn a_calibration_absorbs_what_a_physical_error_does_to_its_protocol() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("study.toml");
+    std::fs::write(
+        &cfg,
+        r#"experiments = ["calibration"]
+[anatomy]
+levels = ["L1"]
+segment = false
+voxel_mm = 1.0
+[geometry]
+binning = 4
+[calibration]
+phantoms = ["helix"]
+noise_px = [0.0]
+trials = 1
+trials_per_unit = 1
+silhouette_trials = 0
+[calibration.physical]
+src_dx_mm = [4.0]
+det_dz_mm = [10.0]
+"#,
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let (ok, err) = crate::common::run(&[
+        "study",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let t = spinedrr::study::StudyTables::load(&out).unwrap();
+    // 2 errors × 1 trial × 2 protocols × 2 views.
+    assert_eq!(t.calibration_physical.len(), 8);
+    assert_eq!(
+        t.calibration.len(),
+        4,
+        "the nominal C-arm's rows stay apart"
+    );
+    for r in &t.calibration_physical {
+        let absorbed = r.protocol.name() == "full" || r.key == "det_dz_mm";
+        if absorbed {
+            assert!(
+                r.landmark_shift_max_px < 1e-3 && r.reg_mtre_mm < 1e-3,
+                "{r:?}"
+            );
+        } else {
+            assert!(
+                r.landmark_shift_max_px > 1.0 && r.reg_mtre_mm > 0.1,
+                "{r:?}"
+            );
+        }
+        assert!(
+            r.uncalibrated_shift_max_px > 0.1 && r.uncalibrated_mtre_mm > 0.05,
+            "{r:?}"
+        );
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("### Calibrating a C-arm displaced by a physical error"));
+    assert!(
+        report.contains("| det_dz_mm = 10 | helix | 0 | full | 0 |"),
+        "{report}"
+    );
+}

@@ -5,7 +5,9 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
+use super::PhysicalGrid;
 use crate::calibration::{CalibrationPhantom, SetupOptions};
+use crate::geometry::Perturbation;
 use crate::{Error, Result};
 
 /// Largest number of calibration trials per (phantom, σ).
@@ -60,6 +62,12 @@ pub struct CalibrationSection {
     /// Plate tilt (deg) and poses per view.
     pub tilt_deg: f64,
     pub poses_per_view: usize,
+    /// `[calibration.physical]`: the C-arm whose calibration is simulated differs from its nominal
+    /// geometry by a physical error (each value of each key alone, the keys of
+    /// `[perturbations.physical]`), table `calibration_physical.csv`. A section without this table
+    /// has none.
+    #[serde(default = "PhysicalGrid::none")]
+    pub physical: PhysicalGrid,
 }
 
 impl Default for CalibrationSection {
@@ -78,17 +86,29 @@ impl Default for CalibrationSection {
             intensity_trials: 0,
             tilt_deg: 30.0,
             poses_per_view: 5,
+            // A displaced focal spot (the camera centre moves), a detector farther from the source (K
+            // alone changes) and a rolled detector (the camera turns): what a calibration of K alone
+            // can and cannot absorb.
+            physical: PhysicalGrid {
+                src_dx_mm: vec![4.0],
+                det_dz_mm: vec![10.0],
+                det_roll_deg: vec![2.0],
+                ..PhysicalGrid::none()
+            },
         }
     }
 }
 
-/// One work cell: trials `first..first + count` of one (phantom, σ).
+/// One work cell: trials `first..first + count` of one (phantom, σ), on the nominal C-arm or on one
+/// displaced by a physical error.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CalibrationCell {
     pub phantom: String,
     pub noise_px: f64,
     pub first: usize,
     pub count: usize,
+    /// The physical error of the calibrated C-arm against its nominal geometry (None: the nominal).
+    pub physical: Option<Perturbation>,
 }
 
 impl CalibrationCell {
@@ -99,12 +119,23 @@ impl CalibrationCell {
             .chars()
             .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
             .collect();
-        format!("cal_{p}_s{}_t{}", self.noise_px, self.first)
+        match &self.physical {
+            Some(q) => format!(
+                "cal_{p}_s{}_{}_t{}",
+                self.noise_px,
+                q.to_string().replace(['=', ','], ""),
+                self.first
+            ),
+            None => format!("cal_{p}_s{}_t{}", self.noise_px, self.first),
+        }
     }
 
     pub fn describe(&self) -> String {
+        let on = self
+            .physical
+            .map_or(String::new(), |q| format!(" of a C-arm displaced by {q}"));
         format!(
-            "calibration with phantom '{}' at σ = {} px, trials {}..{}",
+            "calibration{on} with phantom '{}' at σ = {} px, trials {}..{}",
             self.phantom,
             self.noise_px,
             self.first,
@@ -112,7 +143,8 @@ impl CalibrationCell {
         )
     }
 
-    /// The seed key (chunking excluded).
+    /// The seed key (chunking excluded; the physical error too: a trial on a displaced C-arm draws
+    /// the same detection noise as on the nominal one, so the two differ by the error alone).
     pub fn seed_key(&self) -> String {
         format!("cal/{}/{}", self.phantom, self.noise_px)
     }
@@ -138,18 +170,31 @@ impl CalibrationSection {
         }
     }
 
-    /// Every cell in table order: phantom, then σ, then chunk.
+    /// Every cell in table order: the nominal C-arm's (phantom, then σ, then chunk), then each physical
+    /// error's (validated before; a grid that fails to parse has none here).
     pub fn cells(&self) -> Vec<CalibrationCell> {
         let mut out = Vec::new();
-        for p in &self.phantoms {
-            for &s in &self.noise_px {
-                for first in (0..self.trials).step_by(self.trials_per_unit.max(1)) {
-                    out.push(CalibrationCell {
-                        phantom: p.clone(),
-                        noise_px: s,
-                        first,
-                        count: self.trials_per_unit.min(self.trials - first),
-                    });
+        let errors: Vec<Option<Perturbation>> = std::iter::once(None)
+            .chain(
+                self.physical
+                    .cells()
+                    .unwrap_or_default()
+                    .into_iter()
+                    .map(Some),
+            )
+            .collect();
+        for physical in errors {
+            for p in &self.phantoms {
+                for &s in &self.noise_px {
+                    for first in (0..self.trials).step_by(self.trials_per_unit.max(1)) {
+                        out.push(CalibrationCell {
+                            phantom: p.clone(),
+                            noise_px: s,
+                            first,
+                            count: self.trials_per_unit.min(self.trials - first),
+                            physical,
+                        });
+                    }
                 }
             }
         }
@@ -214,6 +259,7 @@ impl CalibrationSection {
                 format!("must be in (0, 80) degrees, got {}", self.tilt_deg),
             ));
         }
+        self.physical.cells_of("calibration.physical")?;
         let max = crate::calibration::phantom::MAX_POSES_PER_VIEW;
         if !(2..=max).contains(&self.poses_per_view) {
             return Err(Error::invalid(

@@ -27,7 +27,7 @@ pub struct WorkEstimate {
     pub registration_units: u64,
     /// Registration trials: cells × trials.
     pub registration_trials: u64,
-    /// Calibration units (phantoms × σ × trial chunks), tracking units (targets × methods × cells) and
+    /// Calibration units (phantoms × σ × trial chunks × (1 + physical errors)), tracking units (targets × methods × cells) and
     /// intensity-registration units (targets ×
     /// view sets × (Δf × piercing + physical errors) × initial-mTRE bins).
     pub other_units: u64,
@@ -93,9 +93,11 @@ impl StudyConfig {
         };
         let c = &self.calibration;
         let calibration_units = if self.runs(Experiment::Calibration) {
+            let physical: usize = c.physical.keys().iter().map(|(_, v)| v.len()).sum();
             n(c.phantoms.len())
                 .saturating_mul(n(c.noise_px.len()))
                 .saturating_mul(n(c.trials.div_ceil(c.trials_per_unit.max(1))))
+                .saturating_mul(n(1 + physical))
         } else {
             0
         };

@@ -82,6 +82,16 @@ impl StudyConfig {
         self.validate_registration()?;
         if self.runs(super::Experiment::Calibration) {
             self.calibration.validate()?;
+            for q in self.calibration.physical.cells()? {
+                for v in self.studied_views(&carm) {
+                    v.perturbed(&q).map_err(|e| {
+                        Error::invalid(
+                            "calibration.physical",
+                            format!("perturbation {q} in view '{}': {e}", v.name),
+                        )
+                    })?;
+                }
+            }
         }
         if self.runs(super::Experiment::IntensityRegistration) {
             self.intensity_registration

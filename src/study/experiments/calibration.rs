@@ -38,7 +38,7 @@ pub fn calibration_target(ctx: &Context) -> Result<&Target> {
 }
 
 /// The study's views (those of `geometry.views`) as a C-arm.
-fn study_carm(ctx: &Context) -> Result<CArm> {
+pub(super) fn study_carm(ctx: &Context) -> Result<CArm> {
     let views = ctx
         .cfg
         .geometry
@@ -51,6 +51,9 @@ fn study_carm(ctx: &Context) -> Result<CArm> {
 
 /// Runs trials `cell.first..cell.first + cell.count` of one (phantom, σ).
 pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
+    if let Some(q) = cell.physical {
+        return super::calibration_physical::run(ctx, cell, &q);
+    }
     let c = &ctx.cfg.calibration;
     let carm = study_carm(ctx)?;
     let phantom = CalibrationSection::phantom(&cell.phantom)?;
@@ -206,7 +209,7 @@ fn row(
 /// Registers the target's landmarks (seen exactly through the true views) with `views`: direct LM over
 /// every view from the Kabsch start; (rotation error deg, translation error mm, mTRE mm over `targets`)
 /// of the pose, whose truth is the identity. NaN when the solve fails.
-fn registration(
+pub(super) fn registration(
     carm: &CArm,
     views: &[View],
     landmarks: &[Landmark],

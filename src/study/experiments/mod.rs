@@ -6,6 +6,7 @@
 
 mod calibration;
 mod calibration_intensity;
+mod calibration_physical;
 mod ct;
 mod intensity;
 mod on_detector;

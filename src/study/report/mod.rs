@@ -3,6 +3,7 @@
 //! beside ours. Writing to a `String` cannot fail, so `writeln!` results are discarded (`let _`).
 
 mod calibration;
+mod calibration_physical;
 pub mod cohort;
 mod comparison;
 mod findings;
@@ -148,6 +149,7 @@ configuration is `study.toml`.\n",
         );
     }
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
+    calibration_physical::section(&mut md, &tables.calibration_physical, &tables.calibration);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
     tracking::section(&mut md, cfg, &tables.tracking, &first);
     literature::section(&mut md, &tables.tracking, &first)?;

@@ -21,7 +21,7 @@ pub use calibration::{
     CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, TOLERANCE_THRESHOLDS_PX,
 };
 pub use intensity::{IntensityBinRow, IntensityRow, IntensitySummaryRow};
-pub use physical::{PhysicalRow, RegistrationPhysicalRow};
+pub use physical::{CalibrationPhysicalRow, PhysicalRow, RegistrationPhysicalRow};
 pub use tables::{
     SOLVER_SPREAD, StudyTables, TableRow, ci95_half_width, mean_sd, read_rows, write_rows,
 };
@@ -224,6 +224,8 @@ pub struct UnitRows {
     pub tracking: Vec<TrackingRow>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub registration_physical: Vec<RegistrationPhysicalRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub calibration_physical: Vec<CalibrationPhysicalRow>,
 }
 
 /// One tracking cell (table `tracking.csv`): the absolute errors at the two poses and the error of

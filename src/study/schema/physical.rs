@@ -82,3 +82,44 @@ pub struct RegistrationPhysicalRow {
     pub iterations: usize,
     pub converged: bool,
 }
+
+/// One calibration trial of a C-arm displaced by a physical error, seen through one protocol in one
+/// view (table `calibration_physical.csv`): the phantom is imaged and calibrated on the displaced
+/// C-arm, the anatomy is imaged by it too, and is projected and registered with the calibration's
+/// geometry — protocol `full`: the estimated K and poses; `intrinsic`: the estimated K with the
+/// **nominal** poses (a tracker or mechanical model that does not know of the error). Beside them the
+/// same measures for the nominal geometry used uncalibrated.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationPhysicalRow {
+    pub phantom: String,
+    #[serde(with = "num")]
+    pub noise_px: f64,
+    /// The physical key and its value (mm or degrees).
+    pub key: String,
+    #[serde(with = "num")]
+    pub value: f64,
+    pub trial: usize,
+    pub protocol: crate::study::config::Protocol,
+    pub view: String,
+    /// The calibration's phantom reprojection RMS (px).
+    #[serde(with = "num")]
+    pub reprojection_rms_px: f64,
+    /// Shift of the target's landmarks between the displaced C-arm's projection and the protocol's (px).
+    #[serde(with = "num")]
+    pub landmark_shift_mean_px: f64,
+    #[serde(with = "num")]
+    pub landmark_shift_max_px: f64,
+    /// Landmark registration (direct, every view) with the protocol's geometry: errors and mTRE over
+    /// the target's surface points.
+    #[serde(with = "num")]
+    pub reg_rot_err_deg: f64,
+    #[serde(with = "num")]
+    pub reg_trans_err_mm: f64,
+    #[serde(with = "num")]
+    pub reg_mtre_mm: f64,
+    /// The same with the nominal geometry, uncalibrated: the physical error's own effect.
+    #[serde(with = "num")]
+    pub uncalibrated_shift_max_px: f64,
+    #[serde(with = "num")]
+    pub uncalibrated_mtre_mm: f64,
+}

@@ -6,8 +6,8 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use super::{
-    CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, IntensityBinRow,
-    IntensityRow, IntensitySummaryRow, LandmarkRow, PhysicalRow, ProjectionRow,
+    CalibrationAmbiguityRow, CalibrationPhysicalRow, CalibrationRow, CalibrationToleranceRow,
+    IntensityBinRow, IntensityRow, IntensitySummaryRow, LandmarkRow, PhysicalRow, ProjectionRow,
     RegistrationPhysicalRow, RegistrationRow, RegistrationSummaryRow, StructureRow, TrackingRow,
     UnitRows,
 };
@@ -61,6 +61,9 @@ impl TableRow for TrackingRow {
 impl TableRow for RegistrationPhysicalRow {
     const TABLE: &'static str = "registration_physical";
 }
+impl TableRow for CalibrationPhysicalRow {
+    const TABLE: &'static str = "calibration_physical";
+}
 
 fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
     dir.join(format!("{}.csv", R::TABLE))
@@ -106,6 +109,7 @@ pub struct StudyTables {
     pub physical: Vec<PhysicalRow>,
     pub tracking: Vec<TrackingRow>,
     pub registration_physical: Vec<RegistrationPhysicalRow>,
+    pub calibration_physical: Vec<CalibrationPhysicalRow>,
 }
 
 impl StudyTables {
@@ -123,6 +127,7 @@ impl StudyTables {
             t.physical.extend(u.physical);
             t.tracking.extend(u.tracking);
             t.registration_physical.extend(u.registration_physical);
+            t.calibration_physical.extend(u.calibration_physical);
         }
         t.registration_summary = summarize_registration(&t.registration);
         t.calibration_tolerance = super::calibration::tolerance(&t.calibration);
@@ -156,6 +161,7 @@ impl StudyTables {
         put(dir, &self.physical, &mut n)?;
         put(dir, &self.tracking, &mut n)?;
         put(dir, &self.registration_physical, &mut n)?;
+        put(dir, &self.calibration_physical, &mut n)?;
         Ok(n)
     }
 
@@ -177,6 +183,7 @@ impl StudyTables {
             physical: read_rows(&dir)?,
             tracking: read_rows(&dir)?,
             registration_physical: read_rows(&dir)?,
+            calibration_physical: read_rows(&dir)?,
         })
     }
 }
