@@ -51,9 +51,6 @@ pub(super) fn study_carm(ctx: &Context) -> Result<CArm> {
 
 /// Runs trials `cell.first..cell.first + cell.count` of one (phantom, σ).
 pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
-    if let Some(q) = cell.physical {
-        return super::calibration_physical::run(ctx, cell, &q);
-    }
     let c = &ctx.cfg.calibration;
     let carm = study_carm(ctx)?;
     let phantom = CalibrationSection::phantom(&cell.phantom)?;

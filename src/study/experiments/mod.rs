@@ -343,7 +343,10 @@ impl Context {
                 projection::run(self, self.target(target)?, view, p)
             }
             Unit::Registration { .. } => registration::run(self, unit),
-            Unit::Calibration(c) => calibration::run(self, c),
+            Unit::Calibration(c) => match &c.physical {
+                Some(q) => calibration_physical::run(self, c, q),
+                None => calibration::run(self, c),
+            },
             Unit::Intensity(c) => intensity::run(self, c),
             Unit::Tracking(c) => tracking::run(self, c),
             Unit::RegistrationPhysical(c) => registration::run_physical(self, c),
