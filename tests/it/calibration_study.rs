@@ -320,3 +320,39 @@ det_dz_mm = [10.0]
         "{report}"
     );
 }
+
+/// A bad `[calibration.physical]` value is refused before any work, naming the table and key.
+#[test]
+fn a_bad_calibration_physical_value_is_refused_naming_the_key() {
+    for (value, says) in [
+        ("det_dz_mm = [0.0]", "0 is no perturbation"),
+        ("det_roll_deg = [60.0]", "beyond"),
+        ("src_dx_mm = [1.0, 1.0]", "listed twice"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("study.toml");
+        std::fs::write(
+            &cfg,
+            format!(
+                "experiments = [\"calibration\"]\n[anatomy]\nlevels = [\"L1\"]\nsegment = false\n\
+                 [calibration]\nphantoms = [\"helix\"]\n[calibration.physical]\n{value}\n"
+            ),
+        )
+        .unwrap();
+        let out = dir.path().join("out");
+        let (ok, err) = crate::common::run(&[
+            "study",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let key = value.split(' ').next().unwrap();
+        assert!(!ok, "{value}: accepted");
+        assert!(
+            err.contains(&format!("calibration.physical.{key}")) && err.contains(says),
+            "{value}: {err}"
+        );
+        assert!(!out.exists(), "{value}: output written before validation");
+    }
+}
