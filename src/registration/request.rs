@@ -1,12 +1,14 @@
 //! One registration as `spinedrr register` (and Python's `register`) runs it on a problem file: select
 //! views, add pixel noise, start from the truth perturbed when asked, solve, and the `R.json` record.
 
+use glam::DVec3;
 use serde_json::{Value, json};
 
 use super::{
-    LoadedProblem, Method, RegistrationOptions, RegistrationResult, add_pixel_noise,
-    model_centroid, perturb_pose, pose_errors, register,
+    LoadedProblem, Method, RegistrationOptions, RegistrationProblem, RegistrationResult,
+    add_pixel_noise, model_centroid, perturb_pose, pose_errors, register,
 };
+use crate::geometry::{RigidTransform, rotation_exp};
 use crate::{Error, Result};
 
 /// The options of a registration run besides the problem.
@@ -39,6 +41,55 @@ pub struct RegisterOutcome {
 }
 
 /// Runs `req` on `loaded`.
+/// A clearly better fit than `result` reached from `result`'s pose turned 180° about one of the first
+/// view's camera axes through the landmarks' centroid: `result` is then a flipped local minimum (a
+/// single view from a start turned ~175°: the vertebra upside down in front of the source, at the right
+/// scale, residual tens of px), which the plausibility checks cannot tell from a calibration error's
+/// residual. Says which turn and both residuals. Only for the iterative solvers (Kabsch is closed-form).
+fn better_flip(
+    problem: &RegistrationProblem,
+    method: Method,
+    result: &RegistrationResult,
+    opts: &RegistrationOptions,
+) -> Option<String> {
+    if matches!(method, Method::Kabsch) {
+        return None;
+    }
+    let view = &problem.views.first()?.view;
+    let to_world = view.world_to_camera.inverse();
+    let centre = result.pose.apply(model_centroid(problem));
+    for (name, axis) in [("u", DVec3::X), ("v", DVec3::Y), ("central-ray", DVec3::Z)] {
+        let turn = rotation_exp(to_world.apply_vector(axis) * std::f64::consts::PI);
+        let start = RigidTransform::new(
+            turn * result.pose.rotation,
+            turn * (result.pose.translation - centre) + centre,
+        );
+        let Ok(r) = register(
+            problem,
+            method,
+            &RegistrationOptions {
+                init: Some(start),
+                ..*opts
+            },
+        ) else {
+            continue;
+        };
+        // Clearly better: half the residual and at least 1 px less (a tie within noise is no flip).
+        if r.converged
+            && problem.implausible(&r.pose).is_none()
+            && r.residual_px < 0.5 * result.residual_px
+            && result.residual_px - r.residual_px > 1.0
+        {
+            return Some(format!(
+                "a local minimum: the pose turned 180° about view '{}''s {name} axis fits the landmarks \
+                 with a mean residual of {:.2} px against this pose's {:.2} px (a flipped solution)",
+                view.name, r.residual_px, result.residual_px
+            ));
+        }
+    }
+    None
+}
+
 pub fn run_request(loaded: LoadedProblem, req: &RegisterRequest) -> Result<RegisterOutcome> {
     let method = Method::parse(&req.method)?;
     let mut problem = loaded.problem;
@@ -85,7 +136,11 @@ pub fn run_request(loaded: LoadedProblem, req: &RegisterRequest) -> Result<Regis
     // minimum: the mirror solution, a run-off along the axis) has not registered.
     let implausible = result
         .converged
-        .then(|| problem.implausible(&result.pose))
+        .then(|| {
+            problem
+                .implausible(&result.pose)
+                .or_else(|| better_flip(&problem, method, &result, &opts))
+        })
         .flatten();
     result.converged &= implausible.is_none();
     let mut record = json!({

@@ -262,9 +262,9 @@ fn landmark_flags_do_not_apply_to_intensity_registration() {
 
 /// A solve that stops by its tolerances at a pose that cannot be the anatomy is not "converged": AP alone
 /// from a start turned 150° runs off along the axis until the landmarks project into a point (the issue's
-/// pose 3e11 mm away), from 170° it settles in the mirror solution behind the source. Each fails naming
-/// why; with --allow-unconverged R.json says `"converged": false` and the reason. Starts that reach the
-/// truth stay converged.
+/// pose 3e11 mm away), from 170° it settles in the mirror solution behind the source, from 175° in a
+/// flipped local minimum in front of it. Each fails naming why; with --allow-unconverged R.json says
+/// `"converged": false` and the reason. Starts that reach the truth stay converged.
 #[test]
 fn a_pose_that_cannot_be_the_anatomy_is_not_reported_converged() {
     let dir = tempfile::tempdir().unwrap();
@@ -292,12 +292,30 @@ fn a_pose_that_cannot_be_the_anatomy_is_not_reported_converged() {
         assert!(out["implausible"].as_str().unwrap().contains(why), "{out}");
         assert!(out["trans_err_mm"].as_f64().unwrap() > 100.0, "{out}");
     }
-    for seed in ["0", "2"] {
-        let (ok, err, out) = run(
-            dir.path(),
-            &text,
-            &["--init-rot-deg", "120", "--seed", seed],
-        );
+    // AP alone from 175°: the vertebra upside down in front of the source at the right scale, 43 px of
+    // residual — a flipped local minimum the plausibility checks pass; the same pose turned 180° about
+    // the view's u axis fits exactly, so it is not reported converged either.
+    let start = [
+        "--init-rot-deg",
+        "175",
+        "--seed",
+        "1",
+        "--allow-unconverged",
+    ];
+    let (ok, err, out) = run(dir.path(), &text, &start);
+    let out = out.unwrap();
+    assert!(ok, "{err}");
+    assert_eq!(out["converged"], false, "{out}");
+    let why = out["implausible"].as_str().unwrap();
+    assert!(
+        why.contains("a local minimum") && why.contains("u axis"),
+        "{out}"
+    );
+    assert!(out["rot_err_deg"].as_f64().unwrap() > 90.0, "{out}");
+    let (ok, err, _) = run(dir.path(), &text, &start[..4]);
+    assert!(!ok && err.contains("a local minimum"), "{err}");
+    for (deg, seed) in [("120", "0"), ("120", "2"), ("175", "0")] {
+        let (ok, err, out) = run(dir.path(), &text, &["--init-rot-deg", deg, "--seed", seed]);
         let out = out.unwrap();
         assert!(
             ok && out["converged"] == true && out.get("implausible").is_none(),
