@@ -90,6 +90,12 @@ pub struct CArm {
 }
 
 impl DetectorConfig {
+    /// The pixel spacing (mm, u and v) where this section states the detector physically (`None` for an
+    /// explicit `K`, whose pixels have no stated size in mm).
+    pub fn stated_pixel_spacing_mm(&self) -> Option<[f64; 2]> {
+        self.k.is_none().then_some(self.pixel_spacing_mm)
+    }
+
     /// The intrinsics this detector section describes.
     pub fn intrinsics(&self) -> Result<Intrinsics> {
         if let Some(k) = self.k {

@@ -76,12 +76,26 @@ fn protocol_intrinsic_moves_rendered_markers_as_the_homography_law_predicts() {
     assert!(compared >= 4 * 2 * 8, "{compared} comparisons");
 }
 
+/// Writes `config` as `dir/study.toml` and runs the study into `dir/out`: (success, stderr, out).
+fn study(dir: &std::path::Path, config: &str) -> (bool, String, std::path::PathBuf) {
+    let cfg = dir.join("study.toml");
+    std::fs::write(&cfg, config).unwrap();
+    let out = dir.join("out");
+    let (ok, err) = crate::common::run(&[
+        "study",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    (ok, err, out)
+}
+
 #[test]
 fn a_small_calibration_study_writes_its_tables_figures_and_report() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("study.toml");
-    std::fs::write(
-        &cfg,
+    let (ok, err, out) = study(
+        dir.path(),
         r#"experiments = ["calibration"]
 [anatomy]
 levels = ["L1"]
@@ -97,16 +111,7 @@ trials_per_unit = 3
 silhouette_trials = 1
 intensity_trials = 1
 "#,
-    )
-    .unwrap();
-    let out = dir.path().join("out");
-    let (ok, err) = crate::common::run(&[
-        "study",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    );
     assert!(ok, "{err}");
     let mut r = csv::Reader::from_path(out.join("tables/calibration.csv")).unwrap();
     let header = r.headers().unwrap().clone();
@@ -256,9 +261,8 @@ intensity_trials = 1
 #[test]
 fn a_calibration_absorbs_what_a_physical_error_does_to_its_protocol() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("study.toml");
-    std::fs::write(
-        &cfg,
+    let (ok, err, out) = study(
+        dir.path(),
         r#"experiments = ["calibration"]
 [anatomy]
 levels = ["L1"]
@@ -276,16 +280,7 @@ silhouette_trials = 0
 src_dx_mm = [4.0]
 det_dz_mm = [10.0]
 "#,
-    )
-    .unwrap();
-    let out = dir.path().join("out");
-    let (ok, err) = crate::common::run(&[
-        "study",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    );
     assert!(ok, "{err}");
     let t = spinedrr::study::StudyTables::load(&out).unwrap();
     // 2 errors × 1 trial × 2 protocols × 2 views.
@@ -330,23 +325,13 @@ fn a_bad_calibration_physical_value_is_refused_naming_the_key() {
         ("src_dx_mm = [1.0, 1.0]", "listed twice"),
     ] {
         let dir = tempfile::tempdir().unwrap();
-        let cfg = dir.path().join("study.toml");
-        std::fs::write(
-            &cfg,
-            format!(
+        let (ok, err, out) = study(
+            dir.path(),
+            &format!(
                 "experiments = [\"calibration\"]\n[anatomy]\nlevels = [\"L1\"]\nsegment = false\n\
                  [calibration]\nphantoms = [\"helix\"]\n[calibration.physical]\n{value}\n"
             ),
-        )
-        .unwrap();
-        let out = dir.path().join("out");
-        let (ok, err) = crate::common::run(&[
-            "study",
-            "--config",
-            cfg.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        );
         let key = value.split(' ').next().unwrap();
         assert!(!ok, "{value}: accepted");
         assert!(

@@ -30,6 +30,19 @@ init_mtre_mm = [0.0, 4.0, 8.0]
 starts_per_bin = 1
 "#;
 
+/// The target points of a freshly built L3 (the configs' `voxel_mm = 0.8`), where the study measures mTRE.
+fn l3_targets() -> Vec<DVec3> {
+    let phantom = build_phantom(&PhantomOptions {
+        levels: vec![Level::L3],
+        voxel_mm: 0.8,
+        discs: false,
+        soft_tissue: false,
+        ..PhantomOptions::default()
+    })
+    .unwrap();
+    level_targets(&phantom, Level::L3).unwrap()
+}
+
 fn study(cfg: &Path, out: &Path, extra: &[&str]) -> (bool, String) {
     Spinedrr::new()
         .args(["study", "--config", cfg.to_str().unwrap(), "--out"])
@@ -54,15 +67,7 @@ fn intensity_study_tables_agree_with_the_library_and_resume_byte_identically() {
 
     // Each trial's recorded pose, re-evaluated on target points of a freshly built L3, gives its
     // recorded mTRE.
-    let phantom = build_phantom(&PhantomOptions {
-        levels: vec![Level::L3],
-        voxel_mm: 0.8,
-        discs: false,
-        soft_tissue: false,
-        ..PhantomOptions::default()
-    })
-    .unwrap();
-    let targets = level_targets(&phantom, Level::L3).unwrap();
+    let targets = l3_targets();
     for r in &t.intensity {
         let pose = RigidTransform::new(
             rotation_exp(DVec3::new(r.rx, r.ry, r.rz)),
@@ -249,15 +254,7 @@ det_dx_mm = [3.0]
         .map(|r| r.physical.as_str())
         .collect();
     assert_eq!(cells, ["", "det_dx_mm=3", "det_roll_deg=1.5"]);
-    let phantom = build_phantom(&PhantomOptions {
-        levels: vec![Level::L3],
-        voxel_mm: 0.8,
-        discs: false,
-        soft_tissue: false,
-        ..PhantomOptions::default()
-    })
-    .unwrap();
-    let targets = level_targets(&phantom, Level::L3).unwrap();
+    let targets = l3_targets();
     let half = (1.5_f64.to_radians() / 2.0).sin();
     let expected = targets
         .iter()

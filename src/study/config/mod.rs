@@ -382,10 +382,7 @@ impl StudyConfig {
     /// Δf × pitch mm, a piercing shift of p px a move of p × pitch mm on the detector.
     pub fn pixel_pitch_mm(&self) -> Option<f64> {
         let (g, _) = self.geometry_config().ok()?;
-        g.detector
-            .k
-            .is_none()
-            .then_some(g.detector.pixel_spacing_mm[0])
+        g.detector.stated_pixel_spacing_mm().map(|s| s[0])
     }
 
     pub fn geometry_config(&self) -> Result<(GeometryConfig, String)> {

@@ -12,7 +12,7 @@ use glam::{DVec2, DVec3};
 
 use super::calibration_intensity::{IntensityBench, IntensityError, surface_targets};
 use super::{Context, Target};
-use crate::analysis::{Landmark, MaskPair, landmark_shifts, silhouette_metrics};
+use crate::analysis::{Landmark, LandmarkShift, MaskPair, landmark_shifts, silhouette_metrics};
 use crate::calibration::{CalibrationSetup, TrialResult, run_trial};
 use crate::geometry::{CArm, RigidTransform, View};
 use crate::registration::intensity::mtre_mm;
@@ -37,6 +37,26 @@ pub fn calibration_target(ctx: &Context) -> Result<&Target> {
     }
 }
 
+/// The calibration target's landmarks as the analysis takes them.
+pub(super) fn target_landmarks(t: &Target) -> Vec<Landmark> {
+    t.landmarks
+        .iter()
+        .map(|(name, p)| Landmark {
+            name: name.clone(),
+            position: *p,
+        })
+        .collect()
+}
+
+/// The mean and the largest of the landmark shifts `s` (px; 0 without any).
+pub(super) fn shift_mean_max(s: &[LandmarkShift]) -> (f64, f64) {
+    let n = s.len().max(1) as f64;
+    (
+        s.iter().map(|x| x.shift_px).sum::<f64>() / n,
+        s.iter().map(|x| x.shift_px).fold(0.0, f64::max),
+    )
+}
+
 /// The study's views (those of `geometry.views`) as a C-arm.
 pub(super) fn study_carm(ctx: &Context) -> Result<CArm> {
     let views = ctx
@@ -57,14 +77,7 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
     let setup = CalibrationSetup::new(&carm, &phantom, c.setup_options())
         .map_err(|e| Error::invalid("calibration.phantoms", format!("'{}': {e}", cell.phantom)))?;
     let t = calibration_target(ctx)?;
-    let landmarks: Vec<Landmark> = t
-        .landmarks
-        .iter()
-        .map(|(name, p)| Landmark {
-            name: name.clone(),
-            position: *p,
-        })
-        .collect();
+    let landmarks = target_landmarks(t);
     let needs_silhouettes = cell.first < c.silhouette_trials;
     let targets = surface_targets(t);
     let mut intensity = if cell.first < c.intensity_trials {
@@ -105,7 +118,7 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
             };
             for (truth, est) in carm.views.iter().zip(views) {
                 let shifts = landmark_shifts(truth, est, &landmarks);
-                let n = shifts.len().max(1) as f64;
+                let (shift_mean, shift_max) = shift_mean_max(&shifts);
                 let homography = match protocol {
                     Protocol::Intrinsic => shifts
                         .iter()
@@ -132,8 +145,8 @@ pub fn run(ctx: &Context, cell: &CalibrationCell) -> Result<UnitRows> {
                     truth,
                     &r,
                     RowMetrics {
-                        shift_mean: shifts.iter().map(|s| s.shift_px).sum::<f64>() / n,
-                        shift_max: shifts.iter().map(|s| s.shift_px).fold(0.0, f64::max),
+                        shift_mean,
+                        shift_max,
                         homography,
                         dice,
                         chamfer,

@@ -8,9 +8,11 @@
 //! own effect. A trial draws the same detection noise as the nominal C-arm's trial of the same index.
 
 use super::Context;
-use super::calibration::{calibration_target, registration, study_carm};
+use super::calibration::{
+    calibration_target, registration, shift_mean_max, study_carm, target_landmarks,
+};
 use super::calibration_intensity::surface_targets;
-use crate::analysis::{Landmark, landmark_shifts};
+use crate::analysis::landmark_shifts;
 use crate::calibration::{CalibrationSetup, run_trial};
 use crate::geometry::{CArm, Perturbation, View};
 use crate::study::config::{CalibrationCell, CalibrationSection, Protocol, physical_cell_key};
@@ -18,16 +20,6 @@ use crate::study::schema::{CalibrationPhysicalRow, UnitRows};
 use crate::study::timings::Phase;
 use crate::study::units::derive_seed;
 use crate::{Error, Result};
-
-/// (mean, largest) landmark shift between `truth` and `used` (px).
-fn shifts(truth: &View, used: &View, landmarks: &[Landmark]) -> (f64, f64) {
-    let s = landmark_shifts(truth, used, landmarks);
-    let n = s.len().max(1) as f64;
-    (
-        s.iter().map(|x| x.shift_px).sum::<f64>() / n,
-        s.iter().map(|x| x.shift_px).fold(0.0, f64::max),
-    )
-}
 
 /// Runs trials `cell.first..cell.first + cell.count` of one (phantom, σ) on the C-arm displaced by `q`.
 pub fn run(ctx: &Context, cell: &CalibrationCell, q: &Perturbation) -> Result<UnitRows> {
@@ -54,16 +46,16 @@ pub fn run(ctx: &Context, cell: &CalibrationCell, q: &Perturbation) -> Result<Un
         )
     })?;
     let t = calibration_target(ctx)?;
-    let landmarks: Vec<Landmark> = t
-        .landmarks
-        .iter()
-        .map(|(name, p)| Landmark {
-            name: name.clone(),
-            position: *p,
-        })
-        .collect();
+    let landmarks = target_landmarks(t);
     let targets = surface_targets(t);
-    // The nominal geometry used uncalibrated on the displaced C-arm.
+    // The nominal geometry used uncalibrated on the displaced C-arm: per view its largest landmark
+    // shift, and the registration with it (the same for every trial).
+    let uncalibrated_shift: Vec<f64> = displaced
+        .views
+        .iter()
+        .zip(&nominal.views)
+        .map(|(truth, nom)| shift_mean_max(&landmark_shifts(truth, nom, &landmarks)).1)
+        .collect();
     let uncalibrated = registration(&displaced, &nominal.views, &landmarks, &targets).2;
     let mut rows = UnitRows::default();
     for trial in cell.first..cell.first + cell.count {
@@ -87,8 +79,10 @@ pub fn run(ctx: &Context, cell: &CalibrationCell, q: &Perturbation) -> Result<Un
             let reg = ctx.timings.time(Phase::Registration, 1, || {
                 registration(&displaced, &views, &landmarks, &targets)
             });
-            for ((truth, used), nom) in displaced.views.iter().zip(&views).zip(&nominal.views) {
-                let (mean, max) = shifts(truth, used, &landmarks);
+            for ((truth, used), &uncalibrated_shift) in
+                displaced.views.iter().zip(&views).zip(&uncalibrated_shift)
+            {
+                let (mean, max) = shift_mean_max(&landmark_shifts(truth, used, &landmarks));
                 rows.calibration_physical.push(CalibrationPhysicalRow {
                     phantom: cell.phantom.clone(),
                     noise_px: cell.noise_px,
@@ -103,7 +97,7 @@ pub fn run(ctx: &Context, cell: &CalibrationCell, q: &Perturbation) -> Result<Un
                     reg_rot_err_deg: reg.0,
                     reg_trans_err_mm: reg.1,
                     reg_mtre_mm: reg.2,
-                    uncalibrated_shift_max_px: shifts(truth, nom, &landmarks).1,
+                    uncalibrated_shift_max_px: uncalibrated_shift,
                     uncalibrated_mtre_mm: uncalibrated,
                 });
             }

@@ -10,7 +10,6 @@ use std::path::Path;
 use glam::DVec3;
 
 use super::layout::num;
-use crate::geometry::GeometryConfig;
 use crate::io::read_tiff_f32;
 use crate::study::config::{SEGMENT_TARGET, StudyConfig};
 use crate::study::experiments::reference_image_path;
@@ -18,14 +17,6 @@ use crate::study::figures::{FigureEntry, Section};
 use crate::study::schema::ProjectionRow;
 
 pub const HEADING: &str = "Setup";
-
-/// Pixel spacing (mm) of the binned detector, where the geometry states it (not for an explicit K).
-fn spacing(g: &GeometryConfig) -> Option<[f64; 2]> {
-    g.detector
-        .k
-        .is_none()
-        .then_some(g.detector.pixel_spacing_mm)
-}
 
 /// `x` to one decimal, without a sign on a value that rounds to zero.
 fn one_decimal(x: f64) -> String {
@@ -118,7 +109,8 @@ pub fn section(
         );
         return;
     };
-    let sp = spacing(&g);
+    // Pixel spacing (mm) of the binned detector, where the geometry states it.
+    let sp = g.detector.stated_pixel_spacing_mm();
     let _ = writeln!(
         md,
         "Geometry: {origin}, detector binning {} (world frame: mm, RAS+; the aim is the point of the \
