@@ -81,12 +81,10 @@ impl Edges {
         if det == 0.0 || !det.is_finite() {
             return None;
         }
-        // Negation is exact, so orienting keeps neighbours' edge functions exact opposites.
-        let n = if det > 0.0 {
-            [ab, bc, ca]
-        } else {
-            [-ab, -bc, -ca]
-        };
+        // Negation is exact, so orienting keeps neighbours' edge functions exact opposites (a product by
+        // ±1, without a branch: front- and back-facing triangles alternate unpredictably).
+        let sign = if det > 0.0 { 1.0 } else { -1.0 };
+        let n = [ab * sign, bc * sign, ca * sign];
         let e = n.map(|n| dirs.coefficients(n));
         Some(Edges {
             e,
@@ -152,7 +150,8 @@ impl RowEdges {
 /// normal, exactly one owns the edge.
 #[inline]
 fn owns_edge([a, b, c]: [f64; 3]) -> bool {
-    a > 0.0 || (a == 0.0 && (b > 0.0 || (b == 0.0 && c > 0.0)))
+    // Non-short-circuit `|` and `&`: no branch on signs that are a coin toss.
+    (a > 0.0) | ((a == 0.0) & ((b > 0.0) | ((b == 0.0) & (c > 0.0))))
 }
 
 #[cfg(test)]

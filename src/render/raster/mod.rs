@@ -27,7 +27,7 @@
 mod edges;
 mod summed;
 
-use glam::{DVec2, DVec3};
+use glam::{DVec2, DVec3, Vec4};
 use rayon::prelude::*;
 
 use self::edges::{Edges, PixelDirs};
@@ -71,8 +71,6 @@ pub(crate) struct RasterView<'a> {
     dirs: PixelDirs,
     /// Camera-frame vertices per mesh (source at the origin).
     cam: Vec<Vec<DVec3>>,
-    /// Projected vertices per mesh (pixels).
-    px: Vec<Vec<DVec2>>,
     band_rows: usize,
     /// The triangles binned by band, per chunk of one mesh's triangles.
     bins: Vec<Bins>,
@@ -88,20 +86,24 @@ impl<'a> RasterView<'a> {
             "band rows must be a power of two"
         );
         let intr = view.intrinsics;
+        // Pixel boxes are kept in 16 bits (validated detectors have at most 8192 px a side).
+        if intr.width > 1 << 16 || intr.height > 1 << 16 {
+            return None;
+        }
         let height = intr.height as usize;
         let mut cam = Vec::with_capacity(scene.meshes.len());
         let mut px = Vec::with_capacity(scene.meshes.len());
         for m in &scene.meshes {
-            let (c, p): (Vec<DVec3>, Vec<DVec2>) = m
-                .mesh
+            let (mut c, mut p) = (Vec::new(), Vec::new());
+            m.mesh
                 .vertices
                 .par_iter()
                 .with_min_len(8192)
                 .map(|&p| {
                     let c = view.world_to_camera.apply(p);
-                    (c, intr.project_camera(c))
+                    (c, VertexBox::new(intr.project_camera(c)))
                 })
-                .unzip();
+                .unzip_into_vecs(&mut c, &mut p);
             if c.iter().any(|p| p.z.is_nan() || p.z <= MIN_DEPTH_MM) {
                 return None;
             }
@@ -138,7 +140,6 @@ impl<'a> RasterView<'a> {
             intr,
             dirs: PixelDirs::new(&intr),
             cam,
-            px,
             band_rows,
             bins,
         })
@@ -164,39 +165,25 @@ impl<'a> RasterView<'a> {
         band: usize,
         mut visit: impl FnMut(usize, u32, (usize, usize, usize, usize), Edges),
     ) {
-        let w = self.intr.width as usize;
         let h = self.intr.height as usize;
         let row0 = band * self.band_rows;
         let row1 = (row0 + self.band_rows).min(h) - 1;
-        // Pixel centres a triangle of the band may cover.
-        let box_lo = DVec2::new(0.0, row0 as f64);
-        let box_hi = DVec2::new((w - 1) as f64, row1 as f64);
         for bins in &self.bins {
             let g = bins.mesh as usize;
-            let (triangles, px, cam) = (
-                &self.scene.meshes[g].mesh.triangles,
-                &self.px[g],
-                &self.cam[g],
-            );
+            let (triangles, cam) = (&self.scene.meshes[g].mesh.triangles, &self.cam[g]);
             let band_tris = &bins.tris[bins.start[band] as usize..bins.start[band + 1] as usize];
-            for &t in band_tris {
-                let tri = triangles[t as usize];
-                let [a, b, c] = tri.map(|i| px[i as usize]);
-                // The pixel box, clamped to the band (and empty when it holds no pixel centre).
-                let lo = (a.min(b).min(c) - BOX_MARGIN_PX).max(box_lo);
-                let hi = (a.max(b).max(c) + BOX_MARGIN_PX).min(box_hi);
-                let (u0, v0) = (ceil_small(lo.x), ceil_small(lo.y));
-                let (u1, v1) = (floor_small(hi.x), floor_small(hi.y));
-                if u0 > u1 || v0 > v1 {
-                    continue;
-                }
+            for bt in band_tris {
+                // The triangle's pixel box, clamped to the band (its rows meet the band: it is binned
+                // here).
+                let (v0, v1) = (usize::from(bt.v0).max(row0), usize::from(bt.v1).min(row1));
+                let tri = triangles[bt.t as usize];
                 let Some(edges) = Edges::new(tri.map(|i| cam[i as usize]), &self.dirs) else {
                     continue;
                 };
                 visit(
                     g,
-                    t,
-                    (u0 as usize, u1 as usize, v0 as usize, v1 as usize),
+                    bt.t,
+                    (usize::from(bt.u0), usize::from(bt.u1), v0, v1),
                     edges,
                 );
             }
@@ -296,62 +283,87 @@ impl<'a> RasterView<'a> {
 /// Triangles per binning chunk.
 const BIN_CHUNK: usize = 16384;
 
+/// A binned triangle: its index in the mesh and its pixel box (the pixel centres its bounding box holds,
+/// within the image: columns `u0..=u1`, rows `v0..=v1`).
+#[derive(Debug, Clone, Copy)]
+struct BinnedTriangle {
+    t: u32,
+    u0: u16,
+    u1: u16,
+    v0: u16,
+    v1: u16,
+}
+
 /// A chunk of one mesh's triangles, binned by the bands of rows their bounding boxes span.
 struct Bins {
     mesh: u32,
-    /// Triangles (indices into the mesh) of band `b`: `tris[start[b]..start[b + 1]]`.
+    /// Triangles of band `b`: `tris[start[b]..start[b + 1]]`.
     start: Vec<u32>,
-    tris: Vec<u32>,
+    tris: Vec<BinnedTriangle>,
 }
 
 impl Bins {
     /// Bins `triangles` (the mesh's triangles from index `first`) of mesh `mesh`, whose projected vertices
-    /// are `px`, into bands of `band_rows` (a power of two) rows of a `width × height` image.
+    /// are `px`, into bands of `band_rows` (a power of two) rows of a `width × height` image (each side at
+    /// most 65 536 px). A triangle is binned with its pixel box, computed once here; one whose box holds no
+    /// pixel centre (most triangles of a fine mesh on a coarse detector) is dropped.
     fn new(
         triangles: &[[u32; 3]],
-        px: &[DVec2],
+        px: &[VertexBox],
         mesh: usize,
         first: usize,
         (width, height): (usize, usize),
         band_rows: usize,
     ) -> Self {
         let bands = height.div_ceil(band_rows);
-        let (last_col, last_row) = (width as f64 - 1.0, height as f64 - 1.0);
+        // `(0, −last column, 0, −last row)`: the image as a box in `VertexBox`'s form.
+        let image = Vec4::new(0.0, 1.0 - width as f32, 0.0, 1.0 - height as f32);
         let shift = band_rows.trailing_zeros();
-        // First and last band of each triangle's rows, `None` when its box holds no pixel centre (no
-        // pixel row, or no pixel column: most triangles of a fine mesh on a coarse detector).
-        let ranges: Vec<Option<(u32, u32)>> = triangles
+        let boxed: Vec<BinnedTriangle> = triangles
             .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| px[i as usize]);
-                let lo = (a.min(b).min(c) - BOX_MARGIN_PX).max(DVec2::ZERO);
-                let hi = (a.max(b).max(c) + BOX_MARGIN_PX).min(DVec2::new(last_col, last_row));
-                // Here `0 ≤ lo` and `hi < size` (`max` and `min` drop a NaN).
-                if lo.x > hi.x || lo.y > hi.y || ceil_small(lo.x) > floor_small(hi.x) {
-                    return None;
-                }
-                let (r0, r1) = (ceil_small(lo.y) as usize, hi.y as usize);
-                (r0 <= r1).then_some(((r0 >> shift) as u32, (r1 >> shift) as u32))
+            .enumerate()
+            .filter_map(|(k, t)| {
+                let [a, b, c] = t.map(|i| px[i as usize].0);
+                // The box of the corners' boxes, within the image: `(u0, −u1, v0, −v1)`.
+                let m = a.min(b).min(c).max(image);
+                // `u0 ≤ u1` and `v0 ≤ v1` (whole numbers below 2²³: the sums are exact).
+                (m.x + m.y <= 0.0 && m.z + m.w <= 0.0).then(|| BinnedTriangle {
+                    t: (first + k) as u32,
+                    u0: m.x as u16,
+                    u1: -m.y as u16,
+                    v0: m.z as u16,
+                    v1: -m.w as u16,
+                })
             })
             .collect();
         let mut start = vec![0u32; bands + 1];
-        for &(b0, b1) in ranges.iter().flatten() {
-            for b in b0..b1 + 1 {
-                start[b as usize + 1] += 1;
+        let bands_of =
+            |bt: &BinnedTriangle| (usize::from(bt.v0) >> shift, usize::from(bt.v1) >> shift);
+        for bt in &boxed {
+            let (b0, b1) = bands_of(bt);
+            for n in &mut start[b0 + 1..b1 + 2] {
+                *n += 1;
             }
         }
         for b in 0..bands {
             start[b + 1] += start[b];
         }
         let mut fill = start.clone();
-        let mut tris = vec![0u32; start[bands] as usize];
-        for (t, r) in ranges.iter().enumerate() {
-            if let Some((b0, b1)) = *r {
-                for b in b0..b1 + 1 {
-                    let k = &mut fill[b as usize];
-                    tris[*k as usize] = (first + t) as u32;
-                    *k += 1;
-                }
+        let mut tris = vec![
+            BinnedTriangle {
+                t: 0,
+                u0: 0,
+                u1: 0,
+                v0: 0,
+                v1: 0
+            };
+            start[bands] as usize
+        ];
+        for bt in &boxed {
+            let (b0, b1) = bands_of(bt);
+            for k in &mut fill[b0..b1 + 1] {
+                tris[*k as usize] = *bt;
+                *k += 1;
             }
         }
         Bins {
@@ -373,26 +385,52 @@ pub(crate) struct BandScratch {
     hits: Vec<Crossing>,
 }
 
-/// Bound of the pixel coordinates [`ceil_small`] and [`floor_small`] take: far beyond any detector
+/// Bound of the pixel coordinates a [`VertexBox`] is rounded from: far beyond any detector
 /// ([`crate::geometry::MAX_DETECTOR_PX`]), so clamping to it changes no pixel range, and small enough that
-/// the rounding arithmetic cannot overflow whatever the projection gave (a huge but finite K, an
-/// infinity).
-const COORD_CLAMP: f64 = (1u64 << 31) as f64;
+/// every whole number up to it is exact in an `f32`, whatever the projection gave (a huge but finite K).
+const COORD_CLAMP: f64 = (1u64 << 22) as f64;
 
-/// `ceil(x)` of a coordinate, which the caller has clamped to the image from below (`0 ≤ x`; larger
-/// values saturate at 2³¹, a NaN gives 0).
-#[inline]
-fn ceil_small(x: f64) -> i64 {
-    let x = x.min(COORD_CLAMP);
-    let i = x as i64;
-    i + i64::from((i as f64) < x)
+/// A projected vertex's pixel box: the columns `u0..=u1` and rows `v0..=v1` whose centres lie within
+/// [`BOX_MARGIN_PX`] of it (the margin covers rounding in the projection; the edge functions, not the box,
+/// decide coverage), as whole numbers in `f32`, stored `(u0, −u1, v0, −v1)` so that a triangle's box is
+/// the lane-wise minimum of its corners' (two SIMD instructions). That is the box of the corners' boxes:
+/// rounding `x ± margin` up or down is monotone, so `⌈min x − m⌉ = min ⌈x − m⌉` and
+/// `⌊max x + m⌋ = max ⌊x + m⌋`, and each vertex is rounded once instead of once per triangle, in floating
+/// point (no integer conversion until a triangle is known to hold a pixel centre).
+#[derive(Debug, Clone, Copy)]
+struct VertexBox(Vec4);
+
+impl VertexBox {
+    /// The box of pixel position `p` (finite: the vertices are finite and in front of the source).
+    #[inline]
+    fn new(p: DVec2) -> Self {
+        VertexBox(Vec4::new(
+            ceil_clamped(p.x - BOX_MARGIN_PX),
+            -floor_clamped(p.x + BOX_MARGIN_PX),
+            ceil_clamped(p.y - BOX_MARGIN_PX),
+            -floor_clamped(p.y + BOX_MARGIN_PX),
+        ))
+    }
 }
 
-/// `floor(x)` of a coordinate, which the caller has clamped to the image from above (`x < 2³¹`; smaller
-/// values saturate at −2³¹, a NaN gives 0).
+/// `2⁵² + 2⁵¹`: adding and subtracting it rounds an `f64` of magnitude below 2⁵¹ to the nearest whole
+/// number (ties to even), exactly, without leaving floating point.
+const ROUNDER: f64 = 6_755_399_441_055_744.0;
+
+/// `⌈x⌉` of `x` clamped to ±[`COORD_CLAMP`].
 #[inline]
-fn floor_small(x: f64) -> i64 {
-    x.max(-COORD_CLAMP) as i64
+fn ceil_clamped(x: f64) -> f32 {
+    let x = x.clamp(-COORD_CLAMP, COORD_CLAMP);
+    let r = (x + ROUNDER) - ROUNDER;
+    (r + f64::from(u8::from(r < x))) as f32
+}
+
+/// `⌊x⌋` of `x` clamped to ±[`COORD_CLAMP`].
+#[inline]
+fn floor_clamped(x: f64) -> f32 {
+    let x = x.clamp(-COORD_CLAMP, COORD_CLAMP);
+    let r = (x + ROUNDER) - ROUNDER;
+    (r - f64::from(u8::from(r > x))) as f32
 }
 
 #[cfg(test)]

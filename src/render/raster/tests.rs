@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::{BandScratch, RasterView, SumScratch};
+use super::{BandScratch, COORD_CLAMP, RasterView, SumScratch, ceil_clamped, floor_clamped};
 use crate::anatomy::TriMesh;
 use crate::geometry::{Intrinsics, RigidTransform, View};
 use crate::render::{RenderScene, SceneMesh};
@@ -146,4 +146,46 @@ fn sane_intrinsics_still_see_the_cube() {
         }
     }
     assert_eq!((lit, unbalanced.len()), (4, 0));
+}
+
+/// The float-only rounding of the vertex boxes agrees with `f64::ceil` / `f64::floor` (clamped) on
+/// whole numbers, halves (ties of the rounding trick), numbers a margin away from whole ones, both signs,
+/// and values far beyond the clamp.
+#[test]
+fn vertex_box_rounding_matches_ceil_and_floor() {
+    let mut xs = vec![
+        0.0,
+        -0.0,
+        1e-300,
+        -1e-300,
+        1e300,
+        -1e300,
+        f64::MAX,
+        -f64::MAX,
+    ];
+    for i in -3000..=3000 {
+        let k = f64::from(i) * 0.5;
+        for d in [
+            0.0,
+            0.01,
+            -0.01,
+            1e-9,
+            -1e-9,
+            0.25,
+            -0.25,
+            0.4999999999,
+            -0.4999999999,
+        ] {
+            xs.push(k + d);
+        }
+    }
+    for e in [20, 21, 22, 23, 40, 60] {
+        let big = 2f64.powi(e);
+        xs.extend([big, -big, big + 0.5, -big - 0.5, big - 0.5, 1.5 * big]);
+    }
+    for x in xs {
+        let c = x.clamp(-COORD_CLAMP, COORD_CLAMP);
+        assert_eq!(f64::from(ceil_clamped(x)), c.ceil(), "ceil of {x}");
+        assert_eq!(f64::from(floor_clamped(x)), c.floor(), "floor of {x}");
+    }
 }
