@@ -58,7 +58,8 @@ build() {
   bash python/make-venv.sh "$PYENV" > target/venv.log 2>&1 &
   local venv=$!
   local rc=0
-  cargo build --workspace --all-targets || rc=$?
+  # --timings leaves target/cargo-timings/cargo-timing.html: which crate compiled when, and for how long.
+  cargo build --workspace --all-targets --timings || rc=$?
   wait "$venv" || { cat target/venv.log >&2; return 1; }
   return $rc
 }
