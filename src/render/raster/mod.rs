@@ -401,7 +401,8 @@ const COORD_CLAMP: f64 = (1u64 << 22) as f64;
 struct VertexBox(Vec4);
 
 impl VertexBox {
-    /// The box of pixel position `p` (finite: the vertices are finite and in front of the source).
+    /// The box of pixel position `p`. A vertex at or behind the source plane projects to an infinity or a
+    /// NaN and gets a meaningless box, but [`RasterView::new`] then refuses the view before any box is used.
     #[inline]
     fn new(p: DVec2) -> Self {
         VertexBox(Vec4::new(
