@@ -40,7 +40,6 @@ pub struct RegisterOutcome {
     pub record: Value,
 }
 
-/// Runs `req` on `loaded`.
 /// A clearly better fit than `result` reached from `result`'s pose turned 180° about one of the first
 /// view's camera axes through the landmarks' centroid: `result` is then a flipped local minimum (a
 /// single view from a start turned ~175°: the vertebra upside down in front of the source, at the right
@@ -90,6 +89,7 @@ fn better_flip(
     None
 }
 
+/// Runs `req` on `loaded`.
 pub fn run_request(loaded: LoadedProblem, req: &RegisterRequest) -> Result<RegisterOutcome> {
     let method = Method::parse(&req.method)?;
     let mut problem = loaded.problem;

@@ -285,7 +285,7 @@ const BIN_CHUNK: usize = 16384;
 
 /// A binned triangle: its index in the mesh and its pixel box (the pixel centres its bounding box holds,
 /// within the image: columns `u0..=u1`, rows `v0..=v1`).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct BinnedTriangle {
     t: u32,
     u0: u16,
@@ -349,16 +349,7 @@ impl Bins {
             start[b + 1] += start[b];
         }
         let mut fill = start.clone();
-        let mut tris = vec![
-            BinnedTriangle {
-                t: 0,
-                u0: 0,
-                u1: 0,
-                v0: 0,
-                v1: 0
-            };
-            start[bands] as usize
-        ];
+        let mut tris = vec![BinnedTriangle::default(); start[bands] as usize];
         for bt in &boxed {
             let (b0, b1) = bands_of(bt);
             for k in &mut fill[b0..b1 + 1] {
