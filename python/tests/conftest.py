@@ -28,6 +28,11 @@ def _cli_path() -> Path:
     return max(found, key=lambda p: p.stat().st_mtime)
 
 
+# The phantom mesh cache the CLI runs share (the Rust integration tests use the same one), never the
+# user's own cache.
+MESH_CACHE = ROOT / "target" / "tmp" / "phantom-mesh-cache"
+
+
 class Cli:
     """Runs `spinedrr ARGS…` and fails the test with its stderr when it fails."""
 
@@ -35,7 +40,8 @@ class Cli:
         self.exe = exe
 
     def __call__(self, *args) -> subprocess.CompletedProcess:
-        r = subprocess.run([str(self.exe), *map(str, args)], capture_output=True, text=True)
+        env = {**os.environ, "SPINEDRR_CACHE_DIR": str(MESH_CACHE)}
+        r = subprocess.run([str(self.exe), *map(str, args)], capture_output=True, text=True, env=env)
         if r.returncode != 0:
             raise AssertionError(f"spinedrr {' '.join(map(str, args))} failed:\n{r.stderr}")
         return r

@@ -13,6 +13,7 @@ pub mod meshio;
 pub mod morphometry;
 pub mod morphometry_realism;
 pub mod phantom;
+pub mod phantom_cache;
 pub mod sdf;
 pub mod structure_split;
 pub mod synthetic_ct;
@@ -30,6 +31,9 @@ pub use markups::{read_landmarks, read_landmarks_with, write_landmarks};
 pub use mesh::{MeshCheck, Structure, TriMesh};
 pub use meshio::{MeshFormat, parse_mesh, read_mesh, write_mesh, write_mesh_as};
 pub use morphometry::{Morphometry, MorphometryTable, ShapeParams};
-pub use phantom::{Phantom, PhantomOptions, Tissue, VertebraModel, build_phantom};
+pub use phantom::{
+    Phantom, PhantomOptions, Tissue, VertebraModel, build_phantom, build_phantom_with,
+};
+pub use phantom_cache::MeshCache;
 pub use tissue::{MU_WATER_PER_MM, mu_from_hu, tissue_hu, tissue_mu};
 pub use vertebra::{Level, VertebraShape, parse_levels};

@@ -22,6 +22,7 @@ use super::decimate::{collapse_short_edges, project_to_zero};
 use super::isosurface::{ScalarGrid, check_grid_size, extract_isosurface, remove_small_components};
 use super::landmarks::Landmarks;
 use super::morphometry::MorphometryTable;
+use super::phantom_cache::MeshCache;
 use super::sdf::{Frame, Placed, Shape, kidney_distance};
 use super::vertebra::{Level, VertebraShape};
 use super::{Structure, TriMesh};
@@ -232,13 +233,14 @@ fn simplify(m: TriMesh, opts: &PhantomOptions, f: &(dyn Fn(DVec3) -> f64 + Sync)
     collapse_short_edges(&m, opts.simplify_edge_mm, 6, Some(&project))
 }
 
+/// A vertebra's cortical (outer, labelled per triangle) and cancellous (inner) surfaces in world.
 fn mesh_vertebra(
-    shape: VertebraShape,
-    pose: RigidTransform,
+    shape: &VertebraShape,
+    pose: &RigidTransform,
     opts: &PhantomOptions,
-) -> Result<VertebraModel> {
+) -> Result<(TriMesh, TriMesh)> {
     let band = [-opts.cortical_mm, 0.0];
-    let grid = sample(shape.bounds(), opts.voxel_mm, &pose, band, |p| shape.sdf(p))?;
+    let grid = sample(shape.bounds(), opts.voxel_mm, pose, band, |p| shape.sdf(p))?;
     let name = shape.level.name();
     let inv = pose.inverse();
     let outer = |p: DVec3| shape.sdf(inv.apply(p));
@@ -256,15 +258,7 @@ fn mesh_vertebra(
     let raw = extract_isosurface(&grid, -opts.cortical_mm as f32)?;
     let mut cancellous = simplify(remove_small_components(&raw, 1.0), opts, &inner);
     cancellous.name = format!("{name}_cancellous");
-    let landmarks = shape.landmarks(|p| pose.apply(p));
-    Ok(VertebraModel {
-        level: shape.level,
-        cortical,
-        cancellous,
-        landmarks,
-        shape,
-        local_to_world: pose,
-    })
+    Ok((cortical, cancellous))
 }
 
 fn disc_between(
@@ -321,42 +315,70 @@ fn check_options(o: &PhantomOptions) -> Result<()> {
     Ok(())
 }
 
-/// Builds and meshes the phantom described by `opts`.
+/// Builds and meshes the phantom described by `opts`, through the process-wide mesh cache when one is
+/// enabled ([`super::phantom_cache::enable`]; the `spinedrr` binary does), else afresh.
 pub fn build_phantom(opts: &PhantomOptions) -> Result<Phantom> {
+    build_phantom_with(opts, super::phantom_cache::global())
+}
+
+/// Builds the phantom, taking its meshes from `cache` when it holds them for these options and this
+/// build of the code (and storing them there otherwise); `None` meshes afresh. The result is the same
+/// bit for bit either way.
+pub fn build_phantom_with(opts: &PhantomOptions, cache: Option<&MeshCache>) -> Result<Phantom> {
     check_options(opts)?;
     let mut levels = opts.levels.clone();
     levels.sort();
     levels.dedup();
-    let poses = level_poses(&levels, opts);
-    let vertebrae = poses
-        .par_iter()
+    let placed: Vec<(VertebraShape, RigidTransform)> = level_poses(&levels, opts)
+        .into_iter()
         .filter(|(l, _)| levels.contains(l))
-        .map(|(l, p)| mesh_vertebra(VertebraShape::new(*l, &opts.morphometry), *p, opts))
-        .collect::<Result<Vec<_>>>()?;
+        .map(|(l, p)| (VertebraShape::new(l, &opts.morphometry), p))
+        .collect();
     let mut disc_shapes = Vec::new();
-    let mut discs = Vec::new();
+    let mut disc_names = Vec::new();
     if opts.discs {
-        for w in vertebrae.windows(2) {
-            if w[1].level.index() != w[0].level.index() + 1 {
+        for w in placed.windows(2) {
+            let (upper, lower) = (&w[0], &w[1]);
+            if lower.0.level.index() != upper.0.level.index() + 1 {
                 continue;
             }
-            let d = disc_between(
-                (&w[0].shape, &w[0].local_to_world),
-                (&w[1].shape, &w[1].local_to_world),
-            );
-            discs.push(mesh_disc(
-                &d,
-                opts,
-                &format!("{}-{}_disc", w[0].level, w[1].level),
-            )?);
-            disc_shapes.push(d);
+            disc_shapes.push(disc_between((&upper.0, &upper.1), (&lower.0, &lower.1)));
+            disc_names.push(format!("{}-{}_disc", upper.0.level, lower.0.level));
         }
     }
-    let soft_tissue_shape = opts.soft_tissue.then(|| soft_tissue_cylinder(&vertebrae));
-    let soft_tissue = match &soft_tissue_shape {
-        Some(s) => Some(mesh_soft_tissue(s)?),
-        None => None,
-    };
+    let count = 2 * placed.len() + disc_shapes.len() + usize::from(opts.soft_tissue);
+    let build = || mesh_phantom(&placed, &disc_shapes, &disc_names, opts);
+    let mut meshes = match cache {
+        Some(c) => {
+            let identity = format!(
+                "{:?}",
+                PhantomOptions {
+                    levels,
+                    ..opts.clone()
+                }
+            );
+            c.meshes(&identity, count, build)?
+        }
+        None => build()?,
+    }
+    .into_iter();
+    let mut next = || meshes.next().expect("as many meshes as counted");
+    let vertebrae: Vec<VertebraModel> = placed
+        .into_iter()
+        .map(|(shape, pose)| VertebraModel {
+            level: shape.level,
+            cortical: next(),
+            cancellous: next(),
+            landmarks: shape.landmarks(|p| pose.apply(p)),
+            shape,
+            local_to_world: pose,
+        })
+        .collect();
+    let discs = disc_shapes.iter().map(|_| next()).collect();
+    let soft_tissue_shape = opts
+        .soft_tissue
+        .then(|| soft_tissue_cylinder(&vertebrae.iter().map(|v| &v.cortical).collect::<Vec<_>>()));
+    let soft_tissue = opts.soft_tissue.then(&mut next);
     Ok(Phantom {
         vertebrae,
         discs,
@@ -365,6 +387,33 @@ pub fn build_phantom(opts: &PhantomOptions) -> Result<Phantom> {
         soft_tissue_shape,
         cortical_mm: opts.cortical_mm,
     })
+}
+
+/// Every mesh of the phantom, in the order [`build_phantom_with`] assembles them: each vertebra's
+/// cortical and cancellous surfaces, the discs, the soft tissue.
+fn mesh_phantom(
+    placed: &[(VertebraShape, RigidTransform)],
+    disc_shapes: &[DiscShape],
+    disc_names: &[String],
+    opts: &PhantomOptions,
+) -> Result<Vec<TriMesh>> {
+    let vertebrae = placed
+        .par_iter()
+        .map(|(shape, pose)| mesh_vertebra(shape, pose, opts))
+        .collect::<Result<Vec<_>>>()?;
+    let soft_tissue = match opts.soft_tissue {
+        true => {
+            let cortical: Vec<&TriMesh> = vertebrae.iter().map(|v| &v.0).collect();
+            Some(mesh_soft_tissue(&soft_tissue_cylinder(&cortical))?)
+        }
+        false => None,
+    };
+    let mut meshes: Vec<TriMesh> = vertebrae.into_iter().flat_map(|(a, b)| [a, b]).collect();
+    for (d, name) in disc_shapes.iter().zip(disc_names) {
+        meshes.push(mesh_disc(d, opts, name)?);
+    }
+    meshes.extend(soft_tissue);
+    Ok(meshes)
 }
 
 fn mesh_disc(d: &DiscShape, opts: &PhantomOptions, name: &str) -> Result<TriMesh> {
@@ -385,10 +434,10 @@ fn mesh_disc(d: &DiscShape, opts: &PhantomOptions, name: &str) -> Result<TriMesh
 
 /// A 300 × 220 mm elliptic cylinder (rim rounded by 10 mm) around the vertebrae, 30 mm beyond them in z,
 /// its centre 20 mm anterior of the body centres so the back is ~25 mm behind the spinous tips.
-fn soft_tissue_cylinder(vertebrae: &[VertebraModel]) -> Placed {
+fn soft_tissue_cylinder(cortical: &[&TriMesh]) -> Placed {
     let (mut zlo, mut zhi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for v in vertebrae {
-        if let Some((lo, hi)) = v.cortical.bounds() {
+    for m in cortical {
+        if let Some((lo, hi)) = m.bounds() {
             zlo = zlo.min(lo.z);
             zhi = zhi.max(hi.z);
         }

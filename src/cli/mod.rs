@@ -20,7 +20,16 @@ mod values;
 /// Calibration-sensitivity analysis of vertebral DRRs: renders digitally reconstructed radiographs of
 /// vertebrae under ground-truth and perturbed C-arm intrinsics and measures what changes.
 #[derive(Parser)]
-#[command(name = "spinedrr", version, about, long_about = None)]
+#[command(
+    name = "spinedrr",
+    version,
+    about,
+    long_about = None,
+    after_help = "Environment:\n  SPINEDRR_CACHE_DIR  where built phantom meshes are cached for reuse by later runs of this \
+                  same build (default $XDG_CACHE_HOME/spinedrr or ~/.cache/spinedrr; `off` disables). An \
+                  entry is used only if the code and every phantom option match; results are identical \
+                  with or without it."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -74,6 +83,9 @@ fn command() -> clap::Command {
 pub fn main() -> ExitCode {
     let matches = command().get_matches();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    if let Some(cache) = spinedrr::anatomy::MeshCache::from_env() {
+        spinedrr::anatomy::phantom_cache::enable(cache);
+    }
     let result = match cli.command {
         Command::Geometry(a) => geometry::run(a),
         Command::Phantom(a) => phantom::run(a),

@@ -11,13 +11,21 @@ use std::ffi::OsStr;
 use std::path::Path;
 use std::process::{Command, ExitStatus, Output};
 
+/// The phantom mesh cache of every `spinedrr` the tests run (`SPINEDRR_CACHE_DIR`), inside the build's
+/// target directory: the runs share meshes with each other, never with the user's own cache, and a
+/// fresh clone starts with none.
+pub const MESH_CACHE: &str = concat!(env!("CARGO_TARGET_TMPDIR"), "/phantom-mesh-cache");
+
 /// A `spinedrr` command line under construction.
 pub struct Spinedrr(Command);
 
 impl Spinedrr {
-    /// The binary cargo built for these tests, with no arguments yet.
+    /// The binary cargo built for these tests, with no arguments yet, caching phantom meshes at
+    /// [`MESH_CACHE`].
     pub fn new() -> Self {
-        Spinedrr(Command::new(env!("CARGO_BIN_EXE_spinedrr")))
+        let mut c = Command::new(env!("CARGO_BIN_EXE_spinedrr"));
+        c.env("SPINEDRR_CACHE_DIR", MESH_CACHE);
+        Spinedrr(c)
     }
 
     /// Appends one argument.

@@ -23,6 +23,7 @@ mod meshing_landmarks;
 mod nifti_io;
 mod output_sets;
 mod outputs_spare_inputs;
+mod phantom_cache;
 mod phantom_morphometry;
 mod physical_geometry;
 mod readers_hardening;

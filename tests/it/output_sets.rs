@@ -211,6 +211,7 @@ fn a_render_that_runs_out_of_space_leaves_the_earlier_set_whole() {
         second = render("df=300"),
     );
     let o = std::process::Command::new("unshare")
+        .env("SPINEDRR_CACHE_DIR", crate::common::MESH_CACHE)
         .args(["--mount", "--propagation", "private", "sh", "-c", &script])
         .output()
         .expect("unshare");

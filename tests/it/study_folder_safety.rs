@@ -223,6 +223,7 @@ fn a_run_in_another_pid_namespace_keeps_its_lock_and_its_units() {
         &SMALL.replace("df_px = [100.0]", &format!("df_px = [{}]", dfs.join(", "))),
     );
     let a = Command::new("unshare")
+        .env("SPINEDRR_CACHE_DIR", crate::common::MESH_CACHE)
         .args(["--pid", "--fork", "--mount-proc"])
         .arg(env!("CARGO_BIN_EXE_spinedrr"))
         .arg("study")

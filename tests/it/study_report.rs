@@ -433,6 +433,7 @@ pixel_scale = []\n",
     .unwrap();
     let out = dir.path().join("out");
     let o = Command::new(env!("CARGO_BIN_EXE_spinedrr"))
+        .env("SPINEDRR_CACHE_DIR", crate::common::MESH_CACHE)
         .args(["study", "--config"])
         .arg(&cfg)
         .arg("--out")
