@@ -22,7 +22,6 @@
 //! [`MeshCache::from_env`]'s directory; the library, its tests and the Python module build afresh.
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -114,7 +113,9 @@ impl MeshCache {
         self.digest_dir().join(format!("{name}.bin"))
     }
 
-    /// The `count` meshes stored for `identity`, or those `build` makes (then stored).
+    /// The `count` meshes stored for `identity`, or those `build` makes (then stored). A miss takes an
+    /// exclusive lock on the entry (`NAME.lock`, released when the process ends however it ends) and looks
+    /// again before building, so processes that miss the same entry together build it once.
     pub fn meshes(
         &self,
         identity: &str,
@@ -122,25 +123,14 @@ impl MeshCache {
         build: impl FnOnce() -> Result<Vec<TriMesh>>,
     ) -> Result<Vec<TriMesh>> {
         let path = self.entry_path(identity);
-        match fs::read(&path) {
-            Ok(bytes) => match decode(&bytes, identity, count) {
-                Ok(m) => {
-                    self.hits.fetch_add(1, Ordering::Relaxed);
-                    return Ok(m);
-                }
-                Err(why) => {
-                    self.rejected.fetch_add(1, Ordering::Relaxed);
-                    eprintln!(
-                        "warning: phantom mesh cache entry {} is unusable ({why}); rebuilding it",
-                        path.display()
-                    );
-                }
-            },
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => eprintln!(
-                "warning: phantom mesh cache entry {} cannot be read ({e}); rebuilding it",
-                path.display()
-            ),
+        if let Some(m) = self.lookup(&path, identity, count, false) {
+            return Ok(m);
+        }
+        let _lock = self.lock(&path);
+        if _lock.is_some()
+            && let Some(m) = self.lookup(&path, identity, count, true)
+        {
+            return Ok(m);
         }
         self.misses.fetch_add(1, Ordering::Relaxed);
         let meshes = build()?;
@@ -159,28 +149,73 @@ impl MeshCache {
         Ok(meshes)
     }
 
-    fn store(&self, path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-        static SEQ: AtomicUsize = AtomicUsize::new(0);
-        let dir = self.digest_dir();
-        let fresh = !dir.exists();
-        fs::create_dir_all(&dir)?;
-        let tmp = dir.join(format!(
-            ".tmp-{}-{}",
-            std::process::id(),
-            SEQ.fetch_add(1, Ordering::Relaxed)
-        ));
-        let written = fs::File::create(&tmp).and_then(|mut f| {
-            f.write_all(bytes)?;
-            f.sync_all()
-        });
-        let renamed = written.and_then(|()| fs::rename(&tmp, path));
-        if renamed.is_err() {
-            let _ = fs::remove_file(&tmp);
+    /// The entry at `path`, if it is there and valid; an invalid one is counted and warned about (on the
+    /// second look only when it was not already, `again`).
+    fn lookup(
+        &self,
+        path: &Path,
+        identity: &str,
+        count: usize,
+        again: bool,
+    ) -> Option<Vec<TriMesh>> {
+        match fs::read(path) {
+            Ok(bytes) => match decode(&bytes, identity, count) {
+                Ok(m) => {
+                    self.hits.fetch_add(1, Ordering::Relaxed);
+                    Some(m)
+                }
+                Err(why) => {
+                    if !again {
+                        self.rejected.fetch_add(1, Ordering::Relaxed);
+                        eprintln!(
+                            "warning: phantom mesh cache entry {} is unusable ({why}); rebuilding it",
+                            path.display()
+                        );
+                    }
+                    None
+                }
+            },
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e) => {
+                if !again {
+                    eprintln!(
+                        "warning: phantom mesh cache entry {} cannot be read ({e}); rebuilding it",
+                        path.display()
+                    );
+                }
+                None
+            }
         }
-        if fresh {
+    }
+
+    /// An exclusive lock on the entry at `path`, held until the file is dropped; none where the
+    /// directory cannot be made or the file system does not lock (the build then goes ahead unlocked).
+    fn lock(&self, path: &Path) -> Option<fs::File> {
+        fs::create_dir_all(self.digest_dir()).ok()?;
+        let f = fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(path.with_extension("lock"))
+            .ok()?;
+        f.lock().ok()?;
+        Some(f)
+    }
+
+    /// Writes the entry atomically ([`crate::io::write_atomic_bytes`]; temporaries of writers that died
+    /// are removed first), pruning older digests when this is the digest's first entry.
+    fn store(&self, path: &Path, bytes: &[u8]) -> Result<()> {
+        let dir = self.digest_dir();
+        let first = !fs::read_dir(&dir).is_ok_and(|mut d| {
+            d.any(|e| e.is_ok_and(|e| e.file_name().to_string_lossy().ends_with(".bin")))
+        });
+        fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        crate::io::remove_stale_temporaries(&dir);
+        let written = crate::io::write_atomic_bytes(path, bytes);
+        if first {
             self.prune();
         }
-        renamed
+        written
     }
 
     /// Removes the directories of older code digests beyond the newest [`KEEP_DIGESTS`] (only names that
@@ -404,5 +439,31 @@ mod tests {
                 .unwrap_err()
                 .contains("indexes a vertex")
         );
+    }
+
+    #[test]
+    fn processes_and_threads_that_miss_together_build_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let builds = AtomicUsize::new(0);
+        let build = || {
+            builds.fetch_add(1, Ordering::SeqCst);
+            std::thread::sleep(std::time::Duration::from_millis(200));
+            Ok(vec![tetra("a")])
+        };
+        // Separate caches at one root stand for separate processes (each opens its own lock file).
+        let caches: Vec<MeshCache> = (0..4).map(|_| MeshCache::new(dir.path())).collect();
+        std::thread::scope(|s| {
+            for c in &caches {
+                s.spawn(|| {
+                    let m = c.meshes("id", 1, build).unwrap();
+                    assert_eq!(m[0].triangles, tetra("a").triangles);
+                });
+            }
+        });
+        assert_eq!(builds.load(Ordering::SeqCst), 1);
+        let (hits, misses) = caches
+            .iter()
+            .fold((0, 0), |(h, m), c| (h + c.stats().0, m + c.stats().1));
+        assert_eq!((hits, misses), (3, 1));
     }
 }

@@ -129,10 +129,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let mut mesh = label_surface(&seg, id, &opts)
         .with_context(|| format!("label {} ({id}) of {}", a.label, a.seg.display()))?;
     mesh.name = a.label.clone();
-    if let Some(n) = a.target_triangles {
-        if n < mesh.triangles.len() {
-            mesh = decimate(&mesh, n).with_context(|| format!("--target-triangles {n}"))?;
-        }
+    if let Some(n) = a.target_triangles
+        && n < mesh.triangles.len()
+    {
+        mesh = decimate(&mesh, n).with_context(|| format!("--target-triangles {n}"))?;
     }
     let lm = if lm_out.is_some() || a.structures {
         Some(

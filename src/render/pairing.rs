@@ -158,7 +158,7 @@ fn same_point(a: f64, b: f64) -> bool {
 /// there (a tangential touch, whose zero length is the same either way). `None` when they do not alternate.
 #[inline]
 fn pair_alternating(crossings: &[Crossing]) -> Option<f64> {
-    if crossings.len() % 2 != 0 {
+    if !crossings.len().is_multiple_of(2) {
         return None;
     }
     let mut length = 0.0;

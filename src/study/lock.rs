@@ -141,12 +141,12 @@ fn heartbeat_age(path: &Path) -> Duration {
 
 /// Why a lock is stale, or `None` when its owner may be alive.
 fn stale_reason(path: &Path, owner: Option<&LockOwner>, me: &LockOwner) -> Option<String> {
-    if let Some(o) = owner {
-        if o.pid_is_ours_to_check(me) {
-            // Our own PID in a lock is a lock this process left (or a reused PID's): never live.
-            return (o.pid == me.pid || !process_running(o.pid))
-                .then(|| format!("{}, no longer running", o.describe(me)));
-        }
+    if let Some(o) = owner
+        && o.pid_is_ours_to_check(me)
+    {
+        // Our own PID in a lock is a lock this process left (or a reused PID's): never live.
+        return (o.pid == me.pid || !process_running(o.pid))
+            .then(|| format!("{}, no longer running", o.describe(me)));
     }
     let age = heartbeat_age(path);
     let who = owner.map_or_else(|| "an unreadable owner".to_string(), |o| o.describe(me));

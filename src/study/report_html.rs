@@ -84,7 +84,7 @@ fn links(text: &str) -> String {
 /// Markdown's `**bold**` as `<strong>`, pair by pair; an unpaired `**` stays as written.
 fn strong(text: &str) -> String {
     let parts: Vec<&str> = text.split("**").collect();
-    if parts.len() % 2 == 0 {
+    if parts.len().is_multiple_of(2) {
         return text.to_string();
     }
     let mut h = String::with_capacity(text.len() + 8 * parts.len());

@@ -7,14 +7,14 @@ use std::sync::Arc;
 
 use glam::{DVec2, DVec3};
 use spinedrr::analysis::marker_centroid;
-use spinedrr::anatomy::{Level, PhantomOptions, TriMesh, build_phantom};
+use spinedrr::anatomy::{Level, PhantomOptions, TriMesh};
 use spinedrr::calibration::output::trial_seed;
 use spinedrr::calibration::{CalibrationPhantom, CalibrationSetup, SetupOptions, run_trial};
 use spinedrr::geometry::{CArm, Intrinsics, apply_homography};
 use spinedrr::render::{Backend, RenderScene, SceneMesh};
 
 fn l1_landmarks() -> Vec<(String, DVec3)> {
-    let p = build_phantom(&PhantomOptions {
+    let p = crate::common::phantom(&PhantomOptions {
         levels: vec![Level::L1],
         voxel_mm: 1.0,
         discs: false,

@@ -117,13 +117,28 @@ pub fn csv_tables(out: &Path) -> Vec<(String, Vec<u8>)> {
     v
 }
 
+/// The phantom `opts` describes, through the mesh cache the tests' CLI runs share ([`MESH_CACHE`]):
+/// for the tests that *use* a phantom. The tests of the builder itself (`anatomy_phantom`,
+/// `phantom_morphometry`, `anatomy_cli`'s comparison with the CLI) call `build_phantom`, which builds
+/// afresh in this binary; `phantom_cache` shows the two are equal bit for bit.
+pub fn phantom(
+    opts: &spinedrr::anatomy::PhantomOptions,
+) -> spinedrr::Result<spinedrr::anatomy::Phantom> {
+    use spinedrr::anatomy::MeshCache;
+    static CACHE: std::sync::OnceLock<MeshCache> = std::sync::OnceLock::new();
+    spinedrr::anatomy::build_phantom_with(
+        opts,
+        Some(CACHE.get_or_init(|| MeshCache::new(MESH_CACHE))),
+    )
+}
+
 /// The default L1–L5 phantom with its soft-tissue cylinder, built once for the whole test binary (a
 /// build is ~30 s of thread time; several modules read it).
 pub fn phantom_with_soft_tissue() -> &'static spinedrr::anatomy::Phantom {
-    use spinedrr::anatomy::{PhantomOptions, build_phantom};
+    use spinedrr::anatomy::PhantomOptions;
     static P: std::sync::OnceLock<spinedrr::anatomy::Phantom> = std::sync::OnceLock::new();
     P.get_or_init(|| {
-        build_phantom(&PhantomOptions {
+        phantom(&PhantomOptions {
             soft_tissue: true,
             ..PhantomOptions::default()
         })

@@ -13,8 +13,8 @@ use spinedrr::anatomy::structure_split::split_structures;
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
 use spinedrr::anatomy::vertebra::Level;
 use spinedrr::anatomy::{
-    Landmarks, Phantom, PhantomOptions, Structure, TriMesh, auto_landmarks, build_phantom,
-    read_landmarks, read_mesh,
+    Landmarks, Phantom, PhantomOptions, Structure, TriMesh, auto_landmarks, read_landmarks,
+    read_mesh,
 };
 
 use crate::common::Spinedrr;
@@ -44,7 +44,7 @@ fn synthetic_ct_08(phantom: &Phantom) -> (spinedrr::anatomy::ct::CtVolume, Label
 fn fixture() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {
-        let phantom = build_phantom(&PhantomOptions {
+        let phantom = crate::common::phantom(&PhantomOptions {
             levels: vec![Level::L1, Level::L5],
             voxel_mm: 0.8,
             discs: false,

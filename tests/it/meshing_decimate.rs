@@ -6,8 +6,7 @@ use std::collections::BTreeMap;
 use glam::{DMat4, DVec3};
 use spinedrr::anatomy::decimate::{DecimateOptions, decimate_with, deviation};
 use spinedrr::anatomy::{
-    Level, PhantomOptions, ScalarGrid, TriMesh, build_phantom, decimate, decimate_to_error,
-    extract_isosurface,
+    Level, PhantomOptions, ScalarGrid, TriMesh, decimate, decimate_to_error, extract_isosurface,
 };
 
 fn assert_target(m: &TriMesh, target: usize) {
@@ -84,7 +83,7 @@ fn phantom_l3_comes_down_to_40k_within_a_tenth_of_a_millimetre() {
         simplify_edge_mm: 0.0,
         ..PhantomOptions::default()
     };
-    let p = build_phantom(&opts).unwrap();
+    let p = crate::common::phantom(&opts).unwrap();
     let m = &p.vertebrae[0].cortical;
     assert!(m.triangles.len() > 150_000, "{}", m.triangles.len());
     let (d, stats) = decimate_with(

@@ -30,10 +30,15 @@ fn fresh(opts: &PhantomOptions) -> String {
     text(&build_phantom_with(opts, None).unwrap())
 }
 
+/// The entries (`.bin`; beside them are their lock files) of this build.
 fn entries(root: &Path) -> Vec<std::path::PathBuf> {
     let dir = root.join("phantom").join(CODE_DIGEST);
     let mut v: Vec<_> = std::fs::read_dir(dir)
-        .map(|d| d.map(|e| e.unwrap().path()).collect())
+        .map(|d| {
+            d.map(|e| e.unwrap().path())
+                .filter(|p| p.extension().is_some_and(|x| x == "bin"))
+                .collect()
+        })
         .unwrap_or_default();
     v.sort();
     v

@@ -8,7 +8,7 @@ use glam::DVec3;
 use spinedrr::anatomy::ct::{SurfaceOptions, VoxelMask, label_surface};
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
-use spinedrr::anatomy::{Level, PhantomOptions, build_phantom};
+use spinedrr::anatomy::{Level, PhantomOptions};
 use spinedrr::geometry::RigidTransform;
 use spinedrr::registration::SplitMix64;
 use spinedrr::registration::intensity::{
@@ -24,7 +24,7 @@ const L3_TOTALSEG: u16 = 29;
 
 #[test]
 fn a_masked_ct_level_registers_at_the_true_k() {
-    let phantom = build_phantom(&PhantomOptions {
+    let phantom = crate::common::phantom(&PhantomOptions {
         levels: vec![Level::L3],
         voxel_mm: 1.0,
         discs: false,

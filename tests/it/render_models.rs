@@ -2,7 +2,7 @@
 //! its synthetic CT must agree (NCC ≥ 0.99), and Embree must match the reference BVH on the phantom.
 
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
-use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels};
+use spinedrr::anatomy::{PhantomOptions, parse_levels};
 use spinedrr::geometry::{CArm, GeometryConfig, View};
 use spinedrr::io::ImageF32;
 use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
@@ -38,7 +38,7 @@ fn view(c: &CArm, name: &str) -> View {
 
 #[test]
 fn volume_drr_of_the_synthetic_ct_matches_the_thickness_drr() {
-    let phantom = build_phantom(&PhantomOptions {
+    let phantom = crate::common::phantom(&PhantomOptions {
         levels: parse_levels("L3").unwrap(),
         discs: false,
         ..PhantomOptions::default()
@@ -97,7 +97,7 @@ fn worst_difference(a: &ImageF32, b: &ImageF32) -> f32 {
 
 #[test]
 fn embree_and_raster_match_the_reference_backend_on_the_phantom() {
-    let phantom = build_phantom(&PhantomOptions {
+    let phantom = crate::common::phantom(&PhantomOptions {
         levels: parse_levels("L2-L4").unwrap(),
         ..PhantomOptions::default()
     })

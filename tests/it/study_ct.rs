@@ -13,7 +13,7 @@ use spinedrr::anatomy::ct::{write_ct, write_labels};
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
 use spinedrr::anatomy::vertebra::Level;
-use spinedrr::anatomy::{Landmarks, PhantomOptions, build_phantom, write_landmarks};
+use spinedrr::anatomy::{Landmarks, PhantomOptions, write_landmarks};
 use spinedrr::study::StudyTables;
 use spinedrr::study::config::RegistrationMethod;
 use spinedrr::study::schema::{Family, ProjectionRow};
@@ -37,7 +37,7 @@ fn inputs() -> &'static Path {
     static IN: OnceLock<Inputs> = OnceLock::new();
     &IN.get_or_init(|| {
         let dir = tempfile::tempdir().expect("temp dir");
-        let phantom = build_phantom(&PhantomOptions {
+        let phantom = crate::common::phantom(&PhantomOptions {
             levels: vec![Level::L1, Level::L2],
             voxel_mm: 1.0,
             discs: false,

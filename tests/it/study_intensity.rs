@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use glam::DVec3;
-use spinedrr::anatomy::{Level, PhantomOptions, build_phantom};
+use spinedrr::anatomy::{Level, PhantomOptions};
 use spinedrr::geometry::{RigidTransform, rotation_exp};
 use spinedrr::registration::intensity::{level_targets, mtre_mm};
 use spinedrr::study::StudyTables;
@@ -32,7 +32,7 @@ starts_per_bin = 1
 
 /// The target points of a freshly built L3 (the configs' `voxel_mm = 0.8`), where the study measures mTRE.
 fn l3_targets() -> Vec<DVec3> {
-    let phantom = build_phantom(&PhantomOptions {
+    let phantom = crate::common::phantom(&PhantomOptions {
         levels: vec![Level::L3],
         voxel_mm: 0.8,
         discs: false,

@@ -1,11 +1,11 @@
 //! Surfaces from label maps and the phantom's synthetic CT.
 
 use glam::{DMat3, DMat4, DVec3};
+use spinedrr::anatomy::PhantomOptions;
 use spinedrr::anatomy::ct::{LabelMap, SurfaceOptions, label_surface, read_labels, write_labels};
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, TissueHu, synthetic_ct};
 use spinedrr::anatomy::vertebra::Level;
-use spinedrr::anatomy::{PhantomOptions, build_phantom};
 
 fn sphere_labels(a: DMat4) -> LabelMap {
     let dims = [30, 28, 26];
@@ -75,7 +75,7 @@ fn sphere_label_mesh_volume_matches_voxel_volume_and_is_watertight() {
 
 #[test]
 fn synthetic_ct_of_one_level_has_the_phantom_tissues_and_labels() {
-    let phantom = build_phantom(&PhantomOptions {
+    let phantom = crate::common::phantom(&PhantomOptions {
         levels: vec![Level::L2],
         voxel_mm: 1.0,
         discs: false,

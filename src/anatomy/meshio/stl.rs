@@ -90,7 +90,7 @@ fn parse_ascii(bytes: &[u8], path: &Path) -> Result<TriMesh> {
             }
             Some("endloop") => {
                 let n = mesh.vertices.len() as u32;
-                if n == 0 || n % 3 != 0 || n / 3 != mesh.triangles.len() as u32 + 1 {
+                if n == 0 || !n.is_multiple_of(3) || n / 3 != mesh.triangles.len() as u32 + 1 {
                     return Err(Error::format(
                         path,
                         format!(

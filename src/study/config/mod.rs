@@ -407,7 +407,7 @@ impl StudyConfig {
                     format!("{origin} gives an explicit K; binning needs pixel spacing"),
                 ));
             }
-            if d.width % b != 0 || d.height % b != 0 {
+            if !d.width.is_multiple_of(b) || !d.height.is_multiple_of(b) {
                 return Err(Error::invalid(
                     "geometry.binning",
                     format!(
