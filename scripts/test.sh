@@ -70,7 +70,9 @@ rust_tests() {
   # libtest's alphabetical order, they were the run's tail with one core idle; they run in a second process
   # of the test binary from the start instead, and their output follows the rest.
   local rc=0 slurm_rc=0
-  cargo test --test it -- study_slurm --test-threads 2 > target/test-slurm.log 2>&1 &
+  # `--workspace` as below: the same feature resolution, so the same binary (without it, cargo resolves the
+  # root package's features alone and compiles a second library and test binary meanwhile).
+  cargo test --workspace --test it -- study_slurm --test-threads 2 > target/test-slurm.log 2>&1 &
   local slurm=$!
   # Four test threads on two cores: several tests mostly wait (subprocesses, locks), and the in-process ones
   # share one rayon pool (measured: 484 s against 514 s with two).

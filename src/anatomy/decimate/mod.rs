@@ -311,10 +311,9 @@ impl Collapser {
 
     /// Link condition, flip and sliver tests for collapsing `v` into `u` at `p`.
     fn collapse_allowed(&self, u: u32, v: u32, p: DVec3) -> bool {
-        let shared = self.topo.edge_triangles(u, v);
-        if shared.len() != 2 {
+        let Some(shared) = self.topo.edge_pair(u, v) else {
             return false;
-        }
+        };
         let (nu, nv) = (self.topo.neighbours(u), self.topo.neighbours(v));
         let common = nu.iter().filter(|w| nv.binary_search(w).is_ok()).count();
         if common != 2 {

@@ -28,6 +28,18 @@ struct State {
     vert_alive: Vec<bool>,
 }
 
+/// Buffers [`State::try_collapse`] reuses from one candidate edge to the next (it runs once per short
+/// edge, and allocating these each time was a fifth of a phantom build).
+#[derive(Default)]
+struct Scratch {
+    na: Vec<u32>,
+    nb: Vec<u32>,
+    opposite: Vec<u32>,
+    common: Vec<u32>,
+    around: Vec<u32>,
+    moved: Vec<u32>,
+}
+
 impl State {
     fn normal(&self, t: [u32; 3], moved: (u32, DVec3)) -> DVec3 {
         let p = |v: u32| {
@@ -50,23 +62,23 @@ impl State {
         for &t in around {
             let tri = renamed(t);
             let n1 = normal(tri);
+            let flipped = |s: u32| normal(renamed(s)).dot(n1) < 0.0;
             for k in 0..3 {
                 let (p, q) = (tri[k], tri[(k + 1) % 3]);
-                let across: Vec<u32> = if p == a || q == a {
+                let folded = if p == a || q == a {
                     let other = if p == a { q } else { p };
                     around
                         .iter()
                         .copied()
                         .filter(|&s| s != t && renamed(s).contains(&other))
-                        .collect()
+                        .any(flipped)
                 } else {
                     self.topo
-                        .edge_triangles(p, q)
-                        .into_iter()
-                        .filter(|&s| s != t)
-                        .collect()
+                        .incident(p)
+                        .filter(|&s| self.topo.tris[s as usize].contains(&q) && s != t)
+                        .any(flipped)
                 };
-                if across.into_iter().any(|s| normal(renamed(s)).dot(n1) < 0.0) {
+                if folded {
                     return true;
                 }
             }
@@ -76,27 +88,35 @@ impl State {
 
     /// Tries to collapse `b` into `a` at `target` (no new edge longer than `cap`); returns whether it
     /// happened.
-    fn try_collapse(&mut self, a: u32, b: u32, project: Projector, cap2: f64) -> bool {
-        let shared = self.topo.edge_triangles(a, b);
-        if shared.len() != 2 {
+    fn try_collapse(
+        &mut self,
+        a: u32,
+        b: u32,
+        project: Projector,
+        cap2: f64,
+        s: &mut Scratch,
+    ) -> bool {
+        let Some(shared) = self.topo.edge_pair(a, b) else {
             return false;
-        }
-        let (na, nb) = (self.topo.neighbours(a), self.topo.neighbours(b));
+        };
+        self.topo.neighbours_into(a, &mut s.na);
+        self.topo.neighbours_into(b, &mut s.nb);
+        let (na, nb) = (&s.na, &s.nb);
         if na.len() <= 3 || nb.len() <= 3 {
             return false;
         }
-        let mut opposite: Vec<u32> = shared
-            .iter()
-            .flat_map(|&t| self.topo.tris[t as usize])
-            .filter(|&w| w != a && w != b)
-            .collect();
-        opposite.sort_unstable();
-        let common: Vec<u32> = na
-            .iter()
-            .copied()
-            .filter(|w| nb.binary_search(w).is_ok())
-            .collect();
-        if common != opposite {
+        s.opposite.clear();
+        s.opposite.extend(
+            shared
+                .iter()
+                .flat_map(|&t| self.topo.tris[t as usize])
+                .filter(|&w| w != a && w != b),
+        );
+        s.opposite.sort_unstable();
+        s.common.clear();
+        s.common
+            .extend(na.iter().copied().filter(|w| nb.binary_search(w).is_ok()));
+        if s.common != s.opposite {
             return false;
         }
         let mid = (self.pos[a as usize] + self.pos[b as usize]) * 0.5;
@@ -106,18 +126,19 @@ impl State {
         }
         if na
             .iter()
-            .chain(&nb)
+            .chain(nb)
             .any(|&w| w != a && w != b && (self.pos[w as usize] - target).length_squared() > cap2)
         {
             return false;
         }
-        let around: Vec<u32> = self
-            .topo
-            .incident(a)
-            .chain(self.topo.incident(b))
-            .filter(|t| !shared.contains(t))
-            .collect();
-        for &t in &around {
+        s.around.clear();
+        s.around.extend(
+            self.topo
+                .incident(a)
+                .chain(self.topo.incident(b))
+                .filter(|t| !shared.contains(t)),
+        );
+        for &t in &s.around {
             let old = self.topo.tris[t as usize];
             let new = old.map(|v| if v == b { a } else { v });
             let n0 = self.normal(old, (u32::MAX, DVec3::ZERO));
@@ -127,14 +148,15 @@ impl State {
                 return false;
             }
         }
-        if self.folds(a, b, target, &around) {
+        if self.folds(a, b, target, &s.around) {
             return false;
         }
         for &t in &shared {
             self.topo.tri_alive[t as usize] = false;
         }
-        let moved: Vec<u32> = self.topo.incident(b).collect();
-        for t in moved {
+        s.moved.clear();
+        s.moved.extend(self.topo.incident(b));
+        for &t in &s.moved {
             for v in &mut self.topo.tris[t as usize] {
                 if *v == b {
                     *v = a;
@@ -181,6 +203,7 @@ pub fn collapse_short_edges(
         }
         edges.sort_by(|x, y| x.0.total_cmp(&y.0));
         let mut collapsed = 0usize;
+        let mut scratch = Scratch::default();
         for (_, a, b) in edges {
             if !st.vert_alive[a as usize] || !st.vert_alive[b as usize] {
                 continue;
@@ -189,7 +212,7 @@ pub fn collapse_short_edges(
             if (pa - pb).length_squared() >= max2 {
                 continue;
             }
-            if st.try_collapse(a, b, project, cap2) {
+            if st.try_collapse(a, b, project, cap2, &mut scratch) {
                 collapsed += 1;
             }
         }

@@ -37,23 +37,33 @@ impl Topology {
             .filter(|&t| self.tri_alive[t as usize])
     }
 
-    /// The live triangles incident to both `a` and `b` (two for an interior edge of a closed manifold).
-    pub fn edge_triangles(&self, a: u32, b: u32) -> Vec<u32> {
-        self.incident(a)
-            .filter(|&t| self.tris[t as usize].contains(&b))
-            .collect()
+    /// The two live triangles incident to both `a` and `b`, in the order of `a`'s list, when there are
+    /// exactly two (an interior edge of a closed manifold); `None` otherwise.
+    pub fn edge_pair(&self, a: u32, b: u32) -> Option<[u32; 2]> {
+        let mut it = self
+            .incident(a)
+            .filter(|&t| self.tris[t as usize].contains(&b));
+        let pair = [it.next()?, it.next()?];
+        it.next().is_none().then_some(pair)
     }
 
     /// The vertices sharing a live triangle with `v`, ascending, without `v`.
     pub fn neighbours(&self, v: u32) -> Vec<u32> {
-        let mut n: Vec<u32> = self
-            .incident(v)
-            .flat_map(|t| self.tris[t as usize])
-            .filter(|&w| w != v)
-            .collect();
-        n.sort_unstable();
-        n.dedup();
+        let mut n = Vec::new();
+        self.neighbours_into(v, &mut n);
         n
+    }
+
+    /// [`Self::neighbours`] into `out` (cleared first; its capacity is reused).
+    pub fn neighbours_into(&self, v: u32, out: &mut Vec<u32>) {
+        out.clear();
+        out.extend(
+            self.incident(v)
+                .flat_map(|t| self.tris[t as usize])
+                .filter(|&w| w != v),
+        );
+        out.sort_unstable();
+        out.dedup();
     }
 
     /// The live triangles with their original index (for labels), in order.
