@@ -349,16 +349,7 @@ pub fn build_phantom_with(opts: &PhantomOptions, cache: Option<&MeshCache>) -> R
     let count = 2 * placed.len() + disc_shapes.len() + usize::from(opts.soft_tissue);
     let build = || mesh_phantom(&placed, &disc_shapes, &disc_names, opts);
     let mut meshes = match cache {
-        Some(c) => {
-            let identity = format!(
-                "{:?}",
-                PhantomOptions {
-                    levels,
-                    ..opts.clone()
-                }
-            );
-            c.meshes(&identity, count, build)?
-        }
+        Some(c) => c.meshes(&mesh_identity(opts), count, build)?,
         None => build()?,
     }
     .into_iter();
@@ -387,6 +378,21 @@ pub fn build_phantom_with(opts: &PhantomOptions, cache: Option<&MeshCache>) -> R
         soft_tissue_shape,
         cortical_mm: opts.cortical_mm,
     })
+}
+
+/// What a phantom's meshes depend on besides the code, written out in full: the options (`{:?}`, whose
+/// floats round-trip) with the levels sorted and deduplicated. The mesh cache's identity of an entry.
+pub fn mesh_identity(opts: &PhantomOptions) -> String {
+    let mut levels = opts.levels.clone();
+    levels.sort();
+    levels.dedup();
+    format!(
+        "{:?}",
+        PhantomOptions {
+            levels,
+            ..opts.clone()
+        }
+    )
 }
 
 /// Every mesh of the phantom, in the order [`build_phantom_with`] assembles them: each vertebra's

@@ -126,8 +126,8 @@ impl MeshCache {
         if let Some(m) = self.lookup(&path, identity, count, false) {
             return Ok(m);
         }
-        let _lock = self.lock(&path);
-        if _lock.is_some()
+        let lock = self.lock(&path);
+        if lock.is_some()
             && let Some(m) = self.lookup(&path, identity, count, true)
         {
             return Ok(m);
@@ -146,6 +146,7 @@ impl MeshCache {
                 path.display()
             );
         }
+        drop(lock);
         Ok(meshes)
     }
 

@@ -4,6 +4,7 @@
 
 use std::path::Path;
 
+use spinedrr::anatomy::phantom::mesh_identity;
 use spinedrr::anatomy::phantom_cache::{CODE_DIGEST, KEEP_DIGESTS};
 use spinedrr::anatomy::{Level, MeshCache, Phantom, PhantomOptions, build_phantom_with};
 
@@ -17,6 +18,16 @@ fn small() -> PhantomOptions {
         soft_tissue: true,
         simplify_edge_mm: 2.0,
         ..PhantomOptions::default()
+    }
+}
+
+/// One level alone (no disc, no soft tissue) on [`small`]'s coarse grid.
+fn one_level(level: Level) -> PhantomOptions {
+    PhantomOptions {
+        levels: vec![level],
+        discs: false,
+        soft_tissue: false,
+        ..small()
     }
 }
 
@@ -106,21 +117,10 @@ fn any_changed_option_is_a_miss_with_its_own_entry() {
 fn a_corrupt_or_foreign_entry_is_rebuilt_not_used() {
     let dir = tempfile::tempdir().unwrap();
     let cache = MeshCache::new(dir.path());
-    let other = PhantomOptions {
-        levels: vec![Level::L4],
-        discs: false,
-        soft_tissue: false,
-        ..small()
-    };
+    let other = one_level(Level::L4);
     build_phantom_with(&small(), Some(&cache)).unwrap();
     build_phantom_with(&other, Some(&cache)).unwrap();
-    let entry = cache.entry_path(&format!(
-        "{:?}",
-        PhantomOptions {
-            levels: vec![Level::L2, Level::L3],
-            ..small()
-        }
-    ));
+    let entry = cache.entry_path(&mesh_identity(&small()));
     assert!(entry.exists(), "{}", entry.display());
     let good = std::fs::read(&entry).unwrap();
     let want = fresh(&small());
@@ -160,11 +160,7 @@ fn an_unwritable_cache_still_builds_the_phantom() {
     let root = dir.path().join("not-a-directory");
     std::fs::write(&root, "a file where the cache should be").unwrap();
     let cache = MeshCache::new(&root);
-    let o = PhantomOptions {
-        levels: vec![Level::L1],
-        soft_tissue: false,
-        ..small()
-    };
+    let o = one_level(Level::L1);
     assert_eq!(
         text(&build_phantom_with(&o, Some(&cache)).unwrap()),
         fresh(&o)
@@ -196,12 +192,7 @@ fn old_code_digests_are_pruned_and_nothing_else_is_touched() {
     let keep_mine = base.join("not-a-digest");
     std::fs::create_dir_all(&keep_mine).unwrap();
     let cache = MeshCache::new(dir.path());
-    let o = PhantomOptions {
-        levels: vec![Level::L5],
-        discs: false,
-        soft_tissue: false,
-        ..small()
-    };
+    let o = one_level(Level::L5);
     build_phantom_with(&o, Some(&cache)).unwrap();
     // This build's directory plus the newest KEEP_DIGESTS − 1 others stay.
     let kept: Vec<bool> = olds.iter().map(|d| d.exists()).collect();
