@@ -1,5 +1,5 @@
 """Python side of the overhead comparison (issue 17): the 1024² AP DRR of phantom L3 (no discs), raster
-backend, timed in a Python loop. Compare with `cargo bench --bench python_overhead` (criterion, the
+backend, timed in a Python loop. Compare with `cargo bench --bench all -- python_overhead` (criterion, the
 same render from Rust). Prints the mean and median per call (ms) of
 
 * ``Renderer.render(view)`` — renderer built once, the same work criterion times, plus the call,

@@ -5,7 +5,7 @@
 //! of one pose evaluation (both views rendered and compared) at each level. The evaluations, iterations,
 //! stopping rule and seconds of every stage of the two registrations are printed once.
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::Criterion;
 use spinedrr::anatomy::ct::{SurfaceOptions, VoxelMask, label_surface};
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
 use spinedrr::anatomy::{Level, PhantomOptions, build_phantom};
@@ -96,7 +96,8 @@ fn report(what: &str, problem: &IntensityProblem, opts: &IntensityOptions) -> Ri
     init
 }
 
-fn bench(c: &mut Criterion) {
+/// This module's benchmarks (see `main.rs`).
+pub fn run(c: &mut Criterion) {
     let phantom = build_phantom(&PhantomOptions::default()).unwrap();
     let fixed_r = phantom_renderer(&level_alone(&phantom, Level::L3).unwrap()).unwrap();
     let carm = CArm::default_paper();
@@ -196,6 +197,3 @@ fn bench(c: &mut Criterion) {
     );
     g.finish();
 }
-
-criterion_group!(benches, bench);
-criterion_main!(benches);

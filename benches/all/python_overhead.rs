@@ -2,14 +2,15 @@
 //! discs) with the raster backend, renderer built once, the line integral alone: exactly what
 //! `spinedrr.Renderer(spinedrr.phantom("L3", discs=False).scene).render(carm.view("ap"))` does.
 //! `python/benches/overhead.py` times that call in a Python loop; compare its mean with this one.
-//! Run with `cargo bench --bench python_overhead`.
+//! Run with `cargo bench --bench all -- python_overhead`.
 
-use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use criterion::{Criterion, Throughput};
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels};
 use spinedrr::geometry::CArm;
 use spinedrr::render::{Backend, ThicknessOptions, ThicknessRenderer, phantom_scene};
 
-fn bench(c: &mut Criterion) {
+/// This module's benchmarks (see `main.rs`).
+pub fn run(c: &mut Criterion) {
     let opts = PhantomOptions {
         levels: parse_levels("L3").expect("levels"),
         discs: false,
@@ -27,6 +28,3 @@ fn bench(c: &mut Criterion) {
     });
     g.finish();
 }
-
-criterion_group!(benches, bench);
-criterion_main!(benches);

@@ -1,6 +1,6 @@
 //! All metrics for a pair of 1024² images (target ≤ 150 ms), and the parts separately.
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::Criterion;
 use glam::{DVec2, DVec3};
 use spinedrr::analysis::{
     Landmark, MaskPair, compare, gradient_correlation, image_metrics, mutual_information, ncc,
@@ -28,7 +28,8 @@ fn drr(centre: DVec2, scale: f64) -> (ImageF32, Vec<bool>) {
     (img, mask)
 }
 
-fn bench(c: &mut Criterion) {
+/// This module's benchmarks (see `main.rs`).
+pub fn run(c: &mut Criterion) {
     let (a, ma) = drr(DVec2::new(511.5, 511.5), 1.0);
     let (b, mb) = drr(DVec2::new(520.0, 505.0), 1.067);
     let masks = vec![MaskPair {
@@ -47,7 +48,7 @@ fn bench(c: &mut Criterion) {
             position: DVec3::new(i as f64 * 3.0, 0.0, 10.0 - i as f64),
         })
         .collect();
-    let mut g = c.benchmark_group("metrics 1024²");
+    let mut g = c.benchmark_group("metrics/1024²");
     g.sample_size(20);
     g.bench_function("all metrics (compare)", |bn| {
         bn.iter(|| compare(&a, &b, &masks, &lms, Some((ap, &pert))).unwrap())
@@ -68,6 +69,3 @@ fn bench(c: &mut Criterion) {
     });
     g.finish();
 }
-
-criterion_group!(benches, bench);
-criterion_main!(benches);

@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use criterion::{Criterion, Throughput};
 use glam::{DMat4, DVec3};
 use spinedrr::anatomy::ct::{CtVolume, LabelMap, SurfaceOptions, VoxelMask, label_surface};
 use spinedrr::anatomy::{Level, PhantomOptions, build_phantom, decimate};
@@ -38,7 +38,8 @@ fn phantom_ct() -> (CtVolume, LabelMap) {
     (ct, seg)
 }
 
-fn bench(c: &mut Criterion) {
+/// This module's benchmarks (see `main.rs`).
+pub fn run(c: &mut Criterion) {
     let (ct, seg) = phantom_ct();
     let view = CArm::default_paper().view("ap").unwrap().clone();
     let mask = VoxelMask::from_labels(&seg, &[31]).unwrap();
@@ -62,19 +63,19 @@ fn bench(c: &mut Criterion) {
             .fold(f64::INFINITY, f64::min);
         let visits = voxel_visits(&r, &view, method);
         eprintln!(
-            "summary volume_drr_1024/{name}: {:.0} ms per image, {:.2e} voxel visits ({:.0} M/s)",
+            "summary volume/drr_1024/{name}: {:.0} ms per image, {:.2e} voxel visits ({:.0} M/s)",
             best * 1e3,
             visits,
             visits / best / 1e6
         );
     }
-    let mut g = c.benchmark_group("volume_drr_1024");
+    let mut g = c.benchmark_group("volume/drr_1024");
     g.sample_size(10);
     g.throughput(Throughput::Elements(1024 * 1024));
     let r = VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), Some(&mask)).unwrap();
     g.bench_function("siddon_masked_L1", |b| b.iter(|| r.render(&view)));
     g.finish();
-    let mut g = c.benchmark_group("label_surface_512x512x133");
+    let mut g = c.benchmark_group("volume/label_surface_512x512x133");
     g.sample_size(10);
     g.bench_function("L1", |b| {
         b.iter(|| label_surface(&seg, 31, &SurfaceOptions::default()).unwrap())
@@ -89,7 +90,7 @@ fn bench(c: &mut Criterion) {
     })
     .unwrap();
     let l3 = &phantom.vertebrae[0].cortical;
-    let mut g = c.benchmark_group("decimate");
+    let mut g = c.benchmark_group("volume/decimate");
     g.sample_size(10);
     g.throughput(Throughput::Elements(l3.triangles.len() as u64));
     g.bench_function("phantom_L3_to_40k", |b| {
@@ -97,9 +98,6 @@ fn bench(c: &mut Criterion) {
     });
     g.finish();
 }
-
-criterion_group!(benches, bench);
-criterion_main!(benches);
 
 /// Voxels visited by one image: Siddon steps once per voxel crossed (≈ Σ over rays of the clipped length in
 /// voxel units, |Δi| + |Δj| + |Δk|); trilinear samples 8 voxels every step.

@@ -3,13 +3,13 @@
 //! acceleration-structure build times.
 //!
 //! The timed renders produce the DRR (line-integral image); the summary lines also give the time with
-//! every output (silhouette masks and depth map). Run with `cargo bench --bench render`. Before the
+//! every output (silhouette masks and depth map). Run with `cargo bench --bench all -- render`. Before the
 //! timed groups it prints one line per configuration with rays traced, hits, rays/s, hits/s and the build
 //! time, the numbers the README table reports.
 
 use std::time::Instant;
 
-use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use criterion::{Criterion, Throughput};
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels};
 use spinedrr::geometry::CArm;
 use spinedrr::render::embree::EmbreeScene;
@@ -31,7 +31,8 @@ fn best_ms(n: usize, mut f: impl FnMut() -> f64) -> f64 {
     (0..n).map(|_| f()).fold(f64::INFINITY, f64::min)
 }
 
-fn bench_render(c: &mut Criterion) {
+/// This module's benchmarks (see `main.rs`).
+pub fn run(c: &mut Criterion) {
     let carm = CArm::default_paper();
     let drr = ThicknessOptions::image_only();
     let full = ThicknessOptions::default();
@@ -86,7 +87,7 @@ fn bench_render(c: &mut Criterion) {
             });
             g.finish();
         }
-        let mut g = c.benchmark_group(format!("bvh_build/{label}"));
+        let mut g = c.benchmark_group(format!("render/bvh_build/{label}"));
         g.sample_size(10);
         g.bench_function("embree", |b| {
             b.iter(|| Backend::Embree.renderer(scene.clone()).expect("build"))
@@ -105,6 +106,3 @@ fn backend_name(b: Backend) -> &'static str {
         Backend::Raster => "raster",
     }
 }
-
-criterion_group!(benches, bench_render);
-criterion_main!(benches);

@@ -1,6 +1,6 @@
 //! One direct AP+LAT registration of 10 landmarks (target ≤ 100 µs), and the other methods beside it.
 
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::Criterion;
 use glam::DVec3;
 use spinedrr::geometry::{CArm, RigidTransform, rotation_exp};
 use spinedrr::registration::{
@@ -39,26 +39,26 @@ fn problem(views: &[&str]) -> (RegistrationProblem, RigidTransform) {
     )
 }
 
-fn bench(c: &mut Criterion) {
+/// This module's benchmarks (see `main.rs`).
+pub fn run(c: &mut Criterion) {
     let (joint, truth) = problem(&["ap", "lat"]);
     let (single, _) = problem(&["ap"]);
     let opts = RegistrationOptions {
         init: Some(perturb_pose(&truth, 5.0, 10.0, truth.translation, 1)),
         ..Default::default()
     };
-    c.bench_function("direct AP+LAT, 10 landmarks", |b| {
+    let mut g = c.benchmark_group("registration");
+    g.bench_function("direct AP+LAT, 10 landmarks", |b| {
         b.iter(|| register(&joint, Method::Direct, &opts).unwrap())
     });
-    c.bench_function("kabsch AP+LAT, 10 landmarks", |b| {
+    g.bench_function("kabsch AP+LAT, 10 landmarks", |b| {
         b.iter(|| register(&joint, Method::Kabsch, &opts).unwrap())
     });
-    c.bench_function("direct AP, 10 landmarks", |b| {
+    g.bench_function("direct AP, 10 landmarks", |b| {
         b.iter(|| register(&single, Method::Direct, &opts).unwrap())
     });
-    c.bench_function("opencv iterative AP, 10 landmarks", |b| {
+    g.bench_function("opencv iterative AP, 10 landmarks", |b| {
         b.iter(|| register(&single, Method::OpenCv(PnpSolver::Iterative), &opts).unwrap())
     });
+    g.finish();
 }
-
-criterion_group!(benches, bench);
-criterion_main!(benches);
