@@ -31,8 +31,11 @@ use glam::DVec3;
 use super::TriMesh;
 use crate::{Error, Result};
 
-/// The build's code digest (see the module documentation).
-pub const CODE_DIGEST: &str = env!("SPINEDRR_CODE_DIGEST");
+/// The build's code digest (see the module documentation). A `static`, not a `const`: a constant is
+/// copied into the code of every function that reads it, and since the digest changes with every edit
+/// of any source file, an incremental rebuild after a one-line edit recompiled all of them (measured:
+/// 61 s against 26 s for `cargo test --no-run` after one constant changed in `error.rs`).
+pub static CODE_DIGEST: &str = env!("SPINEDRR_CODE_DIGEST");
 
 /// How many code digests' directories are kept (the newest by modification time).
 pub const KEEP_DIGESTS: usize = 3;
