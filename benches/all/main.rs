@@ -2,7 +2,8 @@
 //! seven (`make test` builds every target; issue #30).
 //!
 //! `cargo bench --bench all` runs them all (`make bench`); `cargo bench --bench all -- MODULE` runs one
-//! module: `calibration`, `intensity`, `metrics`, `python_overhead`, `registration`, `render` or `volume`.
+//! module: `calibration`, `intensity`, `metrics`, `python_overhead`, `real_ct`, `registration`, `render` or
+//! `volume`.
 //! Every benchmark's id starts with its module's name, so a longer filter (`render/L3`, `volume/decimate`)
 //! runs that module's set-up and criterion times the benchmarks it matches. A filter that starts with no
 //! module's name runs every module's set-up (criterion still times only what it matches).
@@ -13,17 +14,19 @@ mod calibration;
 mod intensity;
 mod metrics;
 mod python_overhead;
+mod real_ct;
 mod registration;
 mod render;
 mod volume;
 
 type Module = (&'static str, fn(&mut Criterion));
 
-const MODULES: [Module; 7] = [
+const MODULES: [Module; 8] = [
     ("calibration", calibration::run),
     ("intensity", intensity::run),
     ("metrics", metrics::run),
     ("python_overhead", python_overhead::run),
+    ("real_ct", real_ct::run),
     ("registration", registration::run),
     ("render", render::run),
     ("volume", volume::run),

@@ -1,6 +1,7 @@
 //! CT volume DRR speed: 1024² images through a generated 512 × 512 × 133 CT (Siddon, trilinear, and a
 //! single-vertebra masked render), surface extraction of one label from a 512 × 512 × 133 label map, and
-//! quadric decimation of the phantom's L3 outer surface (~300k triangles) to 40k.
+//! quadric decimation of the phantom's L3 outer surface (~300k triangles) to 40k. The real CT's DRRs are
+//! the `real_ct` module.
 
 use std::time::Instant;
 

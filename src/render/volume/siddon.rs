@@ -19,6 +19,23 @@ use super::VolumeRenderer;
 /// which is where a DRR ray spends nearly all its voxels. Minor-axis crossings and the ends take the
 /// general step. The visited voxels and lengths are exactly those of Jacobs' three-way step.
 pub(crate) fn integrate(r: &VolumeRenderer, p0: DVec3, dp: DVec3, t0: f64, t1: f64) -> f64 {
+    let abs = dp.abs();
+    if abs.x >= abs.y && abs.x >= abs.z {
+        walk::<0>(r, p0, dp, t0, t1)
+    } else if abs.y >= abs.z {
+        walk::<1>(r, p0, dp, t0, t1)
+    } else {
+        walk::<2>(r, p0, dp, t0, t1)
+    }
+}
+
+/// [`integrate`] for dominant axis `A`. A constant axis makes every per-axis index below a constant, so
+/// the walk's state lives in registers rather than in arrays indexed at run time; plane crossings are
+/// products with the precomputed `1 / dp_A` rather than divisions on the loop's critical path; and a run
+/// ends exactly at the slab of the next event, so each event takes one general step, not two (together:
+/// the real CT's 1024² AP DRR 514 → 414 ms on 2 cores, release).
+fn walk<const A: usize>(r: &VolumeRenderer, p0: DVec3, dp: DVec3, t0: f64, t1: f64) -> f64 {
+    let (b, c) = ((A + 1) % 3, (A + 2) % 3);
     let [nx, ny, _] = r.dims;
     let stride = [1isize, nx as isize, (nx * ny) as isize];
     // The voxel of the entry point: sample just inside the entry to avoid ties.
@@ -41,43 +58,41 @@ pub(crate) fn integrate(r: &VolumeRenderer, p0: DVec3, dp: DVec3, t0: f64, t1: f
             t_next[a] = (idx[a] as f64 - 0.5 - p0[a]) / dp[a];
         }
     }
-    let abs = dp.abs();
-    let a = if abs.x >= abs.y && abs.x >= abs.z {
-        0
-    } else if abs.y >= abs.z {
-        1
-    } else {
-        2
-    };
-    let (b, c) = ((a + 1) % 3, (a + 2) % 3);
     let (lo, hi) = (r.lo.map(|v| v as isize), r.hi.map(|v| v as isize));
     let mu = &r.mu[..];
-    let (sa, dta) = (step[a] * stride[a], dt[a]);
+    let (sa, dta) = (step[A] * stride[A], dt[A]);
     let inv_dta = 1.0 / dta;
-    // Exact distance to the far plane of voxel i along the dominant axis.
-    let far_plane = |i: isize| (i as f64 + 0.5 * step[a] as f64 - p0[a]) / dp[a];
+    // Exact distance to the far plane of voxel i along the dominant axis: `(i ± ½ − p0_A) / dp_A`, as a
+    // product with `1 / dp_A` (within an ulp of the quotient).
+    let (far_offset, inv_dpa) = (0.5 * step[A] as f64 - p0[A], 1.0 / dp[A]);
+    let far_plane = |i: isize| (i as f64 + far_offset) * inv_dpa;
     let mut lin = idx[0] * stride[0] + idx[1] * stride[1] + idx[2] * stride[2];
     let mut t = t0;
     let mut sum = 0.0f64;
     loop {
         let t_minor = t_next[b].min(t_next[c]);
         let t_event = t_minor.min(t1);
-        if t_next[a] < t_event {
-            // Finish this slab, then run over the whole slabs that end before the next event; one slab
-            // of margin leaves the last, possibly partial, one to the general step.
-            sum += f64::from(mu[lin as usize]) * (t_next[a] - t);
-            t = t_next[a];
-            idx[a] += step[a];
-            if idx[a] < lo[a] || idx[a] > hi[a] {
+        if t_next[A] < t_event {
+            // Finish this slab, then run over the whole slabs that end before the next event: as many
+            // as the quotient says, less any whose far plane (computed as the general step computes it)
+            // does not lie strictly before the event, so that the slab after the run holds the event
+            // (and lies inside the clip box: the event is at most the segment's end).
+            sum += f64::from(mu[lin as usize]) * (t_next[A] - t);
+            t = t_next[A];
+            idx[A] += step[A];
+            if idx[A] < lo[A] || idx[A] > hi[A] {
                 return sum;
             }
             lin += sa;
-            let whole = ((t_event - t) * inv_dta) as isize - 1;
+            let mut whole = ((t_event - t) * inv_dta) as isize;
+            while whole > 0 && far_plane(idx[A] + (whole - 1) * step[A]) >= t_event {
+                whole -= 1;
+            }
             if whole > 0 {
-                let last = idx[a] + (whole - 1) * step[a];
-                if last < lo[a] || last > hi[a] {
+                let last = idx[A] + (whole - 1) * step[A];
+                if last < lo[A] || last > hi[A] {
                     // Never expected (the run ends inside the clip box); keep the general step.
-                    t_next[a] = far_plane(idx[a]);
+                    t_next[A] = far_plane(idx[A]);
                     continue;
                 }
                 let mut acc = [0.0f32; 4];
@@ -95,25 +110,34 @@ pub(crate) fn integrate(r: &VolumeRenderer, p0: DVec3, dp: DVec3, t0: f64, t1: f
                     k += 1;
                 }
                 sum += f64::from((acc[0] + acc[1]) + (acc[2] + acc[3])) * dta;
-                idx[a] += whole * step[a];
-                t = far_plane(idx[a] - step[a]);
+                idx[A] += whole * step[A];
+                t = far_plane(idx[A] - step[A]);
             }
-            t_next[a] = far_plane(idx[a]);
+            t_next[A] = far_plane(idx[A]);
             continue;
         }
         if t_event >= t1 {
             return sum + f64::from(mu[lin as usize]) * (t1 - t);
         }
-        // A minor-axis crossing inside the current slab.
-        let m = if t_next[b] <= t_next[c] { b } else { c };
+        // A minor-axis crossing inside the current slab (two copies, so that each indexes its axis by a
+        // constant).
         sum += f64::from(mu[lin as usize]) * (t_minor - t);
         t = t_minor;
-        idx[m] += step[m];
-        if idx[m] < lo[m] || idx[m] > hi[m] {
-            return sum;
+        macro_rules! cross {
+            ($m:expr) => {{
+                idx[$m] += step[$m];
+                if idx[$m] < lo[$m] || idx[$m] > hi[$m] {
+                    return sum;
+                }
+                lin += step[$m] * stride[$m];
+                t_next[$m] += dt[$m];
+            }};
         }
-        lin += step[m] * stride[m];
-        t_next[m] += dt[m];
+        if t_next[b] <= t_next[c] {
+            cross!(b)
+        } else {
+            cross!(c)
+        }
     }
 }
 
@@ -171,7 +195,7 @@ mod tests {
             mu_water: 1.0,
             step_mm: 0.5,
         };
-        let mut checked = 0;
+        let (mut checked, mut per_axis) = (0, [0usize; 3]);
         for k in 0..400 {
             let f = k as f64;
             // Rays from outside the box in all octants, some nearly axis-aligned.
@@ -199,7 +223,17 @@ mod tests {
                 "ray {k}: {got} vs {want}"
             );
             checked += 1;
+            let abs = dir.abs();
+            per_axis[if abs.x >= abs.y && abs.x >= abs.z {
+                0
+            } else if abs.y >= abs.z {
+                1
+            } else {
+                2
+            }] += 1;
         }
         assert!(checked > 300);
+        // Every dominant axis's walk is exercised.
+        assert!(per_axis.iter().all(|&n| n >= 40), "{per_axis:?}");
     }
 }
