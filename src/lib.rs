@@ -11,6 +11,8 @@
 //!   on nothing else in the crate.
 //! * [`geometry`]: the pinhole C-arm model (`Intrinsics`, `View`, `CArm`, `Perturbation`), rigid
 //!   transforms and the one `project` function.
+//! * [`spectral`]: materials (NIST μ/ρ), tube spectra (TASMIP), the detector and the polychromatic energy
+//!   sum; depends on nothing else in the crate.
 //! * [`anatomy`]: triangle meshes, mesh files, the parametric lumbar phantom and its landmarks.
 //! * [`render`]: thickness DRRs of meshes (the raster, Embree or the pure-Rust BVH) and CT volume DRRs.
 //! * [`io`]: atomic writes, float32 TIFF images, PNG previews and the JSON sidecar every image carries.
@@ -28,6 +30,7 @@ pub mod io;
 pub mod math;
 pub mod registration;
 pub mod render;
+pub mod spectral;
 pub mod study;
 
 pub use error::{Error, Result};

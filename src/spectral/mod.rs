@@ -1,0 +1,21 @@
+//! The spectral X-ray model: materials with NIST attenuation data, tube spectra (TASMIP or a file) and
+//! their filtration, an energy-integrating detector, and the energy sum that makes a polychromatic image
+//! from per-material path lengths. Depends only on the crate's error type; the renderers use it.
+//!
+//! * `nist`: the elements' μ/ρ and μ_en/ρ (NIST SRD 126) and their log–log spline interpolation.
+//! * `materials`: compositions and densities of tissues, implant alloys and filters.
+//! * `spectrum`: TASMIP spectra, spectrum files, filtration, mean energy and half-value layer.
+//! * `detector`: the scintillator's absorbed fraction η(E).
+//! * `model`: the detector weights and the per-pixel energy sum.
+
+mod detector;
+mod materials;
+mod model;
+mod nist;
+mod spectrum;
+mod spline;
+
+pub use detector::Detector;
+pub use materials::{MATERIALS, Material, MaterialAt};
+pub use model::{Channel, SpectralModel};
+pub use spectrum::{Spectrum, TASMIP_KV};
