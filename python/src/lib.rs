@@ -19,6 +19,7 @@ mod errors;
 mod geometry;
 mod lib_bridge;
 mod render;
+mod spectral;
 
 /// spinedrr: calibration-sensitivity analysis of vertebral DRRs — thickness DRRs of meshes, CT DRRs,
 /// projection-domain metrics and landmark 2D–3D registration, with numpy arrays in and out.
@@ -46,6 +47,9 @@ fn spinedrr_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render::render_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_ct, m)?)?;
     m.add_function(wrap_pyfunction!(render::intensity, m)?)?;
+    m.add_function(wrap_pyfunction!(spectral::material_mu_rho, m)?)?;
+    m.add_function(wrap_pyfunction!(spectral::spectrum, m)?)?;
+    m.add_function(wrap_pyfunction!(spectral::render_spectral, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::compare, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::register, m)?)?;
     Ok(())

@@ -12,7 +12,10 @@ use spinedrr::anatomy::landmarks::landmarks_to_json;
 use spinedrr::anatomy::{PhantomOptions, Structure, build_phantom, parse_levels};
 use spinedrr::registration::LoadedProblem;
 use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
-use spinedrr::render::{RenderScene, ThicknessOptions, ThicknessRenderer};
+use spinedrr::render::{
+    RenderScene, SpectralRenderer, SpectralScene, ThicknessOptions, ThicknessRenderer,
+};
+use spinedrr::spectral::SpectralModel;
 
 pub use spinedrr::analysis::{Landmark, MaskPair};
 pub use spinedrr::anatomy::MU_WATER_PER_MM;
@@ -269,3 +272,63 @@ pub fn register(problem_json: &str, req: &RegisterRequest) -> Result<serde_json:
 
 /// Shared, immutable mesh handle (render scenes hold meshes by `Arc`).
 pub type MeshRef = Arc<TriMesh>;
+
+/// The spectral model of `spinedrr render --spectrum SPEC --filter FILTERS --detector DETECTOR`.
+pub fn spectral_model(spectrum: &str, filters: &str, detector: &str) -> Result<SpectralModel> {
+    spinedrr::spectral::model_from_specs(spectrum, filters, detector)
+}
+
+/// μ/ρ (or μ_en/ρ with `energy_absorption`) of a built-in material at each energy (keV), each energy
+/// checked against the tables' range.
+pub fn material_coefficients(
+    name: &str,
+    energies_kev: &[f64],
+    energy_absorption: bool,
+) -> Result<Vec<f64>> {
+    let m = spinedrr::spectral::Material::named(name)?;
+    energies_kev
+        .iter()
+        .map(|&e| {
+            spinedrr::spectral::Spectrum::monochromatic(e)?;
+            Ok(if energy_absorption {
+                m.mu_en_rho(e)
+            } else {
+                m.mu_rho(e)
+            })
+        })
+        .collect()
+}
+
+/// A spectral render of meshes `(mesh, object, MU or MATERIAL[@DENSITY])`, as `spinedrr render --mesh …
+/// --spectrum …`, or of the phantom's spectral scene: the polychromatic line integral, the sidecar's
+/// `spectral` record, and the warnings of meshes partly inside another. `phantom`: levels and whether the
+/// soft-tissue outline is added, as `--phantom LEVELS [--soft-tissue]`.
+pub fn render_spectral(
+    meshes: Vec<(Arc<TriMesh>, String, String)>,
+    phantom: Option<(&str, bool)>,
+    model: SpectralModel,
+    backend: Backend,
+    view: &View,
+) -> Result<(ImageF32, serde_json::Value, Vec<String>)> {
+    let (scene, warnings) = match phantom {
+        Some((levels, soft_tissue)) => {
+            let opts = PhantomOptions {
+                levels: parse_levels(levels)?,
+                soft_tissue,
+                ..PhantomOptions::default()
+            };
+            let p = build_phantom(&opts)?;
+            (spinedrr::render::phantom_spectral_scene(&p)?, Vec::new())
+        }
+        None => {
+            let items = meshes
+                .into_iter()
+                .map(|(m, o, a)| Ok((m, o, spinedrr::spectral::parse_attenuation(&a)?)))
+                .collect::<Result<Vec<_>>>()?;
+            SpectralScene::from_meshes(items)?
+        }
+    };
+    let r = SpectralRenderer::new(&scene, model, backend)?;
+    let drr = r.render(view)?;
+    Ok((drr.line_integral, r.summary(), warnings))
+}

@@ -13,6 +13,7 @@ mod register;
 mod render;
 mod render_checks;
 mod render_ct;
+mod render_spectral;
 mod render_timing;
 mod study;
 mod values;

@@ -16,6 +16,7 @@ use spinedrr::render::{
     Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, orient_outward_warning,
     phantom_scene,
 };
+use spinedrr::spectral::Attenuation;
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
@@ -112,6 +113,8 @@ pub struct Args {
     allow_empty: bool,
     #[command(flatten)]
     ct: super::render_ct::CtArgs,
+    #[command(flatten)]
+    spectral: super::render_spectral::SpectralArgs,
     /// Output image (.tiff or .tif); the sidecar and preview are written beside it.
     #[arg(long, value_name = "OUT.tiff")]
     out: PathBuf,
@@ -190,6 +193,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     if a.ct.ct.is_some() {
         return super::render_ct::run_ct(&a.ct, &run);
+    }
+    if let Some(model) = a.spectral.model()? {
+        let scene = super::render_spectral::SceneSpec {
+            phantom: a.phantom.as_deref(),
+            soft_tissue: a.soft_tissue,
+            meshes: &a.mesh,
+            mu_default: a.mu_default,
+        };
+        return super::render_spectral::run_spectral(&scene, model, a.backend, &run);
     }
 
     let (scene, anatomy) = build_scene(&a)?;
@@ -319,7 +331,15 @@ fn build_scene(a: &Args) -> anyhow::Result<(RenderScene, serde_json::Value)> {
     }
     let mut meshes = Vec::new();
     for spec in &a.mesh {
-        let (path, mu) = split_mesh_spec(spec, a.mu_default)?;
+        let (path, value) = split_mesh_spec(spec, a.mu_default)?;
+        let mu = match value {
+            Attenuation::Mu(mu) => mu,
+            Attenuation::Material(m) => bail!(
+                "--mesh {spec}: '{}' is a material, and materials need --spectrum (a monochromatic render \
+                 takes μ in mm⁻¹, FILE:MU)",
+                m.material.name
+            ),
+        };
         let mut mesh =
             read_mesh(&path).with_context(|| format!("reading mesh {}", path.display()))?;
         if let Some(w) = orient_outward_warning(&mut mesh, &path.display().to_string()) {

@@ -11,6 +11,7 @@ use spinedrr::anatomy::TriMesh;
 use spinedrr::geometry::{Perturbation, View};
 use spinedrr::io::{DrrValues, ImageF32};
 use spinedrr::render::RenderScene;
+use spinedrr::spectral::{Attenuation, parse_attenuation};
 
 /// What the mesh and the CT renders share: the view, the perturbation, the output and its checks.
 pub struct RenderRun<'a> {
@@ -25,25 +26,23 @@ pub struct RenderRun<'a> {
     pub out: &'a Path,
 }
 
-/// `FILE[:MU]`: a trailing `:MU` is the attenuation (mm⁻¹), which must be a finite number. A spec that
-/// names an existing file, or whose last `:` part ends in a mesh extension, is a path (which may contain
-/// `:`).
-pub fn split_mesh_spec(spec: &str, default_mu: f64) -> anyhow::Result<(PathBuf, f64)> {
-    let Some((path, mu)) = spec.rsplit_once(':') else {
-        return Ok((PathBuf::from(spec), default_mu));
+/// `FILE[:MU]` or `FILE:MATERIAL[@DENSITY]`: a trailing `:MU` is the attenuation (mm⁻¹), which must be a
+/// finite number; a trailing `:NAME` must be a built-in material (`spinedrr render --help` lists them).
+/// A spec that names an existing file, or whose last `:` part ends in a mesh extension, is a path (which
+/// may contain `:`).
+pub fn split_mesh_spec(spec: &str, default_mu: f64) -> anyhow::Result<(PathBuf, Attenuation)> {
+    let Some((path, value)) = spec.rsplit_once(':') else {
+        return Ok((PathBuf::from(spec), Attenuation::Mu(default_mu)));
     };
     let is_mesh_name = [".stl", ".obj", ".ply"]
         .iter()
-        .any(|e| mu.to_ascii_lowercase().ends_with(e));
+        .any(|e| value.to_ascii_lowercase().ends_with(e));
     if is_mesh_name || Path::new(spec).is_file() {
-        return Ok((PathBuf::from(spec), default_mu));
+        return Ok((PathBuf::from(spec), Attenuation::Mu(default_mu)));
     }
-    match mu.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok((PathBuf::from(path), v)),
-        Ok(v) => bail!("--mesh {spec}: μ {v} must be finite"),
-        Err(_) => {
-            bail!("--mesh {spec}: μ '{mu}' is not a number (expected FILE or FILE:MU, MU in mm⁻¹)")
-        }
+    match parse_attenuation(value) {
+        Ok(v) => Ok((PathBuf::from(path), v)),
+        Err(e) => bail!("--mesh {spec}: {e}"),
     }
 }
 

@@ -4,7 +4,8 @@
 //! `scene` owns what is rendered (meshes, μ, objects), `backend` which backend finds the rays' hits,
 //! `tracer` the ray-tracing backend interface, `embree` and `bvh` the two ray tracers, `raster` the
 //! rasteriser of primary rays, `pairing` how a ray's hits become a path length, `thickness` the image loop,
-//! `phantom_scene` the phantom's meshes with μ from HU, `volume` the CT renderer (Siddon and trilinear).
+//! `phantom_scene` the phantom's meshes with μ from HU (or materials, for `spectral`), `spectral` the
+//! polychromatic DRR of meshes (per-material path lengths, then the energy sum), `volume` the CT renderer (Siddon and trilinear).
 
 mod backend;
 pub mod bvh;
@@ -13,13 +14,17 @@ mod pairing;
 mod phantom_scene;
 mod raster;
 mod scene;
+mod spectral;
 mod thickness;
 mod tracer;
 pub mod volume;
 
 pub use backend::Backend;
-pub use phantom_scene::phantom_scene;
+pub use phantom_scene::{phantom_scene, phantom_spectral_scene};
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh, orient_outward_warning};
+pub use spectral::{
+    SpectralDrr, SpectralMesh, SpectralRenderer, SpectralScene, displace_nested, energy_sum,
+};
 pub use thickness::{
     Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions, ThicknessRenderer,
 };

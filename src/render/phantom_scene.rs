@@ -6,9 +6,10 @@
 
 use std::sync::Arc;
 
+use super::spectral::{SpectralMesh, SpectralScene};
 use super::{RenderScene, SceneMesh};
 use crate::Result;
-use crate::anatomy::{Phantom, Tissue, tissue_mu};
+use crate::anatomy::{Phantom, Tissue, tissue_hu, tissue_mu};
 
 /// The phantom's meshes with their μ: per vertebra the cortical surface (object = level name) and the
 /// cancellous surface inside it with `μ_cancellous − μ_cortical`; discs (object `discs`); the soft-tissue
@@ -55,4 +56,65 @@ pub fn phantom_scene(p: &Phantom) -> Result<RenderScene> {
         });
     }
     RenderScene::new(meshes)
+}
+
+/// The phantom as a spectral scene: cortical shells of `cortical_bone` (ICRU 44, 1.92 g/cm³), cancellous
+/// cores of `cancellous_bone` (1.18 g/cm³), discs and the soft-tissue outline of `soft_tissue` at the
+/// water-equivalent density of their CT numbers, `1 + HU/1000` (1.09 and 1.04 g/cm³). Nested surfaces
+/// displace what they are inside: a core carries `−ρ_cortical` on the cortical channel, everything inside
+/// the outline `−ρ_soft` on the soft-tissue channel.
+pub fn phantom_spectral_scene(p: &Phantom) -> Result<SpectralScene> {
+    let material =
+        |name: &str| crate::spectral::Material::named(name).map(crate::spectral::Channel::Material);
+    let channels = vec![
+        material("cortical_bone")?,
+        material("cancellous_bone")?,
+        material("soft_tissue")?,
+    ];
+    let (cortical, cancellous, soft) = (0, 1, 2);
+    let rho = |c: usize| match channels[c] {
+        crate::spectral::Channel::Material(m) => m.density_g_cm3,
+        crate::spectral::Channel::FixedMu => 0.0,
+    };
+    let water_equivalent = |t: Tissue| 1.0 + tissue_hu(t) / 1000.0;
+    let soft_rho = water_equivalent(Tissue::SoftTissue);
+    let mut background = Vec::new();
+    if p.soft_tissue.is_some() {
+        background.push((soft, -soft_rho));
+    }
+    let with_background = |mut terms: Vec<(usize, f64)>| {
+        terms.extend(background.iter().copied());
+        terms
+    };
+    let mut meshes = Vec::new();
+    for v in &p.vertebrae {
+        let level = v.level.to_string();
+        meshes.push(SpectralMesh {
+            mesh: Arc::new(v.cortical.clone()),
+            object: level.clone(),
+            terms: with_background(vec![(cortical, rho(cortical))]),
+        });
+        if !v.cancellous.triangles.is_empty() {
+            meshes.push(SpectralMesh {
+                mesh: Arc::new(v.cancellous.clone()),
+                object: level,
+                terms: vec![(cancellous, rho(cancellous)), (cortical, -rho(cortical))],
+            });
+        }
+    }
+    for d in &p.discs {
+        meshes.push(SpectralMesh {
+            mesh: Arc::new(d.clone()),
+            object: "discs".into(),
+            terms: with_background(vec![(soft, water_equivalent(Tissue::Disc))]),
+        });
+    }
+    if let Some(s) = &p.soft_tissue {
+        meshes.push(SpectralMesh {
+            mesh: Arc::new(s.clone()),
+            object: "soft_tissue".into(),
+            terms: vec![(soft, soft_rho)],
+        });
+    }
+    SpectralScene::new(channels, meshes)
 }

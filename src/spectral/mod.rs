@@ -7,15 +7,18 @@
 //! * `spectrum`: TASMIP spectra, spectrum files, filtration, mean energy and half-value layer.
 //! * `detector`: the scintillator's absorbed fraction η(E).
 //! * `model`: the detector weights and the per-pixel energy sum.
+//! * `spec`: the text forms (`--spectrum`, `--filter`, `--detector`, `MU` or `MATERIAL[@DENSITY]`).
 
 mod detector;
 mod materials;
 mod model;
 mod nist;
+mod spec;
 mod spectrum;
 mod spline;
 
 pub use detector::Detector;
 pub use materials::{MATERIALS, Material, MaterialAt};
 pub use model::{Channel, SpectralModel};
+pub use spec::{Attenuation, apply_filters, model_from_specs, parse_attenuation, parse_spectrum};
 pub use spectrum::{Spectrum, TASMIP_KV};

@@ -36,6 +36,7 @@ mod registration_solvers;
 mod render_models;
 mod render_products;
 mod render_thickness;
+mod spectral;
 mod study_cohort;
 mod study_ct;
 mod study_folder_safety;

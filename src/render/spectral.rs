@@ -1,0 +1,319 @@
+//! Spectral (polychromatic) DRRs of meshes: each mesh carries a mass thickness per material channel; the
+//! channels' path-length maps are rendered once (one thickness render per channel, exact like every
+//! thickness DRR), then [`SpectralModel`]'s energy sum turns them into the polychromatic line integral
+//! `−ln(I/I0)`.
+//!
+//! Nested surfaces follow the differential rule per channel: a cancellous core inside a cortical shell
+//! carries `+ρ_cancellous` on the cancellous channel and `−ρ_cortical` on the cortical one, so along every
+//! ray each channel holds the mass thickness of exactly the material that is there.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde_json::json;
+
+use super::{Backend, RenderScene, SceneMesh, ThicknessOptions, ThicknessRenderer};
+use crate::anatomy::TriMesh;
+use crate::geometry::View;
+use crate::io::ImageF32;
+use crate::spectral::{Attenuation, Channel, SpectralModel};
+use crate::{Error, Result};
+
+/// A closed surface and what it adds per channel: `(channel index, coefficient)`, the coefficient a
+/// density (g/cm³) on a material channel or μ (mm⁻¹) on the fixed-μ channel, negative for a core that
+/// displaces its shell's material.
+#[derive(Debug, Clone)]
+pub struct SpectralMesh {
+    pub mesh: Arc<TriMesh>,
+    pub object: String,
+    pub terms: Vec<(usize, f64)>,
+}
+
+/// Channels and the meshes that fill them.
+#[derive(Debug, Clone)]
+pub struct SpectralScene {
+    pub channels: Vec<Channel>,
+    pub meshes: Vec<SpectralMesh>,
+}
+
+impl SpectralScene {
+    /// Checks every term names a channel and has a finite coefficient.
+    pub fn new(channels: Vec<Channel>, meshes: Vec<SpectralMesh>) -> Result<Self> {
+        for m in &meshes {
+            for &(c, k) in &m.terms {
+                if c >= channels.len() || !k.is_finite() {
+                    return Err(Error::invalid(
+                        format!("mesh '{}'", m.mesh.name),
+                        format!("term ({c}, {k}): no such channel or not finite"),
+                    ));
+                }
+            }
+        }
+        Ok(SpectralScene { channels, meshes })
+    }
+
+    /// The scene of meshes `(mesh, object, attenuation)`: a μ mesh fills the fixed-μ channel (keeping the
+    /// differential-μ convention for nested μ meshes), a material mesh its material's channel with its
+    /// density, and a material mesh inside another material mesh displaces it ([`displace_nested`]).
+    /// Returns the scene and the warnings of meshes that lie partly inside another.
+    pub fn from_meshes(
+        items: Vec<(Arc<TriMesh>, String, Attenuation)>,
+    ) -> Result<(Self, Vec<String>)> {
+        let mut channels = Vec::new();
+        let mut meshes = Vec::new();
+        let mut material_of = Vec::new();
+        for (mesh, object, value) in items {
+            let (terms, material) = match value {
+                Attenuation::Mu(mu) => (
+                    vec![(Self::channel_index(&mut channels, Channel::FixedMu), mu)],
+                    None,
+                ),
+                Attenuation::Material(m) => {
+                    let c = Self::channel_index(&mut channels, Channel::Material(m.material));
+                    (vec![(c, m.density_g_cm3)], Some((c, m.density_g_cm3)))
+                }
+            };
+            meshes.push(SpectralMesh {
+                mesh,
+                object,
+                terms,
+            });
+            material_of.push(material);
+        }
+        let warnings = displace_nested(&mut meshes, &material_of);
+        Ok((SpectralScene::new(channels, meshes)?, warnings))
+    }
+
+    /// The index of `channel`, added when new.
+    pub fn channel_index(channels: &mut Vec<Channel>, channel: Channel) -> usize {
+        match channels.iter().position(|c| c.same(&channel)) {
+            Some(i) => i,
+            None => {
+                channels.push(channel);
+                channels.len() - 1
+            }
+        }
+    }
+
+    /// A thickness scene whose mesh μ is `mu(terms)`; meshes with μ = 0 are left out (`None` when none
+    /// is left).
+    fn scene_with(&self, mu: impl Fn(&[(usize, f64)]) -> f64) -> Result<Option<RenderScene>> {
+        let meshes: Vec<SceneMesh> = self
+            .meshes
+            .iter()
+            .filter_map(|m| {
+                let mu_per_mm = mu(&m.terms);
+                (mu_per_mm != 0.0).then(|| SceneMesh {
+                    mesh: Arc::clone(&m.mesh),
+                    mu_per_mm,
+                    object: m.object.clone(),
+                })
+            })
+            .collect();
+        if meshes.is_empty() {
+            return Ok(None);
+        }
+        RenderScene::new(meshes).map(Some)
+    }
+}
+
+/// The renderers of a spectral scene under one model: per channel, or one pass for a one-bin spectrum.
+pub struct SpectralRenderer {
+    pub model: SpectralModel,
+    pub channels: Vec<Channel>,
+    table: Vec<f64>,
+    passes: Passes,
+}
+
+enum Passes {
+    /// One bin: one render with μ_k = Σ_c coefficient · t_c(E₀), the monochromatic DRR itself.
+    Monochromatic(Option<ThicknessRenderer>),
+    /// Per channel (index, renderer).
+    Channels(Vec<(usize, ThicknessRenderer)>),
+}
+
+/// A spectral render: the polychromatic line integral and how long each part took.
+pub struct SpectralDrr {
+    /// `−ln(I/I0)` per pixel.
+    pub line_integral: ImageF32,
+    /// Time of the channel renders, ms.
+    pub channels_ms: f64,
+    /// Time of the energy sum, ms.
+    pub energy_sum_ms: f64,
+    /// Rays that did not pair their crossings, over all passes.
+    pub rays_unrepaired: u64,
+}
+
+impl SpectralRenderer {
+    /// Builds the per-channel (or the one monochromatic) renderers with `backend`.
+    pub fn new(scene: &SpectralScene, model: SpectralModel, backend: Backend) -> Result<Self> {
+        let table = model.channel_table(&scene.channels);
+        let bins = model.bins();
+        let passes = if model.is_monochromatic() {
+            let mu = |terms: &[(usize, f64)]| terms.iter().map(|&(c, k)| k * table[c * bins]).sum();
+            Passes::Monochromatic(match scene.scene_with(mu)? {
+                Some(s) => Some(backend.renderer(s)?),
+                None => None,
+            })
+        } else {
+            let mut v = Vec::new();
+            for c in 0..scene.channels.len() {
+                let only_c =
+                    |terms: &[(usize, f64)]| terms.iter().filter(|t| t.0 == c).map(|t| t.1).sum();
+                if let Some(s) = scene.scene_with(only_c)? {
+                    v.push((c, backend.renderer(s)?));
+                }
+            }
+            Passes::Channels(v)
+        };
+        Ok(SpectralRenderer {
+            model,
+            channels: scene.channels.clone(),
+            table,
+            passes,
+        })
+    }
+
+    /// Renders `view`.
+    pub fn render(&self, view: &View) -> Result<SpectralDrr> {
+        let opts = ThicknessOptions::default();
+        let t0 = Instant::now();
+        let blank = || ImageF32::zeros(view.intrinsics.width, view.intrinsics.height);
+        match &self.passes {
+            Passes::Monochromatic(r) => {
+                let (line_integral, unrepaired) = match r {
+                    Some(r) => {
+                        let d = r.render(view, &opts)?;
+                        (d.line_integral, d.stats.rays_unrepaired)
+                    }
+                    None => (blank(), 0),
+                };
+                Ok(SpectralDrr {
+                    line_integral,
+                    channels_ms: t0.elapsed().as_secs_f64() * 1e3,
+                    energy_sum_ms: 0.0,
+                    rays_unrepaired: unrepaired,
+                })
+            }
+            Passes::Channels(rs) => {
+                let mut maps = vec![None; self.channels.len()];
+                let mut unrepaired = 0;
+                for (c, r) in rs {
+                    let d = r.render(view, &opts)?;
+                    unrepaired += d.stats.rays_unrepaired;
+                    maps[*c] = Some(d.line_integral);
+                }
+                let channels_ms = t0.elapsed().as_secs_f64() * 1e3;
+                let t1 = Instant::now();
+                let maps: Vec<ImageF32> =
+                    maps.into_iter().map(|m| m.unwrap_or_else(blank)).collect();
+                let line_integral = energy_sum(&self.model, &self.table, &maps);
+                Ok(SpectralDrr {
+                    line_integral,
+                    channels_ms,
+                    energy_sum_ms: t1.elapsed().as_secs_f64() * 1e3,
+                    rays_unrepaired: unrepaired,
+                })
+            }
+        }
+    }
+
+    /// What the sidecar records beside the model: the channels.
+    pub fn summary(&self) -> serde_json::Value {
+        let mut s = self.model.summary();
+        s["channels"] = json!(self.channels.iter().map(|c| c.name()).collect::<Vec<_>>());
+        s["passes"] = json!(match &self.passes {
+            Passes::Monochromatic(_) => "one render at the single energy".to_string(),
+            Passes::Channels(v) => format!("{} channel renders, then the energy sum", v.len()),
+        });
+        s
+    }
+}
+
+/// The polychromatic line integral of per-channel maps (all of one size), per pixel
+/// [`SpectralModel::line_integral`], in parallel over rows.
+pub fn energy_sum(model: &SpectralModel, table: &[f64], maps: &[ImageF32]) -> ImageF32 {
+    let (w, h) = (maps[0].width, maps[0].height);
+    let mut out = ImageF32::zeros(w, h);
+    out.data
+        .par_chunks_mut(w.max(1) as usize)
+        .enumerate()
+        .for_each_init(
+            || vec![0.0f64; maps.len()],
+            |a, (v, row)| {
+                let base = v * w as usize;
+                for (u, px) in row.iter_mut().enumerate() {
+                    for (c, m) in maps.iter().enumerate() {
+                        a[c] = f64::from(m.data[base + u]);
+                    }
+                    *px = model.line_integral(table, a) as f32;
+                }
+            },
+        );
+    out
+}
+
+/// Makes every material mesh that lies inside another material mesh displace it: the innermost material
+/// mesh containing it (all of up to 64 of its vertices, spread over the vertex list, inside by winding
+/// number) gets its material's density subtracted on the inner mesh's terms, so the inner surface's
+/// volume holds only the inner material. `material_of[i]` is mesh `i`'s (channel, density), `None` for a
+/// fixed-μ mesh (which keeps the differential-μ convention and is left alone). Returns a warning per mesh
+/// that lies partly inside another (its overlap is counted twice).
+pub fn displace_nested(
+    meshes: &mut [SpectralMesh],
+    material_of: &[Option<(usize, f64)>],
+) -> Vec<String> {
+    let samples = |m: &TriMesh| -> Vec<glam::DVec3> {
+        let n = m.vertices.len();
+        let step = n.div_ceil(64).max(1);
+        m.vertices.iter().step_by(step).copied().collect()
+    };
+    let mut warnings = Vec::new();
+    let mut added = Vec::new();
+    for (i, inner) in meshes.iter().enumerate() {
+        if material_of[i].is_none() {
+            continue;
+        }
+        let pts = samples(&inner.mesh);
+        let mut containers = Vec::new();
+        for (j, outer) in meshes.iter().enumerate() {
+            if i == j || material_of[j].is_none() {
+                continue;
+            }
+            let inside = pts
+                .iter()
+                .filter(|p| outer.mesh.winding_number(**p).abs() > 0.5)
+                .count();
+            if inside == pts.len() {
+                containers.push(j);
+            } else if inside > 0 {
+                warnings.push(format!(
+                    "mesh '{}' lies partly inside mesh '{}' ({inside} of {} sampled vertices): where they \
+                     overlap both materials are counted",
+                    inner.mesh.name,
+                    outer.mesh.name,
+                    pts.len()
+                ));
+            }
+        }
+        // The innermost container: the one inside all the others (the smallest bounding box).
+        let innermost = containers.into_iter().min_by(|&a, &b| {
+            let vol = |k: usize| {
+                meshes[k]
+                    .mesh
+                    .bounds()
+                    .map_or(0.0, |(lo, hi)| (hi - lo).x * (hi - lo).y * (hi - lo).z)
+            };
+            vol(a).total_cmp(&vol(b))
+        });
+        if let Some(j) = innermost {
+            let (c, rho) = material_of[j].expect("containers are material meshes");
+            added.push((i, (c, -rho)));
+        }
+    }
+    for (i, term) in added {
+        meshes[i].terms.push(term);
+    }
+    warnings
+}
