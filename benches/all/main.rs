@@ -2,8 +2,8 @@
 //! seven (`make test` builds every target; issue #30).
 //!
 //! `cargo bench --bench all` runs them all (`make bench`); `cargo bench --bench all -- MODULE` runs one
-//! module: `calibration`, `intensity`, `metrics`, `python_overhead`, `real_ct`, `registration`, `render` or
-//! `volume`.
+//! module: `calibration`, `intensity`, `metrics`, `python_overhead`, `real_ct`, `registration`, `render`,
+//! `spectral` or `volume`.
 //! Every benchmark's id starts with its module's name, so a longer filter (`render/L3`, `volume/decimate`)
 //! runs that module's set-up and criterion times the benchmarks it matches. A filter that starts with no
 //! module's name runs every module's set-up (criterion still times only what it matches).
@@ -17,11 +17,12 @@ mod python_overhead;
 mod real_ct;
 mod registration;
 mod render;
+mod spectral;
 mod volume;
 
 type Module = (&'static str, fn(&mut Criterion));
 
-const MODULES: [Module; 8] = [
+const MODULES: [Module; 9] = [
     ("calibration", calibration::run),
     ("intensity", intensity::run),
     ("metrics", metrics::run),
@@ -29,6 +30,7 @@ const MODULES: [Module; 8] = [
     ("real_ct", real_ct::run),
     ("registration", registration::run),
     ("render", render::run),
+    ("spectral", spectral::run),
     ("volume", volume::run),
 ];
 

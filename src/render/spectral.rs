@@ -177,7 +177,7 @@ impl SpectralRenderer {
 
     /// Renders `view`.
     pub fn render(&self, view: &View) -> Result<SpectralDrr> {
-        let opts = ThicknessOptions::default();
+        let opts = ThicknessOptions::image_only();
         let t0 = Instant::now();
         let blank = || ImageF32::zeros(view.intrinsics.width, view.intrinsics.height);
         match &self.passes {

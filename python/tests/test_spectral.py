@@ -1,0 +1,160 @@
+"""The spectral model against independent references: μ/ρ against xraydb (Elam et al.'s tables, not the NIST
+tables spinedrr embeds), TASMIP spectra against spekpy's physics model, and the polychromatic transmission
+of water and bone boxes (analytic chords) against a numpy integration over the sidecar's own spectrum with
+xraydb's μ/ρ and detector absorption."""
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+import xraydb
+
+import spinedrr
+
+ENERGIES = [20.0, 40.0, 60.0, 80.0, 100.0]
+
+# Mass fractions typed from their sources (ICRU Report 44 via NIST SRD 126 Table 2; ASTM F136), so that
+# xraydb's mixture is built independently of spinedrr's table.
+CORTICAL_BONE = {"H": 0.034, "C": 0.155, "N": 0.042, "O": 0.435, "Na": 0.001, "Mg": 0.002, "P": 0.103,
+                 "S": 0.003, "Ca": 0.225}
+TI6AL4V = {"Ti": 0.90, "Al": 0.06, "V": 0.04}
+
+
+def xraydb_mu_rho(material: str, e_kev) -> np.ndarray:
+    """μ/ρ (cm²/g) from xraydb: a formula or a {element: mass fraction} mixture."""
+    e_ev = np.asarray(e_kev, dtype=float) * 1e3
+    if isinstance(material, dict):
+        return sum(w * xraydb.mu_elam(el, e_ev) for el, w in material.items())
+    return xraydb.material_mu(material, e_ev, density=1.0)
+
+
+@pytest.mark.parametrize("ours,ref", [("water", "H2O"), ("cortical_bone", CORTICAL_BONE),
+                                      ("titanium", TI6AL4V)])
+def test_mass_attenuation_within_one_percent_of_xraydb(ours, ref):
+    got = spinedrr.material_mu_rho(ours, ENERGIES)
+    want = xraydb_mu_rho(ref, ENERGIES)
+    np.testing.assert_allclose(got, want, rtol=0.01)
+
+
+# TASMIP's spectra are those of the tube Fewell et al. measured, with its inherent filtration; spekpy's are
+# a bare 12° tungsten anode. With 2.0 mm Al more on spekpy's side (the equivalent of that inherent
+# filtration, fitted once to TASMIP's 80 kV half-value layer) they agree at every potential below. Without
+# it TASMIP is 2.7–3.2 keV harder (HVL 30–37 % thicker) at 2.5 mm Al: the difference is by design and
+# bounded in the second test.
+TASMIP_INHERENT_AL_MM = 2.0
+
+
+@pytest.fixture(scope="module")
+def spekpy_spectra():
+    spekpy = pytest.importorskip("spekpy")
+    out = {}
+    for kv in (60, 80, 100, 120):
+        for extra in (0.0, TASMIP_INHERENT_AL_MM):
+            s = spekpy.Spek(kvp=kv, th=12)
+            s.filter("Al", 2.5 + extra)
+            out[kv, extra] = (s.get_emean(), s.get_hvl1())
+    return out
+
+
+@pytest.mark.parametrize("kv", [60, 80, 100, 120])
+def test_tasmip_matches_spekpy_given_tasmips_inherent_filtration(kv, spekpy_spectra):
+    ours = spinedrr.spectrum(str(kv), filters="al:2.5")
+    mean, hvl = spekpy_spectra[kv, TASMIP_INHERENT_AL_MM]
+    assert abs(ours["mean_energy_kev"] - mean) < 2.0, (ours["mean_energy_kev"], mean)
+    assert abs(ours["hvl_al_mm"] / hvl - 1) < 0.05, (ours["hvl_al_mm"], hvl)
+
+
+@pytest.mark.parametrize("kv", [60, 80, 100, 120])
+def test_tasmip_is_harder_than_a_bare_anode_by_a_bounded_amount(kv, spekpy_spectra):
+    ours = spinedrr.spectrum(str(kv), filters="al:2.5")
+    mean, hvl = spekpy_spectra[kv, 0.0]
+    assert 0.0 < ours["mean_energy_kev"] - mean < 4.0
+    assert 1.0 < ours["hvl_al_mm"] / hvl < 1.45
+
+
+def box_obj(path, lo, hi):
+    """An axis-aligned box as a Wavefront OBJ (outward-wound)."""
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    v = [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0),
+         (x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)]
+    quads = [(1, 4, 3, 2), (5, 6, 7, 8), (1, 2, 6, 5), (2, 3, 7, 6), (3, 4, 8, 7), (4, 1, 5, 8)]
+    lines = [f"v {a} {b} {c}" for a, b, c in v]
+    for a, b, c, d in quads:
+        lines += [f"f {a} {b} {c}", f"f {a} {c} {d}"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def chords(view, lo, hi, pixels):
+    """Exact path length (mm) of each pixel's ray through the box [lo, hi] (slab method)."""
+    k, w2c = np.asarray(view.K), np.asarray(view.world_to_camera)
+    r, t = w2c[:3, :3], w2c[:3, 3]
+    source = -r.T @ t
+    out = []
+    for u, v in pixels:
+        d = r.T @ np.linalg.solve(k, [u, v, 1.0])
+        d /= np.linalg.norm(d)
+        with np.errstate(divide="ignore"):
+            a, b = (np.asarray(lo) - source) / d, (np.asarray(hi) - source) / d
+        t0, t1 = np.max(np.minimum(a, b)), np.min(np.maximum(a, b))
+        out.append(max(0.0, t1 - t0))
+    return np.array(out)
+
+
+def transmission(sidecar_spectral, material, density, chord_mm):
+    """Σ Φ η E exp(−μ L) / Σ Φ η E over the sidecar's own bins, μ and η (0.6 mm CsI) from xraydb."""
+    e = np.array(sidecar_spectral["energies_kev"])
+    phi = np.array(sidecar_spectral["fluence"])
+    eta = 1 - np.exp(-xraydb.material_mu("CsI", e * 1e3, density=4.51) * 0.06)
+    w = phi * eta * e
+    mu = xraydb_mu_rho(material, e) * density  # 1/cm
+    return np.array([np.sum(w * np.exp(-mu * c / 10)) / np.sum(w) for c in chord_mm])
+
+
+@pytest.mark.parametrize("name,ref,density,thicknesses", [
+    ("water", "H2O", 1.0, [10.0, 50.0, 100.0, 200.0]),
+    ("cortical_bone", CORTICAL_BONE, 1.92, [5.0, 20.0, 40.0]),
+])
+def test_box_transmission_equals_the_numpy_integration_and_hardens(cli, tmp_path, carm, name, ref, density,
+                                                                  thicknesses):
+    view = carm.view("ap")
+    r = np.asarray(view.world_to_camera)[:3, :3]
+    axis = int(np.argmax(np.abs(r[2])))  # the world axis along the central ray
+    k = np.asarray(view.K)
+    pixels = [(k[0, 2] + du, k[1, 2] + dv) for du in (-150, 0, 90) for dv in (-120, 0, 200)]
+    mu_eff = []
+    for thick in thicknesses:
+        lo, hi = np.full(3, -150.0), np.full(3, 150.0)
+        lo[axis], hi[axis] = -thick / 2, thick / 2
+        mesh = tmp_path / f"{name}_{thick}.obj"
+        box_obj(mesh, lo, hi)
+        out = tmp_path / f"{name}_{thick}.tiff"
+        img = cli.render(out, "--mesh", f"{mesh}:{name}", "--view", "ap", "--spectrum", "80", "--filter",
+                         "al:2.5")
+        spectral = json.loads(out.with_suffix(".json").read_text())["details"]["spectral"]
+        c = chords(view, lo, hi, pixels)
+        got = np.exp(-np.array([img[int(round(v)), int(round(u))] for u, v in pixels], dtype=float))
+        want = transmission(spectral, ref, density, c)
+        np.testing.assert_allclose(got, want, rtol=0.005)
+        mu_eff.append(-np.log(want[4]) / c[4])  # the central pixel
+        # Our own effective μ follows the integration's.
+        assert abs(-np.log(got[4]) / c[4] / mu_eff[-1] - 1) < 0.005
+    # Beam hardening: the effective μ falls as the box thickens.
+    assert all(b < a for a, b in zip(mu_eff, mu_eff[1:])), mu_eff
+
+
+def test_python_spectral_render_equals_the_cli(cli, tmp_path, carm):
+    view = carm.view("lat")
+    img, spectral = spinedrr.render_spectral(view, "80", phantom="L3", filters="al:2.5")
+    ref = cli.render(tmp_path / "p.tiff", "--phantom", "L3", "--view", "lat", "--spectrum", "80",
+                     "--filter", "al:2.5")
+    np.testing.assert_array_equal(img, ref)
+    assert spectral["mean_energy_kev"] == json.loads((tmp_path / "p.json").read_text())["details"]["spectral"][
+        "mean_energy_kev"]
+    with pytest.raises(ValueError, match="unobtainium"):
+        spinedrr.material_mu_rho("unobtainium", [60.0])
+    with pytest.raises(ValueError, match="outside"):
+        spinedrr.material_mu_rho("water", [500.0])
+    with pytest.raises(TypeError, match="exactly one"):
+        spinedrr.render_spectral(view, "80")
