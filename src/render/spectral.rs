@@ -17,7 +17,7 @@ use super::{Backend, RenderScene, SceneMesh, ThicknessOptions, ThicknessRenderer
 use crate::anatomy::TriMesh;
 use crate::geometry::View;
 use crate::io::ImageF32;
-use crate::spectral::{Attenuation, Channel, SpectralModel};
+use crate::spectral::{Attenuation, Channel, EnergyKernel, SpectralModel};
 use crate::{Error, Result};
 
 /// A closed surface and what it adds per channel: `(channel index, coefficient)`, the coefficient a
@@ -122,7 +122,7 @@ impl SpectralScene {
 pub struct SpectralRenderer {
     pub model: SpectralModel,
     pub channels: Vec<Channel>,
-    table: Vec<f64>,
+    kernel: EnergyKernel,
     passes: Passes,
 }
 
@@ -168,9 +168,9 @@ impl SpectralRenderer {
             Passes::Channels(v)
         };
         Ok(SpectralRenderer {
+            kernel: model.kernel(&scene.channels),
             model,
             channels: scene.channels.clone(),
-            table,
             passes,
         })
     }
@@ -208,7 +208,7 @@ impl SpectralRenderer {
                 let t1 = Instant::now();
                 let maps: Vec<ImageF32> =
                     maps.into_iter().map(|m| m.unwrap_or_else(blank)).collect();
-                let line_integral = energy_sum(&self.model, &self.table, &maps);
+                let line_integral = energy_sum(&self.kernel, &maps);
                 Ok(SpectralDrr {
                     line_integral,
                     channels_ms,
@@ -232,22 +232,22 @@ impl SpectralRenderer {
 }
 
 /// The polychromatic line integral of per-channel maps (all of one size), per pixel
-/// [`SpectralModel::line_integral`], in parallel over rows.
-pub fn energy_sum(model: &SpectralModel, table: &[f64], maps: &[ImageF32]) -> ImageF32 {
+/// [`EnergyKernel::line_integral`], in parallel over rows.
+pub fn energy_sum(kernel: &EnergyKernel, maps: &[ImageF32]) -> ImageF32 {
     let (w, h) = (maps[0].width, maps[0].height);
     let mut out = ImageF32::zeros(w, h);
     out.data
         .par_chunks_mut(w.max(1) as usize)
         .enumerate()
         .for_each_init(
-            || vec![0.0f64; maps.len()],
-            |a, (v, row)| {
+            || (vec![0.0f32; maps.len()], kernel.scratch()),
+            |(a, y), (v, row)| {
                 let base = v * w as usize;
                 for (u, px) in row.iter_mut().enumerate() {
                     for (c, m) in maps.iter().enumerate() {
-                        a[c] = f64::from(m.data[base + u]);
+                        a[c] = m.data[base + u];
                     }
-                    *px = model.line_integral(table, a) as f32;
+                    *px = kernel.line_integral(a, y);
                 }
             },
         );

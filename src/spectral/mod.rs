@@ -6,10 +6,12 @@
 //! * `materials`: compositions and densities of tissues, implant alloys and filters.
 //! * `spectrum`: TASMIP spectra, spectrum files, filtration, mean energy and half-value layer.
 //! * `detector`: the scintillator's absorbed fraction η(E).
-//! * `model`: the detector weights and the per-pixel energy sum.
+//! * `model`: the detector weights and the per-pixel energy sum (f64, the reference).
+//! * `kernel`: the same sum in vectorised f32, what images are made with.
 //! * `spec`: the text forms (`--spectrum`, `--filter`, `--detector`, `MU` or `MATERIAL[@DENSITY]`).
 
 mod detector;
+mod kernel;
 mod materials;
 mod model;
 mod nist;
@@ -18,6 +20,7 @@ mod spectrum;
 mod spline;
 
 pub use detector::Detector;
+pub use kernel::EnergyKernel;
 pub use materials::{MATERIALS, Material, MaterialAt};
 pub use model::{Channel, SpectralModel};
 pub use spec::{Attenuation, apply_filters, model_from_specs, parse_attenuation, parse_spectrum};

@@ -97,26 +97,25 @@ impl SpectralModel {
             .collect()
     }
 
-    /// `−ln(Σ_b w_b · exp(−Σ_c table[c][b] · a_c))` for channel values `a`; 0 when every `a_c` is 0.
+    /// `−ln(Σ_b w_b · exp(−x_b))`, `x_b = Σ_c table[c][b] · a_c`, for channel values `a`, in f64 and shifted
+    /// by the smallest `x_b` (finite where every `exp(−x_b)` underflows); 0 when every `a_c` is 0. The
+    /// reference of the vectorised [`super::EnergyKernel`] images are made with.
     pub fn line_integral(&self, table: &[f64], a: &[f64]) -> f64 {
         if a.iter().all(|&x| x == 0.0) {
             return 0.0;
         }
         let bins = self.bins();
-        let signal: f64 = self
-            .weights
-            .iter()
-            .enumerate()
-            .map(|(b, w)| {
-                let x: f64 = a
-                    .iter()
-                    .enumerate()
-                    .map(|(c, &ac)| table[c * bins + b] * ac)
-                    .sum();
-                w * (-x).exp()
-            })
-            .sum();
-        -signal.ln()
+        let x: Vec<f64> = (0..bins)
+            .map(|b| a.iter().enumerate().map(|(c, &ac)| table[c * bins + b] * ac).sum())
+            .collect();
+        let m = x.iter().copied().fold(f64::INFINITY, f64::min);
+        let signal: f64 = self.weights.iter().zip(&x).map(|(w, xb)| w * (m - xb).exp()).sum();
+        m - signal.ln()
+    }
+
+    /// The vectorised kernel of `channels`.
+    pub fn kernel(&self, channels: &[Channel]) -> super::EnergyKernel {
+        super::EnergyKernel::new(&self.weights, &self.channel_table(channels))
     }
 
     /// What the sidecar records: the spectrum (bins and fluence), its filtration, mean energy and first
