@@ -37,7 +37,8 @@ pub fn run(c: &mut Criterion) {
         let label = if soft_tissue { "L1-L5+soft" } else { "L1-L5" };
         for view_name in ["ap", "lat"] {
             let view = carm.view(view_name).expect("view");
-            let (mut mono_ms, mut ch_ms, mut sum_ms) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+            let (mut mono_ms, mut ch_ms, mut sum_ms) =
+                (f64::INFINITY, f64::INFINITY, f64::INFINITY);
             for _ in 0..9 {
                 mono_ms = mono_ms.min(mono.render(view, &drr).expect("render").stats.render_ms);
                 let s = spectral.render(view).expect("spectral");

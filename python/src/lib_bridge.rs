@@ -13,7 +13,8 @@ use spinedrr::anatomy::{PhantomOptions, Structure, build_phantom, parse_levels};
 use spinedrr::registration::LoadedProblem;
 use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
 use spinedrr::render::{
-    RenderScene, SpectralRenderer, SpectralScene, ThicknessOptions, ThicknessRenderer,
+    RenderScene, SpectralInput, SpectralRenderer, SpectralScene, ThicknessOptions,
+    ThicknessRenderer,
 };
 use spinedrr::spectral::SpectralModel;
 
@@ -323,7 +324,14 @@ pub fn render_spectral(
         None => {
             let items = meshes
                 .into_iter()
-                .map(|(m, o, a)| Ok((m, o, spinedrr::spectral::parse_attenuation(&a)?)))
+                .map(|(mesh, object, a)| {
+                    Ok(SpectralInput {
+                        mesh,
+                        object,
+                        attenuation: spinedrr::spectral::parse_attenuation(&a)?,
+                        implant: false,
+                    })
+                })
                 .collect::<Result<Vec<_>>>()?;
             SpectralScene::from_meshes(items)?
         }

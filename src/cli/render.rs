@@ -200,6 +200,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             soft_tissue: a.soft_tissue,
             meshes: &a.mesh,
             mu_default: a.mu_default,
+            implants: &a.spectral.implant,
         };
         return super::render_spectral::run_spectral(&scene, model, a.backend, &run);
     }

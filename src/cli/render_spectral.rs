@@ -3,12 +3,14 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, TriMesh, build_phantom, parse_levels};
 use spinedrr::io::{DrrProducts, write_drr_set};
-use spinedrr::render::{Backend, SpectralRenderer, SpectralScene, phantom_spectral_scene};
-use spinedrr::spectral::{Channel, SpectralModel, model_from_specs};
+use spinedrr::render::{
+    Backend, SpectralInput, SpectralRenderer, SpectralScene, phantom_spectral_scene,
+};
+use spinedrr::spectral::{Attenuation, Channel, SpectralModel, model_from_specs};
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
@@ -38,6 +40,11 @@ pub struct SpectralArgs {
     /// (η = 1); each photon adds η(E)·E to the signal.
     #[arg(long, value_name = "SPEC", default_value = "csi:0.6")]
     pub detector: String,
+    /// With --spectrum: an implant mesh, FILE:MATERIAL[@DENSITY] (e.g. screw.stl:titanium). Along every ray
+    /// it displaces whatever it occupies (phantom tissue or --mesh surfaces), so the tissue under it is not
+    /// counted twice. Repeat for several implants.
+    #[arg(long, value_name = "FILE:MATERIAL", requires = "spectrum")]
+    pub implant: Vec<String>,
 }
 
 impl SpectralArgs {
@@ -63,11 +70,12 @@ pub struct SceneSpec<'a> {
     pub soft_tissue: bool,
     pub meshes: &'a [String],
     pub mu_default: f64,
+    pub implants: &'a [String],
 }
 
 /// The spectral scene and its description for the sidecar.
 fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Value)> {
-    if let Some(levels) = s.phantom {
+    let (mut scene, mut anatomy) = if let Some(levels) = s.phantom {
         let opts = PhantomOptions {
             levels: parse_levels(levels)?,
             soft_tissue: s.soft_tissue,
@@ -75,25 +83,45 @@ fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Valu
         };
         let phantom = build_phantom(&opts).context("building the phantom")?;
         let scene = phantom_spectral_scene(&phantom)?;
-        let anatomy =
-            json!({"phantom": levels, "soft_tissue": s.soft_tissue, "meshes": describe(&scene)});
-        return Ok((scene, anatomy));
+        (
+            scene,
+            json!({"phantom": levels, "soft_tissue": s.soft_tissue}),
+        )
+    } else {
+        let mut items = Vec::new();
+        for spec in s.meshes {
+            let (path, attenuation) = split_mesh_spec(spec, s.mu_default)?;
+            items.push(SpectralInput {
+                mesh: Arc::new(load_mesh(&path)?),
+                object: stem(&path),
+                attenuation,
+                implant: false,
+            });
+        }
+        let (scene, warnings) = SpectralScene::from_meshes(items)?;
+        for w in warnings {
+            eprintln!("warning: {w}");
+        }
+        (scene, json!({"files": s.meshes}))
+    };
+    for spec in s.implants {
+        let (path, value) = split_mesh_spec(spec, 0.0)?;
+        let Attenuation::Material(material) = value else {
+            bail!(
+                "--implant {spec}: give the implant's material, FILE:MATERIAL[@DENSITY] (e.g. :titanium)"
+            );
+        };
+        scene.add_implant(Arc::new(load_mesh(&path)?), stem(&path), material);
     }
-    let mut items = Vec::new();
-    for spec in s.meshes {
-        let (path, value) = split_mesh_spec(spec, s.mu_default)?;
-        let object = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        items.push((Arc::new(load_mesh(&path)?), object, value));
-    }
-    let (scene, warnings) = SpectralScene::from_meshes(items)?;
-    for w in warnings {
-        eprintln!("warning: {w}");
-    }
-    let anatomy = json!({"meshes": describe(&scene), "files": s.meshes});
+    anatomy["implants"] = json!(s.implants);
+    anatomy["meshes"] = describe(&scene);
     Ok((scene, anatomy))
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 fn load_mesh(path: &Path) -> anyhow::Result<TriMesh> {
@@ -112,6 +140,7 @@ fn describe(scene: &SpectralScene) -> serde_json::Value {
     json!(scene.meshes.iter().map(|m| json!({
         "mesh": m.mesh.name,
         "object": m.object,
+        "implant": m.implant,
         "terms": m.terms.iter().map(|&(c, k)| json!({
             "channel": scene.channels[c].name(),
             "coefficient": k,

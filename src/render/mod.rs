@@ -23,7 +23,8 @@ pub use backend::Backend;
 pub use phantom_scene::{phantom_scene, phantom_spectral_scene};
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh, orient_outward_warning};
 pub use spectral::{
-    SpectralDrr, SpectralMesh, SpectralRenderer, SpectralScene, displace_nested, energy_sum,
+    SpectralDrr, SpectralInput, SpectralMesh, SpectralRenderer, SpectralScene, displace_nested,
+    energy_sum,
 };
 pub use thickness::{
     Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions, ThicknessRenderer,

@@ -113,6 +113,9 @@ pub(crate) fn integrate_crossings(
         hits: crossings.len() as u32,
         ..Default::default()
     };
+    if scene.has_implants() {
+        return integrate_with_implants(scene, crossings, structures, out);
+    }
     let mut start = 0;
     while start < crossings.len() {
         let geom = crossings[start].geom;
@@ -136,6 +139,73 @@ pub(crate) fn integrate_crossings(
             }
         }
         start = end;
+    }
+    out
+}
+
+/// [`integrate_crossings`] of a scene with implants, from crossings sorted by (mesh, distance): each mesh's
+/// inside intervals; the union of the implants' intervals; every other mesh's length less its overlap with
+/// that union (what an implant occupies is only the implant).
+fn integrate_with_implants(
+    scene: &RenderScene,
+    crossings: &[Crossing],
+    structures: bool,
+    mut out: RayIntegral,
+) -> RayIntegral {
+    // Per mesh group (few per ray): the mesh, its inside intervals, its crossings' range.
+    type Group = (usize, Vec<(f64, f64)>, usize, usize);
+    let mut groups: Vec<Group> = Vec::new();
+    let mut start = 0;
+    while start < crossings.len() {
+        let geom = crossings[start].geom;
+        let mut end = start + 1;
+        while end < crossings.len() && crossings[end].geom == geom {
+            end += 1;
+        }
+        let mut iv = Vec::new();
+        out.valid &= mesh_intervals(&crossings[start..end], &mut iv);
+        groups.push((usize::from(geom), iv, start, end));
+        start = end;
+    }
+    let mut union: Vec<(f64, f64)> = groups
+        .iter()
+        .filter(|g| scene.implants[g.0])
+        .flat_map(|g| g.1.iter().copied())
+        .collect();
+    union.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut merged: Vec<(f64, f64)> = Vec::with_capacity(union.len());
+    for (a, b) in union {
+        match merged.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => merged.push((a, b)),
+        }
+    }
+    for (g, iv, start, end) in &groups {
+        let length: f64 = iv.iter().map(|(a, b)| b - a).sum();
+        let counted = if scene.implants[*g] {
+            length
+        } else {
+            let overlap: f64 = iv
+                .iter()
+                .flat_map(|&(a, b)| {
+                    merged
+                        .iter()
+                        .map(move |&(c, d)| (b.min(d) - a.max(c)).max(0.0))
+                })
+                .sum();
+            length - overlap
+        };
+        out.line_integral += scene.meshes[*g].mu_per_mm * counted;
+        if length > MIN_SILHOUETTE_CHORD_MM {
+            out.first_t = out.first_t.min(crossings[*start].t);
+            out.object_bits |= 1u64 << scene.object_of_mesh[*g];
+            if structures {
+                let mesh = &scene.meshes[*g].mesh;
+                for c in &crossings[*start..*end] {
+                    out.structure_bits |= 1u32 << mesh.label(c.prim as usize) as u32;
+                }
+            }
+        }
     }
     out
 }
@@ -178,9 +248,22 @@ fn pair_alternating(crossings: &[Crossing]) -> Option<f64> {
 /// vertex reports it once per triangle) form one cluster: an entry when all face the ray, an exit when all
 /// face away, a tangential touch otherwise.
 fn pair_mesh(crossings: &[Crossing]) -> (f64, bool) {
+    let mut length = 0.0;
+    let ok = walk_intervals(crossings, |a, b| length += b - a);
+    (length, ok)
+}
+
+/// The inside intervals of one mesh from its sorted crossings (the winding rule of [`pair_mesh`]), into
+/// `out`; whether the crossings paired up.
+fn mesh_intervals(crossings: &[Crossing], out: &mut Vec<(f64, f64)>) -> bool {
+    walk_intervals(crossings, |a, b| out.push((a, b)))
+}
+
+/// Calls `interval(entry, exit)` for each stretch where the winding number of the sorted `crossings` is
+/// positive (see [`pair_mesh`]); whether they paired up (the winding never went negative and returned to 0).
+fn walk_intervals(crossings: &[Crossing], mut interval: impl FnMut(f64, f64)) -> bool {
     let mut winding: i32 = 0;
     let mut inside_since = 0.0;
-    let mut length = 0.0;
     let mut ok = true;
     let mut i = 0;
     while i < crossings.len() {
@@ -201,11 +284,11 @@ fn pair_mesh(crossings: &[Crossing]) -> (f64, bool) {
             ok = false;
             winding = 0;
         } else if winding == 0 && step < 0 {
-            length += t - inside_since;
+            interval(inside_since, t);
         }
         i = j;
     }
-    (length, ok && winding == 0)
+    ok && winding == 0
 }
 
 #[cfg(test)]

@@ -93,12 +93,14 @@ pub fn phantom_spectral_scene(p: &Phantom) -> Result<SpectralScene> {
             mesh: Arc::new(v.cortical.clone()),
             object: level.clone(),
             terms: with_background(vec![(cortical, rho(cortical))]),
+            implant: false,
         });
         if !v.cancellous.triangles.is_empty() {
             meshes.push(SpectralMesh {
                 mesh: Arc::new(v.cancellous.clone()),
                 object: level,
                 terms: vec![(cancellous, rho(cancellous)), (cortical, -rho(cortical))],
+                implant: false,
             });
         }
     }
@@ -107,6 +109,7 @@ pub fn phantom_spectral_scene(p: &Phantom) -> Result<SpectralScene> {
             mesh: Arc::new(d.clone()),
             object: "discs".into(),
             terms: with_background(vec![(soft, water_equivalent(Tissue::Disc))]),
+            implant: false,
         });
     }
     if let Some(s) = &p.soft_tissue {
@@ -114,6 +117,7 @@ pub fn phantom_spectral_scene(p: &Phantom) -> Result<SpectralScene> {
             mesh: Arc::new(s.clone()),
             object: "soft_tissue".into(),
             terms: vec![(soft, soft_rho)],
+            implant: false,
         });
     }
     SpectralScene::new(channels, meshes)

@@ -41,6 +41,8 @@ pub struct RenderScene {
     pub(crate) max_chord: Vec<f64>,
     /// Meshes that are not closed (rendered anyway; thickness may be wrong near holes).
     pub open_meshes: Vec<String>,
+    /// Per mesh: an implant, which displaces every other mesh where it is (empty: none is).
+    pub(crate) implants: Vec<bool>,
 }
 
 impl RenderScene {
@@ -109,7 +111,31 @@ impl RenderScene {
             planes,
             max_chord,
             open_meshes,
+            implants: Vec::new(),
         })
+    }
+
+    /// The same scene with `implants[i]` marking mesh `i` as an implant: along every ray, the length of
+    /// every other mesh inside any implant is not counted (the implant displaces what it occupies), so an
+    /// implant's own μ is absolute, not differential.
+    pub fn with_implants(mut self, implants: Vec<bool>) -> Result<Self> {
+        if implants.len() != self.meshes.len() {
+            return Err(Error::invalid(
+                "implants",
+                format!("{} flags for {} meshes", implants.len(), self.meshes.len()),
+            ));
+        }
+        self.implants = if implants.iter().any(|&b| b) {
+            implants
+        } else {
+            Vec::new()
+        };
+        Ok(self)
+    }
+
+    /// Whether any mesh is an implant.
+    pub fn has_implants(&self) -> bool {
+        !self.implants.is_empty()
     }
 
     /// Total triangle count.

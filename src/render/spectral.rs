@@ -17,7 +17,7 @@ use super::{Backend, RenderScene, SceneMesh, ThicknessOptions, ThicknessRenderer
 use crate::anatomy::TriMesh;
 use crate::geometry::View;
 use crate::io::ImageF32;
-use crate::spectral::{Attenuation, Channel, EnergyKernel, SpectralModel};
+use crate::spectral::{Attenuation, Channel, EnergyKernel, MaterialAt, SpectralModel};
 use crate::{Error, Result};
 
 /// A closed surface and what it adds per channel: `(channel index, coefficient)`, the coefficient a
@@ -28,6 +28,18 @@ pub struct SpectralMesh {
     pub mesh: Arc<TriMesh>,
     pub object: String,
     pub terms: Vec<(usize, f64)>,
+    /// An implant displaces every other mesh along each ray where it is
+    /// ([`RenderScene::with_implants`]); its terms are absolute.
+    pub implant: bool,
+}
+
+/// A mesh as the user gives it: its object, what it attenuates with, and whether it is an implant.
+#[derive(Debug, Clone)]
+pub struct SpectralInput {
+    pub mesh: Arc<TriMesh>,
+    pub object: String,
+    pub attenuation: Attenuation,
+    pub implant: bool,
 }
 
 /// Channels and the meshes that fill them.
@@ -53,17 +65,22 @@ impl SpectralScene {
         Ok(SpectralScene { channels, meshes })
     }
 
-    /// The scene of meshes `(mesh, object, attenuation)`: a μ mesh fills the fixed-μ channel (keeping the
-    /// differential-μ convention for nested μ meshes), a material mesh its material's channel with its
-    /// density, and a material mesh inside another material mesh displaces it ([`displace_nested`]).
+    /// The scene of `items`: a μ mesh fills the fixed-μ channel (keeping the differential-μ convention for
+    /// nested μ meshes), a material mesh its material's channel with its density; a material mesh inside
+    /// another material mesh displaces it ([`displace_nested`]), and an implant displaces everything
+    /// along each ray where it is.
     /// Returns the scene and the warnings of meshes that lie partly inside another.
-    pub fn from_meshes(
-        items: Vec<(Arc<TriMesh>, String, Attenuation)>,
-    ) -> Result<(Self, Vec<String>)> {
+    pub fn from_meshes(items: Vec<SpectralInput>) -> Result<(Self, Vec<String>)> {
         let mut channels = Vec::new();
         let mut meshes = Vec::new();
         let mut material_of = Vec::new();
-        for (mesh, object, value) in items {
+        for SpectralInput {
+            mesh,
+            object,
+            attenuation: value,
+            implant,
+        } in items
+        {
             let (terms, material) = match value {
                 Attenuation::Mu(mu) => (
                     vec![(Self::channel_index(&mut channels, Channel::FixedMu), mu)],
@@ -78,11 +95,23 @@ impl SpectralScene {
                 mesh,
                 object,
                 terms,
+                implant,
             });
-            material_of.push(material);
+            material_of.push(if implant { None } else { material });
         }
         let warnings = displace_nested(&mut meshes, &material_of);
         Ok((SpectralScene::new(channels, meshes)?, warnings))
+    }
+
+    /// Adds an implant of `material`: it displaces every other mesh along each ray where it is.
+    pub fn add_implant(&mut self, mesh: Arc<TriMesh>, object: String, material: MaterialAt) {
+        let c = Self::channel_index(&mut self.channels, Channel::Material(material.material));
+        self.meshes.push(SpectralMesh {
+            mesh,
+            object,
+            terms: vec![(c, material.density_g_cm3)],
+            implant: true,
+        });
     }
 
     /// The index of `channel`, added when new.
@@ -96,25 +125,32 @@ impl SpectralScene {
         }
     }
 
-    /// A thickness scene whose mesh μ is `mu(terms)`; meshes with μ = 0 are left out (`None` when none
-    /// is left).
+    /// A thickness scene whose mesh μ is `mu(terms)`; meshes with μ = 0 are left out unless they are
+    /// implants (whose intervals displace the others even where they add nothing themselves). `None`
+    /// when every μ is 0.
     fn scene_with(&self, mu: impl Fn(&[(usize, f64)]) -> f64) -> Result<Option<RenderScene>> {
+        let mut implants = Vec::new();
+        let mut any = false;
         let meshes: Vec<SceneMesh> = self
             .meshes
             .iter()
             .filter_map(|m| {
                 let mu_per_mm = mu(&m.terms);
-                (mu_per_mm != 0.0).then(|| SceneMesh {
-                    mesh: Arc::clone(&m.mesh),
-                    mu_per_mm,
-                    object: m.object.clone(),
+                any |= mu_per_mm != 0.0;
+                (mu_per_mm != 0.0 || m.implant).then(|| {
+                    implants.push(m.implant);
+                    SceneMesh {
+                        mesh: Arc::clone(&m.mesh),
+                        mu_per_mm,
+                        object: m.object.clone(),
+                    }
                 })
             })
             .collect();
-        if meshes.is_empty() {
+        if !any {
             return Ok(None);
         }
-        RenderScene::new(meshes).map(Some)
+        RenderScene::new(meshes)?.with_implants(implants).map(Some)
     }
 }
 

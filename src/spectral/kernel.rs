@@ -153,7 +153,9 @@ mod tests {
     fn matches_the_f64_energy_sum_and_stays_finite_behind_metal() {
         // The last case is far behind metal: every bin's exp(−x) underflows even f64 (x > 600). Three channels over 71 bins with weights and attenuation of realistic spread.
         let bins = 71;
-        let raw: Vec<f64> = (0..bins).map(|b| ((b as f64) * 0.21).sin().abs() + 0.05).collect();
+        let raw: Vec<f64> = (0..bins)
+            .map(|b| ((b as f64) * 0.21).sin().abs() + 0.05)
+            .collect();
         let total: f64 = raw.iter().sum();
         let w: Vec<f64> = raw.iter().map(|x| x / total).collect();
         let table: Vec<f64> = (0..3 * bins)
@@ -179,7 +181,10 @@ mod tests {
         ] {
             let got = f64::from(k.line_integral(&a.map(|x| x as f32), &mut y));
             let want = reference(&a);
-            assert!((got - want).abs() < 2e-6 * want.max(1.0), "{a:?}: {got} vs {want}");
+            assert!(
+                (got - want).abs() < 2e-6 * want.max(1.0),
+                "{a:?}: {got} vs {want}"
+            );
         }
         assert_eq!(k.line_integral(&[0.0; 3], &mut y), 0.0);
     }

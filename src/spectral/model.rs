@@ -106,10 +106,20 @@ impl SpectralModel {
         }
         let bins = self.bins();
         let x: Vec<f64> = (0..bins)
-            .map(|b| a.iter().enumerate().map(|(c, &ac)| table[c * bins + b] * ac).sum())
+            .map(|b| {
+                a.iter()
+                    .enumerate()
+                    .map(|(c, &ac)| table[c * bins + b] * ac)
+                    .sum()
+            })
             .collect();
         let m = x.iter().copied().fold(f64::INFINITY, f64::min);
-        let signal: f64 = self.weights.iter().zip(&x).map(|(w, xb)| w * (m - xb).exp()).sum();
+        let signal: f64 = self
+            .weights
+            .iter()
+            .zip(&x)
+            .map(|(w, xb)| w * (m - xb).exp())
+            .sum();
         m - signal.ln()
     }
 
