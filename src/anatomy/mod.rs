@@ -14,6 +14,7 @@ pub mod morphometry;
 pub mod morphometry_realism;
 pub mod phantom;
 pub mod phantom_cache;
+pub mod screw;
 pub mod sdf;
 pub mod structure_split;
 pub mod synthetic_ct;

@@ -201,6 +201,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             meshes: &a.mesh,
             mu_default: a.mu_default,
             implants: &a.spectral.implant,
+            screws: a.spectral.screws,
         };
         return super::render_spectral::run_spectral(&scene, model, a.backend, &run);
     }

@@ -8,7 +8,8 @@ use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, TriMesh, build_phantom, parse_levels};
 use spinedrr::io::{DrrProducts, write_drr_set};
 use spinedrr::render::{
-    Backend, SpectralInput, SpectralRenderer, SpectralScene, phantom_spectral_scene,
+    Backend, SpectralInput, SpectralRenderer, SpectralScene, add_pedicle_screws,
+    phantom_spectral_scene,
 };
 use spinedrr::spectral::{Attenuation, Channel, SpectralModel, model_from_specs};
 
@@ -45,6 +46,12 @@ pub struct SpectralArgs {
     /// counted twice. Repeat for several implants.
     #[arg(long, value_name = "FILE:MATERIAL", requires = "spectrum")]
     pub implant: Vec<String>,
+    /// With --spectrum and --phantom: two titanium (Ti-6Al-4V) pedicle screws per level, along each
+    /// pedicle's planned trajectory from its entry point to its tip (the `*_pedicle_entry` and `*_tip`
+    /// targets of `spinedrr phantom`): 6.5 mm thread, 4.5 mm core, 2.75 mm pitch, 4 mm conical tip, and a
+    /// 12 × 14 mm tulip head on the entry point. They displace the bone and tissue they occupy.
+    #[arg(long, requires = "spectrum", requires = "phantom")]
+    pub screws: bool,
 }
 
 impl SpectralArgs {
@@ -71,10 +78,17 @@ pub struct SceneSpec<'a> {
     pub meshes: &'a [String],
     pub mu_default: f64,
     pub implants: &'a [String],
+    pub screws: bool,
 }
 
 /// The spectral scene and its description for the sidecar.
 fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Value)> {
+    if s.screws && s.phantom.is_none() {
+        bail!(
+            "--screws places screws along the phantom's pedicles and needs --phantom; give a mesh's screws \
+             as --implant FILE:titanium"
+        );
+    }
     let (mut scene, mut anatomy) = if let Some(levels) = s.phantom {
         let opts = PhantomOptions {
             levels: parse_levels(levels)?,
@@ -82,10 +96,13 @@ fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Valu
             ..PhantomOptions::default()
         };
         let phantom = build_phantom(&opts).context("building the phantom")?;
-        let scene = phantom_spectral_scene(&phantom)?;
+        let mut scene = phantom_spectral_scene(&phantom)?;
+        if s.screws {
+            add_pedicle_screws(&mut scene, &phantom)?;
+        }
         (
             scene,
-            json!({"phantom": levels, "soft_tissue": s.soft_tissue}),
+            json!({"phantom": levels, "soft_tissue": s.soft_tissue, "pedicle_screws": s.screws}),
         )
     } else {
         let mut items = Vec::new();

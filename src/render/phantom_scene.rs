@@ -9,7 +9,9 @@ use std::sync::Arc;
 use super::spectral::{SpectralMesh, SpectralScene};
 use super::{RenderScene, SceneMesh};
 use crate::Result;
+use crate::anatomy::screw::ScrewSpec;
 use crate::anatomy::{Phantom, Tissue, tissue_hu, tissue_mu};
+use crate::spectral::MaterialAt;
 
 /// The phantom's meshes with their μ: per vertebra the cortical surface (object = level name) and the
 /// cancellous surface inside it with `μ_cancellous − μ_cortical`; discs (object `discs`); the soft-tissue
@@ -121,4 +123,25 @@ pub fn phantom_spectral_scene(p: &Phantom) -> Result<SpectralScene> {
         });
     }
     SpectralScene::new(channels, meshes)
+}
+
+/// Two titanium (Ti-6Al-4V) pedicle screws per level ([`ScrewSpec::default`]) along the phantom's planned
+/// trajectories (each side's `pedicle_entry` to `pedicle_tip`), added to `scene` as implants.
+pub fn add_pedicle_screws(scene: &mut SpectralScene, phantom: &Phantom) -> Result<()> {
+    let titanium = MaterialAt::parse("titanium")?;
+    for targets in phantom.pedicle_targets() {
+        for side in ["left", "right"] {
+            let at = |what: &str| {
+                let key = format!("{side}_pedicle_{what}");
+                targets.points.get(&key).copied().ok_or_else(|| {
+                    crate::Error::invalid("pedicle targets", format!("{}: no {key}", targets.level))
+                })
+            };
+            let name = format!("{}_screw_{side}", targets.level);
+            let (shank, head) = ScrewSpec::default().meshes(&name, at("entry")?, at("tip")?)?;
+            scene.add_implant(Arc::new(shank), name.clone(), titanium);
+            scene.add_implant(Arc::new(head), name, titanium);
+        }
+    }
+    Ok(())
 }

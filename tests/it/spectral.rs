@@ -286,3 +286,122 @@ fn bad_spectral_input_is_refused_by_name() {
     }
     assert!(!d.path().join("o.tiff").exists());
 }
+
+#[test]
+fn a_pedicle_screw_in_a_block_replaces_the_tissue_it_occupies() {
+    // One energy: with the screw, L = μ_tissue · (L_block − L_screw) + μ_ti · L_screw, where L_screw is the
+    // screw's own chord (a thickness render of the screw alone, μ = 1, no implant logic involved).
+    let (lo, hi) = (
+        DVec3::new(-40.0, -40.0, 400.0),
+        DVec3::new(40.0, 40.0, 500.0),
+    );
+    let spec = spinedrr::anatomy::screw::ScrewSpec::default();
+    // Along x through the block's middle, the head standing out of the block's side (entry at x = 30).
+    let (shank, head) = spec
+        .meshes(
+            "s",
+            DVec3::new(30.0, 2.0, 450.0),
+            DVec3::new(-12.0, 2.0, 450.0),
+        )
+        .unwrap();
+    let model = || model_from_specs("mono:70", "", "ideal").unwrap();
+    let block = TriMesh::cuboid("block", lo, hi);
+    let input = |mesh: &TriMesh, material: &str| SpectralInput {
+        mesh: Arc::new(mesh.clone()),
+        object: mesh.name.clone(),
+        attenuation: parse_attenuation(material).unwrap(),
+        implant: false,
+    };
+    let (plain, _) = SpectralScene::from_meshes(vec![input(&block, "soft_tissue")]).unwrap();
+    let mut with_screw = plain.clone();
+    let ti = spinedrr::spectral::MaterialAt::parse("titanium").unwrap();
+    with_screw.add_implant(Arc::new(shank.clone()), "screw".into(), ti);
+    with_screw.add_implant(Arc::new(head.clone()), "screw".into(), ti);
+    let view = camera();
+    let render = |s: &SpectralScene| {
+        SpectralRenderer::new(s, model(), Backend::Raster)
+            .unwrap()
+            .render(&view)
+            .unwrap()
+            .line_integral
+    };
+    let (without, with) = (render(&plain), render(&with_screw));
+    let chord = |m: &TriMesh| {
+        let scene = spinedrr::render::RenderScene::new(vec![spinedrr::render::SceneMesh {
+            mesh: Arc::new(m.clone()),
+            mu_per_mm: 1.0,
+            object: "x".into(),
+        }])
+        .unwrap();
+        Backend::Bvh
+            .renderer(scene)
+            .unwrap()
+            .render(&view, &spinedrr::render::ThicknessOptions::image_only())
+            .unwrap()
+            .line_integral
+    };
+    let (l_shank, l_head) = (chord(&shank), chord(&head));
+    let mu_t = Material::named("soft_tissue")
+        .unwrap()
+        .mu_per_mm(70.0, 1.06);
+    let mu_ti = ti.material.mu_per_mm(70.0, ti.density_g_cm3);
+    let mut screw_pixels = 0;
+    for i in 0..without.data.len() {
+        // The head lies partly outside the block (x > 40): only its part inside displaces tissue, so
+        // check the pixels the head does not reach.
+        if l_head.data[i] > 0.0 {
+            continue;
+        }
+        let ls = f64::from(l_shank.data[i]);
+        screw_pixels += usize::from(ls > 0.5);
+        let expected = f64::from(without.data[i]) + (mu_ti - mu_t) * ls;
+        let got = f64::from(with.data[i]);
+        assert!(
+            (got - expected).abs() < 1e-4 * expected.max(1.0),
+            "pixel {i}: {got} vs {expected}"
+        );
+    }
+    assert!(screw_pixels > 50, "{screw_pixels}");
+}
+
+#[test]
+fn the_phantom_takes_two_pedicle_screws_per_level() {
+    let d = tempfile::tempdir().unwrap();
+    let o = d.path().join("s.tiff");
+    let (ok, err) = crate::common::run(&[
+        "render",
+        "--phantom",
+        "L2-L3",
+        "--screws",
+        "--view",
+        "lat",
+        "--spectrum",
+        "80",
+        "--out",
+        &s(&o),
+    ]);
+    assert!(ok, "{err}");
+    let sc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(o.with_extension("json")).unwrap()).unwrap();
+    let meshes = sc["details"]["anatomy"]["meshes"].as_array().unwrap();
+    let implants: Vec<&str> = meshes
+        .iter()
+        .filter(|m| m["implant"] == true)
+        .map(|m| m["mesh"].as_str().unwrap())
+        .collect();
+    assert_eq!(implants.len(), 8, "{implants:?}"); // 2 levels × 2 sides × (shank, head)
+    assert!(implants.contains(&"L3_screw_left_shank"), "{implants:?}");
+    refused(
+        &[
+            "render",
+            "--mesh",
+            "x.stl",
+            "--screws",
+            "--spectrum",
+            "80",
+            "--out",
+            &s(&o),
+        ],
+        &["--phantom"],
+    );
+}
