@@ -122,6 +122,23 @@ def render_ct(
     """CT DRR of a nibabel-style (i, j, k) HU array with its 4 × 4 index → world affine, placed where the
     views aim (``placement``, as ``spinedrr render --placement``)."""
 
+def material_mu_rho(name: str, energies_kev: Sequence[float], energy_absorption: bool = False) -> F64:
+    """μ/ρ (cm²/g; μ_en/ρ with ``energy_absorption``) of a built-in material at each energy (1–200 keV), from
+    the embedded NIST SRD 126 element tables."""
+
+def spectrum(spec: str, filters: str = "", detector: str = "csi:0.6") -> dict[str, Any]:
+    """The sidecar's ``spectral`` record of ``--spectrum SPEC --filter FILTERS --detector DETECTOR``:
+    ``energies_kev``, ``fluence``, ``mean_energy_kev``, ``hvl_al_mm``, ``detector_weights``, …"""
+
+def render_spectral(
+    view: View, spectrum: str, meshes: Sequence[tuple[Mesh, float | str] | tuple[Mesh, float | str, str]] | None = None,
+    phantom: str | None = None, soft_tissue: bool = False, screws: bool = False, filters: str = "",
+    detector: str = "csi:0.6",
+    backend: Backend = "raster",
+) -> tuple[F32, dict[str, Any]]:
+    """``(−ln(I/I0) float32 H × W, spectral record)`` as ``spinedrr render --spectrum …`` writes them; meshes
+    take μ (float) or ``"MATERIAL[@DENSITY]"``, or ``phantom="L1-L5"`` renders the phantom's tissues."""
+
 def intensity(line_integral: F32, i0: float) -> F32:
     """``I0 · exp(−L)`` of a line-integral image, as ``spinedrr render --intensity I0`` writes it."""
 

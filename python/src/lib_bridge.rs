@@ -302,24 +302,28 @@ pub fn material_coefficients(
 
 /// A spectral render of meshes `(mesh, object, MU or MATERIAL[@DENSITY])`, as `spinedrr render --mesh …
 /// --spectrum …`, or of the phantom's spectral scene: the polychromatic line integral, the sidecar's
-/// `spectral` record, and the warnings of meshes partly inside another. `phantom`: levels and whether the
-/// soft-tissue outline is added, as `--phantom LEVELS [--soft-tissue]`.
+/// `spectral` record, and the warnings of meshes partly inside another. `phantom`: levels, whether the
+/// soft-tissue outline and the pedicle screws are added, as `--phantom LEVELS [--soft-tissue] [--screws]`.
 pub fn render_spectral(
     meshes: Vec<(Arc<TriMesh>, String, String)>,
-    phantom: Option<(&str, bool)>,
+    phantom: Option<(&str, bool, bool)>,
     model: SpectralModel,
     backend: Backend,
     view: &View,
 ) -> Result<(ImageF32, serde_json::Value, Vec<String>)> {
     let (scene, warnings) = match phantom {
-        Some((levels, soft_tissue)) => {
+        Some((levels, soft_tissue, screws)) => {
             let opts = PhantomOptions {
                 levels: parse_levels(levels)?,
                 soft_tissue,
                 ..PhantomOptions::default()
             };
             let p = build_phantom(&opts)?;
-            (spinedrr::render::phantom_spectral_scene(&p)?, Vec::new())
+            let mut scene = spinedrr::render::phantom_spectral_scene(&p)?;
+            if screws {
+                spinedrr::render::add_pedicle_screws(&mut scene, &p)?;
+            }
+            (scene, Vec::new())
         }
         None => {
             let items = meshes

@@ -45,11 +45,12 @@ pub fn spectrum<'py>(
 
 /// A polychromatic DRR: ``spinedrr render --spectrum …`` bit for bit. ``meshes``: a sequence of
 /// ``(Mesh, attenuation)`` or ``(Mesh, attenuation, object)`` where attenuation is μ (float, mm⁻¹) or
-/// ``"MATERIAL[@DENSITY]"``; or ``phantom="L1-L5"`` (with ``soft_tissue``) for the phantom's tissues.
+/// ``"MATERIAL[@DENSITY]"``; or ``phantom="L1-L5"`` (with ``soft_tissue``, and ``screws`` for two titanium
+/// pedicle screws per level, as ``--screws``) for the phantom's tissues.
 /// Returns ``(image, spectral)``: ``−ln(I/I0)`` float32 H × W and the sidecar's ``spectral`` record.
 /// Meshes partly inside another raise a ``RuntimeWarning``.
 #[pyfunction]
-#[pyo3(signature = (view, spectrum, meshes=None, phantom=None, soft_tissue=false, filters="", detector="csi:0.6", backend="raster"))]
+#[pyo3(signature = (view, spectrum, meshes=None, phantom=None, soft_tissue=false, screws=false, filters="", detector="csi:0.6", backend="raster"))]
 #[allow(clippy::too_many_arguments)]
 pub fn render_spectral<'py>(
     py: Python<'py>,
@@ -58,6 +59,7 @@ pub fn render_spectral<'py>(
     meshes: Option<&Bound<'py, PyAny>>,
     phantom: Option<String>,
     soft_tissue: bool,
+    screws: bool,
     filters: &str,
     detector: &str,
     backend: &str,
@@ -109,7 +111,7 @@ pub fn render_spectral<'py>(
         .detach(|| {
             lib::render_spectral(
                 items,
-                phantom.as_deref().map(|l| (l, soft_tissue)),
+                phantom.as_deref().map(|l| (l, soft_tissue, screws)),
                 model,
                 backend,
                 &v,

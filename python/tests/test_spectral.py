@@ -146,8 +146,8 @@ def test_box_transmission_equals_the_numpy_integration_and_hardens(cli, tmp_path
 
 def test_python_spectral_render_equals_the_cli(cli, tmp_path, carm):
     view = carm.view("lat")
-    img, spectral = spinedrr.render_spectral(view, "80", phantom="L3", filters="al:2.5")
-    ref = cli.render(tmp_path / "p.tiff", "--phantom", "L3", "--view", "lat", "--spectrum", "80",
+    img, spectral = spinedrr.render_spectral(view, "80", phantom="L3", screws=True, filters="al:2.5")
+    ref = cli.render(tmp_path / "p.tiff", "--phantom", "L3", "--screws", "--view", "lat", "--spectrum", "80",
                      "--filter", "al:2.5")
     np.testing.assert_array_equal(img, ref)
     assert spectral["mean_energy_kev"] == json.loads((tmp_path / "p.json").read_text())["details"]["spectral"][

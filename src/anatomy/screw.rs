@@ -45,8 +45,8 @@ impl Default for ScrewSpec {
 }
 
 /// Facets around the axis and rings per pitch of the tessellation.
-const AROUND: u32 = 32;
-const RINGS_PER_PITCH: f64 = 8.0;
+const AROUND: u32 = 24;
+const RINGS_PER_PITCH: f64 = 6.0;
 
 impl ScrewSpec {
     fn check(&self, length: f64) -> Result<()> {

@@ -113,7 +113,11 @@ pub(crate) fn integrate_crossings(
         hits: crossings.len() as u32,
         ..Default::default()
     };
-    if scene.has_implants() {
+    if scene.has_implants()
+        && crossings
+            .iter()
+            .any(|c| scene.implants[usize::from(c.geom)])
+    {
         return integrate_with_implants(scene, crossings, structures, out);
     }
     let mut start = 0;

@@ -126,9 +126,24 @@ impl SpectralScene {
     }
 
     /// A thickness scene whose mesh μ is `mu(terms)`; meshes with μ = 0 are left out unless they are
-    /// implants (whose intervals displace the others even where they add nothing themselves). `None`
-    /// when every μ is 0.
+    /// implants whose bounding box meets one of the scene's meshes' (their intervals displace the others
+    /// even where they add nothing themselves). `None` when every μ is 0.
     fn scene_with(&self, mu: impl Fn(&[(usize, f64)]) -> f64) -> Result<Option<RenderScene>> {
+        // Bounds of the meshes this scene attenuates with: an implant that overlaps none of them in space
+        // displaces nothing here and is left out.
+        let boxes: Vec<(glam::DVec3, glam::DVec3)> = self
+            .meshes
+            .iter()
+            .filter(|m| !m.implant && mu(&m.terms) != 0.0)
+            .filter_map(|m| m.mesh.bounds())
+            .collect();
+        let overlaps = |m: &TriMesh| {
+            m.bounds().is_some_and(|(lo, hi)| {
+                boxes
+                    .iter()
+                    .any(|(a, b)| lo.cmple(*b).all() && a.cmple(hi).all())
+            })
+        };
         let mut implants = Vec::new();
         let mut any = false;
         let meshes: Vec<SceneMesh> = self
@@ -137,7 +152,7 @@ impl SpectralScene {
             .filter_map(|m| {
                 let mu_per_mm = mu(&m.terms);
                 any |= mu_per_mm != 0.0;
-                (mu_per_mm != 0.0 || m.implant).then(|| {
+                (mu_per_mm != 0.0 || (m.implant && overlaps(&m.mesh))).then(|| {
                     implants.push(m.implant);
                     SceneMesh {
                         mesh: Arc::clone(&m.mesh),
