@@ -191,10 +191,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         allow_empty: a.allow_empty,
         out: &a.out,
     };
+    let model = a.spectral.model()?;
     if a.ct.ct.is_some() {
-        return super::render_ct::run_ct(&a.ct, &run);
+        if !a.spectral.implant.is_empty() || a.spectral.screws {
+            bail!(
+                "--implant and --screws place implants among meshes and the phantom; implants in a CT are \
+                 not supported yet"
+            );
+        }
+        return super::render_ct::run_ct(&a.ct, &run, model);
     }
-    if let Some(model) = a.spectral.model()? {
+    if let Some(model) = model {
         let scene = super::render_spectral::SceneSpec {
             phantom: a.phantom.as_deref(),
             soft_tissue: a.soft_tissue,

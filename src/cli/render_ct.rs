@@ -12,9 +12,11 @@ use spinedrr::anatomy::ct::{
 };
 use spinedrr::anatomy::labels::LabelConvention;
 use spinedrr::io::write_drr;
+use spinedrr::render::SpectralCtRenderer;
 use spinedrr::render::volume::{
     VolumeDetails, VolumeMethod, VolumeRenderOptions, VolumeRenderer, select_voxels,
 };
+use spinedrr::spectral::SpectralModel;
 
 use super::render_checks::{RenderRun, check_finite, check_not_empty};
 use super::render_timing::{median_min, peak_rss_mb};
@@ -59,7 +61,7 @@ pub struct CtArgs {
 /// Renders the CT DRR of `run.view` under `run.perturbation` to `run.out` (float32 TIFF of
 /// `run.values`), with its JSON sidecar and an 8-bit PNG preview beside it; with `run.repeat > 1` prints
 /// the timing statistics as one JSON line on stderr.
-pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
+pub fn run_ct(a: &CtArgs, run: &RenderRun, model: Option<SpectralModel>) -> anyhow::Result<()> {
     let Some(ct_path) = &a.ct else {
         bail!("--ct is required for a CT render");
     };
@@ -121,11 +123,18 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
             source.z
         );
     }
+    // With --spectrum: soft-tissue and cortical-bone density grids, one Siddon render each, the energy sum.
+    let spectral = model
+        .map(|m| SpectralCtRenderer::new(&renderer, &ct.values, m))
+        .transpose()?;
     let mut times = Vec::with_capacity(run.repeat as usize);
     let mut img = None;
     for _ in 0..run.repeat {
         let start = Instant::now();
-        img = Some(renderer.render(run.rendered));
+        img = Some(match &spectral {
+            Some(s) => s.render(run.rendered).line_integral,
+            None => renderer.render(run.rendered),
+        });
         times.push(start.elapsed().as_secs_f64() * 1e3);
     }
     let Some(img) = img else {
@@ -192,6 +201,7 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun) -> anyhow::Result<()> {
         bone_hu: a.bone_hu,
         placement: placed,
         render: renderer.details(),
+        spectral: spectral.as_ref().map(|s| s.summary()),
     };
     write_drr(
         run.out,
@@ -216,6 +226,9 @@ struct CtInputs {
     placement: Placed,
     #[serde(flatten)]
     render: VolumeDetails,
+    /// The spectral model and the HU conversion, with --spectrum.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    spectral: Option<serde_json::Value>,
 }
 
 /// What attenuates nothing in a CT render, when that is every rendered voxel: all of them (the label's

@@ -22,16 +22,18 @@ use super::render_timing::{median_min, peak_rss_mb};
 /// The spectral model's flags.
 #[derive(clap::Args)]
 pub struct SpectralArgs {
-    /// Render a polychromatic radiograph (meshes and phantom). SPEC: a tube potential in kV for TASMIP's
+    /// Render a polychromatic radiograph (meshes, phantom or CT). SPEC: a tube potential in kV for TASMIP's
     /// tungsten-anode spectrum (Boone & Seibert 1997, 30–140 kV, e.g. 80), `mono:E` for one energy (keV),
     /// or a spectrum file (energy keV and photon fluence per line). The image is −ln(I/I0) of an
     /// energy-integrating detector, with per-material path lengths from the exact mesh renders; with
     /// --intensity or --photons, the detected signal. Meshes take materials, --mesh FILE:MATERIAL[@DENSITY]
     /// (MATERIALS: air, water, adipose, soft_tissue, cortical_bone, cancellous_bone, titanium (Ti-6Al-4V),
     /// steel (316L), cobalt_chrome, peek, aluminium, copper, csi); a material mesh inside another displaces
-    /// it. FILE:MU meshes keep their energy-independent μ. The sidecar records the spectrum (bins,
-    /// fluence, mean energy, Al HVL), the detector and the channels.
-    #[arg(long, value_name = "SPEC", conflicts_with_all = ["masks", "depth", "ct"])]
+    /// it. FILE:MU meshes keep their energy-independent μ. A --ct's voxels become soft tissue and cortical
+    /// bone (HU ≤ 100 soft tissue at 1 + HU/1000 g/cm³, 100–1500 HU a mixture, ≥ 1500 HU bone; one Siddon
+    /// render per material). The sidecar records the spectrum (bins, fluence, mean energy, Al HVL), the
+    /// detector and the channels.
+    #[arg(long, value_name = "SPEC", conflicts_with_all = ["masks", "depth"])]
     pub spectrum: Option<String>,
     /// With --spectrum: added filtration, comma-separated MATERIAL[@DENSITY]:MM, e.g. `al:2.5,cu:0.1`.
     /// TASMIP's spectra already carry their tube's inherent filtration.

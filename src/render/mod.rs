@@ -5,7 +5,8 @@
 //! `tracer` the ray-tracing backend interface, `embree` and `bvh` the two ray tracers, `raster` the
 //! rasteriser of primary rays, `pairing` how a ray's hits become a path length, `thickness` the image loop,
 //! `phantom_scene` the phantom's meshes with μ from HU (or materials, for `spectral`), `spectral` the
-//! polychromatic DRR of meshes (per-material path lengths, then the energy sum), `volume` the CT renderer (Siddon and trilinear).
+//! polychromatic DRR of meshes (per-material path lengths, then the energy sum), `spectral_ct` that of a
+//! CT (per-material Siddon renders), `volume` the CT renderer (Siddon and trilinear).
 
 mod backend;
 pub mod bvh;
@@ -15,6 +16,7 @@ mod phantom_scene;
 mod raster;
 mod scene;
 mod spectral;
+mod spectral_ct;
 mod thickness;
 mod tracer;
 pub mod volume;
@@ -26,6 +28,7 @@ pub use spectral::{
     SpectralDrr, SpectralInput, SpectralMesh, SpectralRenderer, SpectralScene, displace_nested,
     energy_sum,
 };
+pub use spectral_ct::SpectralCtRenderer;
 pub use thickness::{
     Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions, ThicknessRenderer,
 };

@@ -221,7 +221,7 @@ fn mesh_attenuation_is_checked() {
     let o = s(&d.path().join("o.tiff"));
     refused(
         &["render", "--mesh", &format!("{shell}:abc"), "--out", &o],
-        &["μ 'abc' is not a number"],
+        &["'abc' is neither a number (μ in mm⁻¹) nor a material"],
     );
     refused(
         &["render", "--mesh", &format!("{shell}:inf"), "--out", &o],

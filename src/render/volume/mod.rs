@@ -190,6 +190,25 @@ impl VolumeRenderer {
         })
     }
 
+    /// The same CT geometry (grid, placement, mask's clip box) with voxel values `value(hu)` where this
+    /// renderer's μ is not 0 (masked voxels and air stay 0): a material channel's density grid for the
+    /// spectral render. `hu` is the CT's values, on this renderer's grid.
+    pub fn with_values(&self, hu: &[f32], value: impl Fn(f32) -> f32 + Sync) -> Result<Self> {
+        if hu.len() != self.mu.len() {
+            return Err(Error::invalid(
+                "hu",
+                format!("{} voxels for a grid of {}", hu.len(), self.mu.len()),
+            ));
+        }
+        let mu = self
+            .mu
+            .par_iter()
+            .zip(hu.par_iter())
+            .map(|(&m, &h)| if m == 0.0 { 0.0 } else { value(h) })
+            .collect();
+        Ok(VolumeRenderer { mu, ..self.clone() })
+    }
+
     /// Whether world point `p` lies inside the box of the voxels that attenuate (μ > 0, after the mask),
     /// each voxel taken as its whole cell: an X-ray source there would sit inside the patient. Air
     /// (−1000 HU, μ = 0) around the body does not count, so a source in the scan's empty margin is fine.
