@@ -41,7 +41,8 @@ pub struct Args {
     /// Render the built-in phantom: levels such as L3, L1-L5 or L1,L3.
     #[arg(long, value_name = "LEVELS")]
     phantom: Option<String>,
-    /// A closed mesh (STL, OBJ or PLY) with an optional attenuation in mm⁻¹: FILE or FILE:MU. Repeat for
+    /// A closed mesh (STL, OBJ or PLY) with an optional attenuation in mm⁻¹: FILE or FILE:MU (with
+    /// --spectrum also FILE:MATERIAL[@DENSITY], see there). Repeat for
     /// several meshes; nested surfaces take differential μ: a core inside a shell of μ₁ gets μ₂ − μ₁, which
     /// is negative for a core less dense than its shell. A negative μ is therefore accepted, but a render
     /// whose line integral comes out negative anywhere (a negative μ not nested in a denser surface) is
