@@ -124,12 +124,23 @@ pub struct Args {
 /// The most renders `--repeat` asks for.
 const MAX_REPEAT: u32 = 10_000;
 
-/// Every file a render reads: mesh files, the geometry, the CT and its label map.
+/// Every file a render reads: mesh and implant files, a spectrum file, the geometry, the CT and its label
+/// map.
 fn render_inputs(a: &Args) -> anyhow::Result<Vec<(String, PathBuf)>> {
     let mut v = Vec::new();
     for spec in &a.mesh {
         let (path, _) = split_mesh_spec(spec, a.mu_default)?;
         v.push((format!("the --mesh file {}", path.display()), path));
+    }
+    for spec in &a.spectral.implant {
+        let (path, _) = split_mesh_spec(spec, 0.0)?;
+        v.push((format!("the --implant file {}", path.display()), path));
+    }
+    if let Some(spec) = &a.spectral.spectrum {
+        let path = PathBuf::from(spec);
+        if path.is_file() {
+            v.push((format!("the --spectrum file {spec}"), path));
+        }
     }
     for (what, p) in [
         ("the --geometry file", &a.geometry),

@@ -285,6 +285,24 @@ fn bad_spectral_input_is_refused_by_name() {
         refused(&a, &needles);
     }
     assert!(!d.path().join("o.tiff").exists());
+    // A spectrum file or an implant where an output would go is refused and left as it was.
+    let clash = d.path().join("o.json");
+    std::fs::write(&clash, "60 1\n80 1\n").unwrap();
+    refused(
+        &[
+            "render",
+            "--view",
+            "lat",
+            "--mesh",
+            &c,
+            "--spectrum",
+            &s(&clash),
+            "--out",
+            &out,
+        ],
+        &["is also the --spectrum file"],
+    );
+    assert_eq!(std::fs::read_to_string(&clash).unwrap(), "60 1\n80 1\n");
 }
 
 #[test]
