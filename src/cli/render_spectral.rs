@@ -41,7 +41,12 @@ pub struct SpectralArgs {
     pub filter: Option<String>,
     /// With --spectrum: the detector, MATERIAL:MM of scintillator (η(E) = 1 − exp(−μ(E)·t)) or `ideal`
     /// (η = 1); each photon adds η(E)·E to the signal.
-    #[arg(long, value_name = "SPEC", default_value = "csi:0.6")]
+    #[arg(
+        long,
+        value_name = "SPEC",
+        default_value = "csi:0.6",
+        requires = "spectrum"
+    )]
     pub detector: String,
     /// With --spectrum: an implant mesh, FILE:MATERIAL[@DENSITY] (e.g. screw.stl:titanium). Along every ray
     /// it displaces whatever it occupies (phantom tissue or --mesh surfaces), so the tissue under it is not

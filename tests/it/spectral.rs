@@ -272,6 +272,10 @@ fn bad_spectral_input_is_refused_by_name() {
         ),
         (vec!["--mesh", &c, "--filter", "al:1"], vec!["--spectrum"]),
         (
+            vec!["--mesh", &c, "--detector", "ideal"],
+            vec!["--spectrum"],
+        ),
+        (
             vec!["--mesh", &c, "--spectrum", "80", "--masks"],
             vec!["--masks"],
         ),
