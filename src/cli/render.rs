@@ -4,10 +4,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, bail};
-use glam::DVec3;
 use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
-use spinedrr::geometry::{CArm, Perturbation, box_corners};
+use spinedrr::geometry::{CArm, Perturbation};
 use spinedrr::io::{
     DrrProducts, DrrValues, XrayModel, check_output_paths, check_spares_inputs, drr_set_paths,
     write_drr_set,
@@ -20,7 +19,7 @@ use spinedrr::spectral::Attenuation;
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
-    mesh_mu_cause, mesh_zero_cause, split_mesh_spec,
+    mesh_corners, mesh_mu_cause, mesh_zero_cause, split_mesh_spec,
 };
 use super::render_timing::{median_min, peak_rss_mb};
 
@@ -235,7 +234,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .map(|m| (m.object.as_str(), m.mesh.as_ref()))
         .collect();
     check_source_outside(&rendered, &named)?;
-    let corners = scene_corners(&scene);
+    let corners = mesh_corners(scene.meshes.iter().map(|m| m.mesh.as_ref()));
     let mu_cause = mesh_mu_cause(&scene);
     let renderer = a.backend.renderer(scene)?;
     let mut times = Vec::with_capacity(a.repeat as usize);
@@ -298,18 +297,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         drr.stats.rays_culled
     );
     Ok(())
-}
-
-/// The corners of the bounding box of every mesh of `scene` (world mm).
-fn scene_corners(scene: &RenderScene) -> Vec<DVec3> {
-    let (lo, hi) = scene
-        .meshes
-        .iter()
-        .filter_map(|m| m.mesh.bounds())
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), (l, h)| {
-            (a.min(l), b.max(h))
-        });
-    box_corners(lo, hi).to_vec()
 }
 
 fn check_out_path(out: &Path) -> anyhow::Result<()> {

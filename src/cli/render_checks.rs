@@ -46,6 +46,18 @@ pub fn split_mesh_spec(spec: &str, default_mu: f64) -> anyhow::Result<(PathBuf, 
     }
 }
 
+/// The corners of the bounding box of `meshes` (world mm), what [`check_not_empty`] projects to say where
+/// the anatomy landed.
+pub fn mesh_corners<'a>(meshes: impl IntoIterator<Item = &'a TriMesh>) -> Vec<DVec3> {
+    let (lo, hi) = meshes
+        .into_iter()
+        .filter_map(|m| m.bounds())
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), (l, h)| {
+            (a.min(l), b.max(h))
+        });
+    spinedrr::geometry::box_corners(lo, hi).to_vec()
+}
+
 /// Refuses a render whose X-ray source lies inside a mesh (winding number above ½): its rays start in
 /// the material, and no DRR of it means anything.
 pub fn check_source_outside(view: &View, meshes: &[(&str, &TriMesh)]) -> anyhow::Result<()> {

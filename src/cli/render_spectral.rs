@@ -15,7 +15,7 @@ use spinedrr::spectral::{Attenuation, Channel, SpectralModel, model_from_specs};
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
-    split_mesh_spec,
+    mesh_corners, split_mesh_spec,
 };
 use super::render_timing::{median_min, peak_rss_mb};
 
@@ -187,13 +187,7 @@ pub fn run_spectral(
         .map(|m| (m.mesh.name.as_str(), m.mesh.as_ref()))
         .collect();
     check_source_outside(run.rendered, &named)?;
-    let corners = {
-        let (lo, hi) = scene.meshes.iter().filter_map(|m| m.mesh.bounds()).fold(
-            (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY),
-            |(a, b), (l, h)| (a.min(l), b.max(h)),
-        );
-        spinedrr::geometry::box_corners(lo, hi).to_vec()
-    };
+    let corners = mesh_corners(scene.meshes.iter().map(|m| m.mesh.as_ref()));
     let renderer = SpectralRenderer::new(&scene, model, backend)?;
     let mut drr = renderer.render(run.rendered)?;
     let mut times = vec![(drr.channels_ms, drr.energy_sum_ms)];

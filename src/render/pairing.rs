@@ -120,31 +120,59 @@ pub(crate) fn integrate_crossings(
     {
         return integrate_with_implants(scene, crossings, structures, out);
     }
+    for (g, range) in mesh_groups(crossings) {
+        let group = &crossings[range];
+        let (length, ok) = pair_alternating(group).map_or_else(|| pair_mesh(group), |l| (l, true));
+        out.valid &= ok;
+        out.line_integral += scene.meshes[g].mu_per_mm * length;
+        mark_silhouette(scene, g, group, length, structures, &mut out);
+    }
+    out
+}
+
+/// The runs of `crossings` (sorted by mesh, then distance) that belong to one mesh: `(mesh, range)`.
+#[inline]
+fn mesh_groups(
+    crossings: &[Crossing],
+) -> impl Iterator<Item = (usize, std::ops::Range<usize>)> + '_ {
     let mut start = 0;
-    while start < crossings.len() {
+    std::iter::from_fn(move || {
+        if start >= crossings.len() {
+            return None;
+        }
         let geom = crossings[start].geom;
         let mut end = start + 1;
         while end < crossings.len() && crossings[end].geom == geom {
             end += 1;
         }
-        let (length, ok) = pair_alternating(&crossings[start..end])
-            .map_or_else(|| pair_mesh(&crossings[start..end]), |l| (l, true));
-        let g = usize::from(geom);
-        out.valid &= ok;
-        out.line_integral += scene.meshes[g].mu_per_mm * length;
-        if length > MIN_SILHOUETTE_CHORD_MM {
-            out.first_t = out.first_t.min(crossings[start].t);
-            out.object_bits |= 1u64 << scene.object_of_mesh[g];
-            if structures {
-                let mesh = &scene.meshes[g].mesh;
-                for c in &crossings[start..end] {
-                    out.structure_bits |= 1u32 << mesh.label(c.prim as usize) as u32;
-                }
+        let range = start..end;
+        start = end;
+        Some((usize::from(geom), range))
+    })
+}
+
+/// A mesh whose inside `length` along the ray passes [`MIN_SILHOUETTE_CHORD_MM`] puts the ray in its
+/// object's silhouette (and, with `structures`, in its crossed triangles' structures) and may be its
+/// first surface.
+#[inline]
+fn mark_silhouette(
+    scene: &RenderScene,
+    g: usize,
+    group: &[Crossing],
+    length: f64,
+    structures: bool,
+    out: &mut RayIntegral,
+) {
+    if length > MIN_SILHOUETTE_CHORD_MM {
+        out.first_t = out.first_t.min(group[0].t);
+        out.object_bits |= 1u64 << scene.object_of_mesh[g];
+        if structures {
+            let mesh = &scene.meshes[g].mesh;
+            for c in group {
+                out.structure_bits |= 1u32 << mesh.label(c.prim as usize) as u32;
             }
         }
-        start = end;
     }
-    out
 }
 
 /// [`integrate_crossings`] of a scene with implants, from crossings sorted by (mesh, distance): each mesh's
@@ -156,20 +184,13 @@ fn integrate_with_implants(
     structures: bool,
     mut out: RayIntegral,
 ) -> RayIntegral {
-    // Per mesh group (few per ray): the mesh, its inside intervals, its crossings' range.
-    type Group = (usize, Vec<(f64, f64)>, usize, usize);
+    // Per mesh group (few per ray): the mesh, its inside intervals, its crossings.
+    type Group<'c> = (usize, Vec<(f64, f64)>, &'c [Crossing]);
     let mut groups: Vec<Group> = Vec::new();
-    let mut start = 0;
-    while start < crossings.len() {
-        let geom = crossings[start].geom;
-        let mut end = start + 1;
-        while end < crossings.len() && crossings[end].geom == geom {
-            end += 1;
-        }
+    for (g, range) in mesh_groups(crossings) {
         let mut iv = Vec::new();
-        out.valid &= mesh_intervals(&crossings[start..end], &mut iv);
-        groups.push((usize::from(geom), iv, start, end));
-        start = end;
+        out.valid &= mesh_intervals(&crossings[range.clone()], &mut iv);
+        groups.push((g, iv, &crossings[range]));
     }
     let mut union: Vec<(f64, f64)> = groups
         .iter()
@@ -184,7 +205,7 @@ fn integrate_with_implants(
             _ => merged.push((a, b)),
         }
     }
-    for (g, iv, start, end) in &groups {
+    for (g, iv, group) in &groups {
         let length: f64 = iv.iter().map(|(a, b)| b - a).sum();
         let counted = if scene.implants[*g] {
             length
@@ -200,16 +221,7 @@ fn integrate_with_implants(
             length - overlap
         };
         out.line_integral += scene.meshes[*g].mu_per_mm * counted;
-        if length > MIN_SILHOUETTE_CHORD_MM {
-            out.first_t = out.first_t.min(crossings[*start].t);
-            out.object_bits |= 1u64 << scene.object_of_mesh[*g];
-            if structures {
-                let mesh = &scene.meshes[*g].mesh;
-                for c in &crossings[*start..*end] {
-                    out.structure_bits |= 1u32 << mesh.label(c.prim as usize) as u32;
-                }
-            }
-        }
+        mark_silhouette(scene, *g, group, length, structures, &mut out);
     }
     out
 }
