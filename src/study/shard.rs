@@ -137,7 +137,9 @@ pub fn restrict_config(cfg: &StudyConfig, units: &[&Unit]) -> StudyConfig {
         .iter()
         .map(|u| {
             let t = match u {
-                Unit::Projection { target, .. } | Unit::Registration { target, .. } => target,
+                Unit::Projection { target, .. }
+                | Unit::Registration { target, .. }
+                | Unit::Screws { target } => target,
                 Unit::Calibration(_) => &calibration,
                 // Built from the phantom by the experiment itself.
                 Unit::Intensity(c) => &c.target,

@@ -43,6 +43,8 @@ pub enum Unit {
     Intensity(IntensityCell),
     /// One tracking cell: a target registered at two poses under one perturbation.
     Tracking(TrackingCell),
+    /// The planned pedicle screws of `target` under every perturbation of the grid.
+    Screws { target: String },
 }
 
 impl Unit {
@@ -72,6 +74,7 @@ impl Unit {
             Unit::Calibration(c) => c.id(),
             Unit::Intensity(c) => c.id(),
             Unit::Tracking(c) => c.id(),
+            Unit::Screws { target } => format!("screws_{target}"),
         };
         raw.replace('+', "_")
     }
@@ -99,6 +102,7 @@ impl Unit {
             Unit::Calibration(c) => c.describe(),
             Unit::Intensity(c) => c.describe(),
             Unit::Tracking(c) => c.describe(),
+            Unit::Screws { target } => format!("pedicle screws of target '{target}'"),
         }
     }
 
@@ -106,7 +110,9 @@ impl Unit {
     /// phantom).
     pub fn target(&self) -> Option<&str> {
         match self {
-            Unit::Projection { target, .. } | Unit::Registration { target, .. } => Some(target),
+            Unit::Projection { target, .. }
+            | Unit::Registration { target, .. }
+            | Unit::Screws { target } => Some(target),
             Unit::Intensity(c) => Some(&c.target),
             Unit::Tracking(c) => Some(&c.target),
             Unit::RegistrationPhysical(c) => Some(&c.target),
@@ -263,6 +269,13 @@ pub fn enumerate_units(cfg: &StudyConfig) -> Result<Vec<Unit>> {
                 }
             }
         }
+    }
+    if cfg.runs(Experiment::Screws) {
+        units.extend(
+            targets(cfg)
+                .into_iter()
+                .map(|target| Unit::Screws { target }),
+        );
     }
     Ok(units)
 }

@@ -51,8 +51,8 @@ fn interrupted_and_resumed_run_equals_uninterrupted_runs_at_any_thread_count() {
     );
     let (ta, tb, tc) = (tables(&a), tables(&b), tables(&c));
     // projection, landmarks, registration + summary + physical, intensity_registration + bins + summary,
-    // physical, tracking.
-    assert_eq!(ta.len(), 11);
+    // physical, tracking, screws + screw_navigation.
+    assert_eq!(ta.len(), 13);
     assert!(ta == tb, "resumed run differs from the 1-thread run");
     assert!(tb == tc, "1 and 2 threads differ");
     // Everything but the timing section (a measurement of the invocation, not of the data).

@@ -5,6 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::PhysicalGrid;
+use super::fixed_image::{FixedImage, SpectralImageSection};
 use crate::anatomy::parse_levels;
 use crate::geometry::{CArm, Perturbation};
 use crate::registration::intensity::Similarity;
@@ -55,6 +56,13 @@ pub struct IntensitySection {
     /// A section without this table has none.
     #[serde(default = "PhysicalGrid::none")]
     pub physical: PhysicalGrid,
+    /// The fixed images' models, each with every cell: `mono` (the moving DRR's own model), `spectral`
+    /// (`[intensity_registration.spectral]`, no implants), `spectral+screws` (the same with two titanium
+    /// pedicle screws per level). A section without this key has `mono` only.
+    #[serde(default = "FixedImage::mono_only")]
+    pub images: Vec<FixedImage>,
+    /// `[intensity_registration.spectral]`: the spectral fixed images' technique.
+    pub spectral: SpectralImageSection,
 }
 
 impl Default for IntensitySection {
@@ -80,6 +88,12 @@ impl Default for IntensitySection {
                 det_roll_deg: vec![2.0],
                 ..PhysicalGrid::none()
             },
+            images: vec![
+                FixedImage::Mono,
+                FixedImage::Spectral,
+                FixedImage::SpectralScrews,
+            ],
+            spectral: SpectralImageSection::default(),
         }
     }
 }
@@ -99,13 +113,15 @@ pub struct IntensityCell {
     pub lo_mm: f64,
     pub hi_mm: f64,
     pub starts: usize,
+    /// The fixed images' model.
+    pub image: FixedImage,
 }
 
 impl IntensityCell {
     /// File-name-safe id.
     pub fn id(&self) -> String {
         let views = self.views.replace('+', "_");
-        match &self.physical {
+        let id = match &self.physical {
             Some(p) => format!(
                 "int_{}_{views}_{}_b{}",
                 self.target,
@@ -116,6 +132,10 @@ impl IntensityCell {
                 "int_{}_{views}_df{}_p{}_b{}",
                 self.target, self.df_px, self.piercing_px, self.bin
             ),
+        };
+        match self.image {
+            FixedImage::Mono => id,
+            other => format!("{id}_{}", other.id()),
         }
     }
 
@@ -129,16 +149,18 @@ impl IntensityCell {
 
     pub fn describe(&self) -> String {
         format!(
-            "intensity registration of '{}' in {} under {}, initial mTRE {}–{} mm",
+            "intensity registration of '{}' in {} under {}, initial mTRE {}–{} mm, {} fixed images",
             self.target,
             self.views,
             self.error_text(),
             self.lo_mm,
-            self.hi_mm
+            self.hi_mm,
+            self.image
         )
     }
 
-    /// The seed key of this cell's starts.
+    /// The seed key of this cell's starts: the same for every fixed-image model, so `mono` and
+    /// `spectral` start from the same poses with the same optimiser seeds (a paired comparison).
     pub fn seed_key(&self) -> String {
         match &self.physical {
             Some(p) => format!("int/{}/{}/{p}/{}", self.target, self.views, self.bin),
@@ -195,34 +217,37 @@ impl IntensitySection {
         set.split('+').collect()
     }
 
-    /// Every cell in table order: target, view set, then Δf, piercing, bin, then each physical error
-    /// (validated before; a grid that fails to parse has none here), bin.
+    /// Every cell in table order: target, view set, fixed-image model, then Δf, piercing, bin, then each
+    /// physical error (validated before; a grid that fails to parse has none here), bin.
     pub fn cells(&self) -> Vec<IntensityCell> {
         let mut out = Vec::new();
         let physical = self.physical.cells().unwrap_or_default();
         for t in &self.targets {
             for v in &self.views {
-                let cell = |df_px, piercing_px, physical, bin, w: &[f64]| IntensityCell {
-                    target: t.clone(),
-                    views: v.clone(),
-                    df_px,
-                    piercing_px,
-                    physical,
-                    bin,
-                    lo_mm: w[0],
-                    hi_mm: w[1],
-                    starts: self.starts_per_bin,
-                };
-                for &df_px in &self.df_px {
-                    for &piercing_px in &self.piercing_px {
-                        for (bin, w) in self.init_mtre_mm.windows(2).enumerate() {
-                            out.push(cell(df_px, piercing_px, None, bin, w));
+                for &image in &self.images {
+                    let cell = |df_px, piercing_px, physical, bin, w: &[f64]| IntensityCell {
+                        target: t.clone(),
+                        views: v.clone(),
+                        df_px,
+                        piercing_px,
+                        physical,
+                        bin,
+                        lo_mm: w[0],
+                        hi_mm: w[1],
+                        starts: self.starts_per_bin,
+                        image,
+                    };
+                    for &df_px in &self.df_px {
+                        for &piercing_px in &self.piercing_px {
+                            for (bin, w) in self.init_mtre_mm.windows(2).enumerate() {
+                                out.push(cell(df_px, piercing_px, None, bin, w));
+                            }
                         }
                     }
-                }
-                for p in &physical {
-                    for (bin, w) in self.init_mtre_mm.windows(2).enumerate() {
-                        out.push(cell(0.0, 0.0, Some(*p), bin, w));
+                    for p in &physical {
+                        for (bin, w) in self.init_mtre_mm.windows(2).enumerate() {
+                            out.push(cell(0.0, 0.0, Some(*p), bin, w));
+                        }
                     }
                 }
             }
@@ -360,6 +385,16 @@ impl IntensitySection {
             }
         }
         self.physical.cells_of(&key("physical"))?;
+        if self.images.is_empty() {
+            return Err(Error::invalid(
+                key("images"),
+                "must list at least one of mono, spectral, spectral+screws",
+            ));
+        }
+        super::validate::unique(&key("images"), &self.images, |i| i.name())?;
+        if self.images.iter().any(|i| i.is_spectral()) {
+            self.spectral.model()?;
+        }
         for c in self.cells().iter().filter(|c| c.bin == 0) {
             for n in Self::view_names(&c.views) {
                 let v = carm.view(n)?;

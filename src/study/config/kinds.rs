@@ -28,27 +28,31 @@ pub enum Experiment {
     IntensityRegistration,
     /// Relative (tracking) error: one target registered at two poses with the same wrong geometry.
     Tracking,
+    /// Planned pedicle screws drawn and navigated with the wrong geometry: on-screen and 3-D errors.
+    Screws,
 }
 
 impl Experiment {
     /// Every experiment.
-    pub const ALL: [Experiment; 6] = [
+    pub const ALL: [Experiment; 7] = [
         Experiment::Projection,
         Experiment::Landmarks,
         Experiment::Registration,
         Experiment::Calibration,
         Experiment::IntensityRegistration,
         Experiment::Tracking,
+        Experiment::Screws,
     ];
 
-    /// The experiments of the default config: all six (calibration on a small grid).
-    pub const DEFAULT: [Experiment; 6] = [
+    /// The experiments of the default config: all seven (calibration on a small grid).
+    pub const DEFAULT: [Experiment; 7] = [
         Experiment::Projection,
         Experiment::Landmarks,
         Experiment::Registration,
         Experiment::IntensityRegistration,
         Experiment::Calibration,
         Experiment::Tracking,
+        Experiment::Screws,
     ];
 
     /// The config spelling.
@@ -60,6 +64,7 @@ impl Experiment {
             Experiment::Calibration => "calibration",
             Experiment::IntensityRegistration => "intensity-registration",
             Experiment::Tracking => "tracking",
+            Experiment::Screws => "screws",
         }
     }
 }

@@ -106,6 +106,7 @@ impl StudyConfig {
             let physical: usize = i.physical.keys().iter().map(|(_, v)| v.len()).sum();
             n(i.targets.len())
                 .saturating_mul(n(i.views.len()))
+                .saturating_mul(n(i.images.len()))
                 .saturating_mul(
                     n(i.df_px.len())
                         .saturating_mul(n(i.piercing_px.len()))
@@ -123,10 +124,16 @@ impl StudyConfig {
         } else {
             0
         };
+        let screw_units = if self.runs(Experiment::Screws) {
+            n_targets
+        } else {
+            0
+        };
         WorkEstimate {
             other_units: calibration_units
                 .saturating_add(intensity_units)
-                .saturating_add(tracking_units),
+                .saturating_add(tracking_units)
+                .saturating_add(screw_units),
             intensity_starts: intensity_units.saturating_mul(n(i.starts_per_bin)),
             projection_units,
             registration_cells: cells,

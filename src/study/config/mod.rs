@@ -15,6 +15,7 @@ use crate::{Error, Result};
 mod anatomy;
 mod calibration;
 pub mod dataset;
+mod fixed_image;
 mod intensity;
 mod kinds;
 mod limits;
@@ -24,6 +25,7 @@ mod validate;
 
 pub use anatomy::{AnatomyConfig, CtTarget, MeshTarget};
 pub use calibration::{CalibrationCell, CalibrationSection, MAX_CALIBRATION_TRIALS, Protocol};
+pub use fixed_image::{FixedImage, SpectralImageSection};
 pub use intensity::{FixedScope, IntensityCell, IntensitySection, MAX_STARTS_PER_BIN};
 pub use kinds::{Experiment, Family, RegistrationMethod};
 pub use limits::{
@@ -341,6 +343,7 @@ impl StudyConfig {
         for d in &mut self.anatomy.dataset {
             fix(&mut d.folder);
         }
+        self.intensity_registration.spectral.resolve_paths(dir);
         for c in &mut self.anatomy.ct {
             fix(&mut c.ct);
             fix(&mut c.seg);

@@ -20,8 +20,11 @@ use crate::registration::intensity::{
 use crate::registration::{
     Method, RegistrationOptions, RegistrationProblem, SplitMix64, pose_errors, register,
 };
-use crate::render::{ThicknessOptions, ThicknessRenderer};
-use crate::study::config::{FixedScope, IntensityCell, IntensitySection, StudyConfig};
+use crate::render::{
+    Backend, SpectralRenderer, ThicknessOptions, ThicknessRenderer, add_pedicle_screws,
+    phantom_spectral_scene,
+};
+use crate::study::config::{FixedImage, FixedScope, IntensityCell, IntensitySection, StudyConfig};
 use crate::study::schema::{IntensityRow, UnitRows};
 use crate::study::timings::{Phase, Timings};
 use crate::study::units::derive_seed;
@@ -37,6 +40,10 @@ pub struct IntensityTarget {
     moving: MeshDrr,
     /// What the fixed images show when it is more than the level ([`FixedScope::Anatomy`]).
     fixed: Option<ThicknessRenderer>,
+    /// The spectral fixed images' renderers (the fixed scope's phantom in its materials), without and
+    /// with the pedicle screws, when `images` lists them.
+    spectral: Option<SpectralRenderer>,
+    spectral_screws: Option<SpectralRenderer>,
     /// The level's cortical surface vertices (subsampled): where the mTRE is measured.
     pub targets: Vec<DVec3>,
     pub landmarks: Vec<(String, DVec3)>,
@@ -87,6 +94,21 @@ pub fn prepare(cfg: &StudyConfig, timings: &Timings) -> Result<Vec<IntensityTarg
             Some(w) => Some(timings.time(Phase::Scene, 1, || phantom_renderer(w))?),
             None => None,
         };
+        let shown = whole.as_ref().unwrap_or(&alone);
+        let spectral_of = |image: FixedImage| -> Result<Option<SpectralRenderer>> {
+            if !s.images.contains(&image) {
+                return Ok(None);
+            }
+            timings.time(Phase::Scene, 1, || {
+                let mut scene = phantom_spectral_scene(shown)?;
+                if image == FixedImage::SpectralScrews {
+                    add_pedicle_screws(&mut scene, shown)?;
+                }
+                SpectralRenderer::new(&scene, s.spectral.model()?, Backend::Raster).map(Some)
+            })
+        };
+        let spectral = spectral_of(FixedImage::Spectral)?;
+        let spectral_screws = spectral_of(FixedImage::SpectralScrews)?;
         let landmarks = alone
             .landmarks()
             .into_iter()
@@ -96,6 +118,8 @@ pub fn prepare(cfg: &StudyConfig, timings: &Timings) -> Result<Vec<IntensityTarg
             name: name.clone(),
             moving,
             fixed,
+            spectral,
+            spectral_screws,
             targets: level_targets(phantom, level)?,
             landmarks,
         });
@@ -103,16 +127,34 @@ pub fn prepare(cfg: &StudyConfig, timings: &Timings) -> Result<Vec<IntensityTarg
     Ok(out)
 }
 
-/// The fixed image of `t` in the true `view`: the line integral, through the X-ray model (Poisson at
-/// `photons`, blur, log) when `photons > 0`, its noise seeded per (target, view).
-fn fixed_image(ctx: &Context, t: &IntensityTarget, view: &View) -> Result<ImageF32> {
+/// The fixed image of `t` in the true `view` in the model `image`: the line integral (monochromatic,
+/// or the spectral `−ln(I/I0)`), through the X-ray model (Poisson at `photons`, blur, log) when
+/// `photons > 0`, its noise seeded per (target, view) — the same noise draws for both models.
+fn fixed_image(
+    ctx: &Context,
+    t: &IntensityTarget,
+    view: &View,
+    image: FixedImage,
+) -> Result<ImageF32> {
     let s = &ctx.cfg.intensity_registration;
-    let li = match &t.fixed {
-        Some(r) => {
+    let spectral = match image {
+        FixedImage::Mono => None,
+        FixedImage::Spectral => Some(&t.spectral),
+        FixedImage::SpectralScrews => Some(&t.spectral_screws),
+    };
+    let li = match (spectral, &t.fixed) {
+        (Some(Some(r)), _) => r.render(view)?.line_integral,
+        (Some(None), _) => {
+            return Err(Error::Internal(format!(
+                "no {image} renderer prepared for '{}'",
+                t.name
+            )));
+        }
+        (None, Some(r)) => {
             r.render(view, &ThicknessOptions::image_only())?
                 .line_integral
         }
-        None => MovingDrr::Mesh(t.moving.share()?).render_at(view, &TRUTH)?,
+        (None, None) => MovingDrr::Mesh(t.moving.share()?).render_at(view, &TRUTH)?,
     };
     if s.photons <= 0.0 {
         return Ok(li);
@@ -190,7 +232,7 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
             Ok(IntensityView {
                 fixed: ctx
                     .timings
-                    .time(Phase::RenderTarget, 1, || fixed_image(ctx, t, tv))?,
+                    .time(Phase::RenderTarget, 1, || fixed_image(ctx, t, tv, cell.image))?,
                 view: av.clone(),
             })
         })
@@ -281,6 +323,7 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
             df_px: cell.df_px,
             piercing_px: cell.piercing_px,
             physical: cell.physical.map(|p| p.to_string()).unwrap_or_default(),
+            fixed_image: cell.image.name().to_string(),
             bin: cell.bin,
             bin_lo_mm: cell.lo_mm,
             bin_hi_mm: cell.hi_mm,

@@ -14,6 +14,8 @@ mod physical;
 mod projection;
 pub use projection::OUTLINE_KEY;
 mod registration;
+mod screws;
+pub use screws::{PlannedScrew, planned_screws};
 mod tracking;
 
 use std::collections::BTreeMap;
@@ -349,6 +351,7 @@ impl Context {
             },
             Unit::Intensity(c) => intensity::run(self, c),
             Unit::Tracking(c) => tracking::run(self, c),
+            Unit::Screws { target } => screws::run(self, target),
             Unit::RegistrationPhysical(c) => registration::run_physical(self, c),
         }
     }

@@ -14,6 +14,7 @@ mod layout;
 pub mod literature;
 mod physical;
 mod registration;
+mod screws;
 mod setup;
 mod shift_ratio;
 mod tracking;
@@ -79,6 +80,7 @@ configuration is `study.toml`.\n",
         (!tables.calibration.is_empty(), calibration::HEADING),
         (!tables.intensity_summary.is_empty(), intensity::HEADING),
         (!tables.tracking.is_empty(), tracking::HEADING),
+        (!tables.screws.is_empty(), screws::HEADING),
         (!tables.tracking.is_empty(), literature::HEADING),
     ];
     let mut headings = vec![setup::HEADING.to_string(), "Findings".to_string()];
@@ -152,6 +154,13 @@ configuration is `study.toml`.\n",
     calibration_physical::section(&mut md, &tables.calibration_physical, &tables.calibration);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
     tracking::section(&mut md, cfg, &tables.tracking, &first);
+    screws::section(
+        &mut md,
+        &cfg.geometry.views,
+        &tables.screws,
+        &tables.screw_navigation,
+        pitch,
+    );
     literature::section(&mut md, &tables.tracking, &first)?;
     renderers_section(&mut md, cfg);
     // The .tex tables first: the products list names what is on disk.

@@ -23,6 +23,9 @@ pub struct IntensityRow {
     /// a Δf × piercing cell.
     #[serde(default)]
     pub physical: String,
+    /// The fixed images' model: `mono` or `spectral` (`[intensity_registration] images`).
+    #[serde(default = "mono")]
+    pub fixed_image: String,
     pub bin: usize,
     #[serde(with = "num")]
     pub bin_lo_mm: f64,
@@ -100,6 +103,9 @@ pub struct IntensityBinRow {
     /// a Δf × piercing cell.
     #[serde(default)]
     pub physical: String,
+    /// The fixed images' model: `mono` or `spectral` (`[intensity_registration] images`).
+    #[serde(default = "mono")]
+    pub fixed_image: String,
     #[serde(with = "num")]
     pub bin_lo_mm: f64,
     #[serde(with = "num")]
@@ -129,6 +135,9 @@ pub struct IntensitySummaryRow {
     /// a Δf × piercing cell.
     #[serde(default)]
     pub physical: String,
+    /// The fixed images' model: `mono` or `spectral` (`[intensity_registration] images`).
+    #[serde(default = "mono")]
+    pub fixed_image: String,
     pub trials: usize,
     pub successes: usize,
     #[serde(with = "num")]
@@ -161,6 +170,11 @@ pub struct IntensitySummaryRow {
     pub evaluations_mean: f64,
 }
 
+/// The fixed-image model of a table written before the column existed.
+fn mono() -> String {
+    "mono".into()
+}
+
 /// The rows of each cell, in first-appearance order.
 fn cells(rows: &[IntensityRow]) -> Vec<Vec<&IntensityRow>> {
     let mut out: Vec<Vec<&IntensityRow>> = Vec::new();
@@ -171,6 +185,7 @@ fn cells(rows: &[IntensityRow]) -> Vec<Vec<&IntensityRow>> {
                 && a.df_px == r.df_px
                 && a.piercing_px == r.piercing_px
                 && a.physical == r.physical
+                && a.fixed_image == r.fixed_image
         };
         match out.iter_mut().find(|c| same(c[0])) {
             Some(c) => c.push(r),
@@ -230,6 +245,7 @@ pub fn bins(rows: &[IntensityRow]) -> Vec<IntensityBinRow> {
                 df_px: r0.df_px,
                 piercing_px: r0.piercing_px,
                 physical: r0.physical.clone(),
+                fixed_image: r0.fixed_image.clone(),
                 bin_lo_mm: b.lo_mm,
                 bin_hi_mm: b.hi_mm,
                 trials: b.trials,
@@ -265,6 +281,7 @@ pub fn summary(rows: &[IntensityRow]) -> Vec<IntensitySummaryRow> {
                 df_px: r0.df_px,
                 piercing_px: r0.piercing_px,
                 physical: r0.physical.clone(),
+                fixed_image: r0.fixed_image.clone(),
                 trials: c.len(),
                 successes: ok.len(),
                 success_rate: ok.len() as f64 / c.len() as f64,

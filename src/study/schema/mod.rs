@@ -10,6 +10,7 @@ pub mod cohort;
 mod intensity;
 pub mod num;
 mod physical;
+mod screws;
 mod tables;
 
 use serde::{Deserialize, Serialize};
@@ -22,6 +23,7 @@ pub use calibration::{
 };
 pub use intensity::{IntensityBinRow, IntensityRow, IntensitySummaryRow};
 pub use physical::{CalibrationPhysicalRow, PhysicalRow, RegistrationPhysicalRow};
+pub use screws::{ScrewNavigationRow, ScrewRow};
 pub use tables::{
     SOLVER_SPREAD, StudyTables, TableRow, ci95_half_width, mean_sd, read_rows, write_rows,
 };
@@ -226,6 +228,10 @@ pub struct UnitRows {
     pub registration_physical: Vec<RegistrationPhysicalRow>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub calibration_physical: Vec<CalibrationPhysicalRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub screws: Vec<ScrewRow>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub screw_navigation: Vec<ScrewNavigationRow>,
 }
 
 /// One tracking cell (table `tracking.csv`): the absolute errors at the two poses and the error of

@@ -8,8 +8,8 @@ use serde::de::DeserializeOwned;
 use super::{
     CalibrationAmbiguityRow, CalibrationPhysicalRow, CalibrationRow, CalibrationToleranceRow,
     IntensityBinRow, IntensityRow, IntensitySummaryRow, LandmarkRow, PhysicalRow, ProjectionRow,
-    RegistrationPhysicalRow, RegistrationRow, RegistrationSummaryRow, StructureRow, TrackingRow,
-    UnitRows,
+    RegistrationPhysicalRow, RegistrationRow, RegistrationSummaryRow, ScrewNavigationRow, ScrewRow,
+    StructureRow, TrackingRow, UnitRows,
 };
 use crate::io::write_atomic_bytes;
 use crate::{Error, Result};
@@ -64,6 +64,12 @@ impl TableRow for RegistrationPhysicalRow {
 impl TableRow for CalibrationPhysicalRow {
     const TABLE: &'static str = "calibration_physical";
 }
+impl TableRow for ScrewRow {
+    const TABLE: &'static str = "screws";
+}
+impl TableRow for ScrewNavigationRow {
+    const TABLE: &'static str = "screw_navigation";
+}
 
 fn table_path<R: TableRow>(dir: &Path) -> std::path::PathBuf {
     dir.join(format!("{}.csv", R::TABLE))
@@ -110,6 +116,8 @@ pub struct StudyTables {
     pub tracking: Vec<TrackingRow>,
     pub registration_physical: Vec<RegistrationPhysicalRow>,
     pub calibration_physical: Vec<CalibrationPhysicalRow>,
+    pub screws: Vec<ScrewRow>,
+    pub screw_navigation: Vec<ScrewNavigationRow>,
 }
 
 impl StudyTables {
@@ -128,6 +136,8 @@ impl StudyTables {
             t.tracking.extend(u.tracking);
             t.registration_physical.extend(u.registration_physical);
             t.calibration_physical.extend(u.calibration_physical);
+            t.screws.extend(u.screws);
+            t.screw_navigation.extend(u.screw_navigation);
         }
         t.registration_summary = summarize_registration(&t.registration);
         t.calibration_tolerance = super::calibration::tolerance(&t.calibration);
@@ -162,6 +172,8 @@ impl StudyTables {
         put(dir, &self.tracking, &mut n)?;
         put(dir, &self.registration_physical, &mut n)?;
         put(dir, &self.calibration_physical, &mut n)?;
+        put(dir, &self.screws, &mut n)?;
+        put(dir, &self.screw_navigation, &mut n)?;
         Ok(n)
     }
 
@@ -184,6 +196,8 @@ impl StudyTables {
             tracking: read_rows(&dir)?,
             registration_physical: read_rows(&dir)?,
             calibration_physical: read_rows(&dir)?,
+            screws: read_rows(&dir)?,
+            screw_navigation: read_rows(&dir)?,
         })
     }
 }

@@ -64,6 +64,8 @@ pub struct CostModel {
     calibration_intensity: (usize, usize),
     /// The intensity registration's finest pyramid binning.
     intensity_finest_bin: u32,
+    /// Perturbations of the grid (a screw unit registers once per perturbation).
+    perturbations: usize,
 }
 
 /// The target the calibration experiment measures the vertebra on: the configured one, else the
@@ -126,6 +128,7 @@ impl CostModel {
                 .last()
                 .copied()
                 .unwrap_or(1),
+            perturbations: cfg.perturbations.cells().len(),
         }
     }
 
@@ -169,6 +172,8 @@ impl CostModel {
             Unit::RegistrationPhysical(c) => TRIAL_MS * c.count as f64,
             // Two noise-free solves.
             Unit::Tracking(_) => 2.0 * TRIAL_MS,
+            // One noise-free solve per perturbation.
+            Unit::Screws { .. } => self.perturbations as f64 * TRIAL_MS,
             Unit::Calibration(c) => {
                 let (protocols, trials) = self.calibration_intensity;
                 let intensity = trials.saturating_sub(c.first).min(c.count) * protocols;
@@ -191,7 +196,9 @@ impl CostModel {
             Unit::Projection { target, view, .. } => {
                 (self.target(target).0, Some((target.clone(), view.clone())))
             }
-            Unit::Registration { target, .. } => (self.target(target).0, None),
+            Unit::Registration { target, .. } | Unit::Screws { target } => {
+                (self.target(target).0, None)
+            }
             Unit::Tracking(c) => (self.target(&c.target).0, None),
             Unit::RegistrationPhysical(c) => (self.target(&c.target).0, None),
             Unit::Calibration(_) => (self.target(&self.calibration_target).0, None),
@@ -270,7 +277,8 @@ fn items(model: &CostModel, units: &[Unit], costs: &[f64], n: usize) -> Vec<Item
             | Unit::RegistrationPhysical(_)
             | Unit::Calibration(_)
             | Unit::Intensity(_)
-            | Unit::Tracking(_) => 0.0,
+            | Unit::Tracking(_)
+            | Unit::Screws { .. } => 0.0,
         };
         let pieces = ((cost / limit).ceil() as usize).clamp(1, idx.len());
         let per = idx.len().div_ceil(pieces);

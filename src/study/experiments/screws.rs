@@ -1,0 +1,208 @@
+//! The pedicle-screw experiment: each planned screw of a target (its clinical points
+//! `…pedicle_entry` → `…pedicle_tip`: the phantom's planned trajectories, or a user's landmarks of those
+//! names) under every perturbation of the grid, in two ways a surgeon meets a wrong calibration:
+//!
+//! - **drawn** (`screws.csv`): the screw at its true pose projected through the assumed view against
+//!   its true image — an overlay from a tracked pose with the wrong calibration — in px of the detector
+//!   and in mm at the screw (divided by the true magnification there);
+//! - **navigated** (`screw_navigation.csv`): the target registered from its landmarks in all the study's
+//!   views with the assumed views (noise-free, started at the truth: the calibration's bias), and the
+//!   planned screw carried by that pose — its tip, entry and axis errors in 3-D — and the tip as that
+//!   system draws it on each view (`nav_tip_px` of `screws.csv`).
+
+use glam::{DVec2, DVec3};
+
+use super::{Context, Target};
+use crate::geometry::{Perturbation, RigidTransform, View};
+use crate::registration::{Method, RegistrationOptions, RegistrationProblem, register};
+use crate::study::config::Family;
+use crate::study::schema::{ScrewNavigationRow, ScrewRow, UnitRows};
+use crate::study::timings::Phase;
+use crate::{Error, Result};
+
+/// The truth: targets are built where the views aim.
+const TRUTH: RigidTransform = RigidTransform::IDENTITY;
+
+/// A planned screw: its name (the entry landmark's name without `pedicle_entry`), entry and tip (world mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedScrew {
+    pub name: String,
+    pub entry: DVec3,
+    pub tip: DVec3,
+}
+
+/// The planned screws among `points`: each `PREFIXpedicle_entry` with a `PREFIXpedicle_tip`, in name order.
+pub fn planned_screws(points: &[(String, DVec3)]) -> Vec<PlannedScrew> {
+    let mut out: Vec<PlannedScrew> = points
+        .iter()
+        .filter_map(|(n, entry)| {
+            let prefix = n.strip_suffix("pedicle_entry")?;
+            let tip_name = format!("{prefix}pedicle_tip");
+            let (_, tip) = points.iter().find(|(m, _)| *m == tip_name)?;
+            Some(PlannedScrew {
+                name: prefix.trim_end_matches(['_', '-']).to_string(),
+                entry: *entry,
+                tip: *tip,
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| a.name.cmp(&b.name));
+    out
+}
+
+/// The unsigned angle (degrees) between two 2-D directions; NaN when either is shorter than `min`.
+fn angle_2d_deg(a: DVec2, b: DVec2, min: f64) -> f64 {
+    if a.length() < min || b.length() < min {
+        return f64::NAN;
+    }
+    // atan2 of the cross and dot products: exact near 0°, where an arccosine loses half the digits.
+    a.perp_dot(b).abs().atan2(a.dot(b)).to_degrees()
+}
+
+/// The landmark registration of `t` observed exactly through `truth` and solved with `assumed` (direct
+/// LM from the truth): the pose, residual and convergence; `None` when the solve fails.
+fn navigate(t: &Target, truth: &[View], assumed: &[View]) -> Option<(RigidTransform, f64, bool)> {
+    let names = t.landmarks.iter().map(|(n, _)| n.clone()).collect();
+    let points = t.landmarks.iter().map(|(_, p)| *p).collect();
+    let solve = || -> Result<(RigidTransform, f64, bool)> {
+        let observed = RegistrationProblem::synthesize(names, points, truth, &TRUTH)?;
+        let problem = observed.with_views(|v| {
+            assumed
+                .iter()
+                .find(|a| a.name == v.name)
+                .cloned()
+                .ok_or_else(|| Error::Internal(format!("no assumed view '{}'", v.name)))
+        })?;
+        let opts = RegistrationOptions {
+            init: Some(TRUTH),
+            ..RegistrationOptions::default()
+        };
+        let r = register(&problem, Method::Direct, &opts)?;
+        Ok((r.pose, r.residual_px, r.converged))
+    };
+    solve().ok()
+}
+
+/// Runs every perturbation of the grid for the planned screws of `target` (no rows when it has none).
+pub fn run(ctx: &Context, target: &str) -> Result<UnitRows> {
+    let t = ctx.target(target)?;
+    let screws = planned_screws(&t.clinical);
+    let mut rows = UnitRows::default();
+    if screws.is_empty() {
+        return Ok(rows);
+    }
+    let truth: Vec<View> = ctx.cfg.studied_views(&ctx.carm).cloned().collect();
+    let views_name = truth
+        .iter()
+        .map(|v| v.name.as_str())
+        .collect::<Vec<_>>()
+        .join("+");
+    for (family, q) in ctx.cfg.perturbations.cells() {
+        let assumed = truth
+            .iter()
+            .map(|v| v.perturbed(&q))
+            .collect::<Result<Vec<View>>>()?;
+        let nav = ctx
+            .timings
+            .time(Phase::Registration, 1, || navigate(t, &truth, &assumed));
+        let (df_px, piercing_px) = intrinsic_values(family, &q);
+        let perturbation = q.to_string();
+        for s in &screws {
+            for (tv, av) in truth.iter().zip(&assumed) {
+                let px = |p: DVec3| (av.project(p) - tv.project(p)).length();
+                let at = |p: DVec3, d: f64| d * tv.depth(p) / tv.intrinsics.fx;
+                let true_axis = tv.project(s.tip) - tv.project(s.entry);
+                let drawn_axis = av.project(s.tip) - av.project(s.entry);
+                let (tip_px, entry_px) = (px(s.tip), px(s.entry));
+                let nav_tip_px = nav.as_ref().map_or(f64::NAN, |(pose, _, _)| {
+                    (av.project(pose.apply(s.tip)) - tv.project(s.tip)).length()
+                });
+                rows.screws.push(ScrewRow {
+                    target: target.to_string(),
+                    screw: s.name.clone(),
+                    view: tv.name.clone(),
+                    family,
+                    perturbation: perturbation.clone(),
+                    df_px,
+                    piercing_px,
+                    length_mm: (s.tip - s.entry).length(),
+                    tip_px,
+                    tip_mm: at(s.tip, tip_px),
+                    entry_px,
+                    entry_mm: at(s.entry, entry_px),
+                    axis_deg: angle_2d_deg(true_axis, drawn_axis, 1.0),
+                    projected_length_px: true_axis.length(),
+                    nav_tip_px,
+                });
+            }
+            let (tip_mm, entry_mm, axis_deg, residual_px, converged) = match &nav {
+                Some((pose, residual, converged)) => {
+                    let axis = (s.tip - s.entry).normalize();
+                    let moved = pose.apply_vector(axis).normalize();
+                    (
+                        (pose.apply(s.tip) - s.tip).length(),
+                        (pose.apply(s.entry) - s.entry).length(),
+                        axis.dot(moved).clamp(-1.0, 1.0).acos().to_degrees(),
+                        *residual,
+                        *converged,
+                    )
+                }
+                None => (f64::NAN, f64::NAN, f64::NAN, f64::NAN, false),
+            };
+            rows.screw_navigation.push(ScrewNavigationRow {
+                target: target.to_string(),
+                screw: s.name.clone(),
+                views: views_name.clone(),
+                family,
+                perturbation: perturbation.clone(),
+                df_px,
+                piercing_px,
+                tip_mm,
+                entry_mm,
+                axis_deg,
+                residual_px,
+                converged,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// The Δf and piercing shift of an intrinsic cell (0 for the other families' keys).
+fn intrinsic_values(family: Family, q: &Perturbation) -> (f64, f64) {
+    match family {
+        Family::Physical => (0.0, 0.0),
+        _ => (q.df_px, q.dcx_px),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn screws_pair_each_entry_with_the_tip_of_its_prefix() {
+        let p = |x: f64| DVec3::new(x, 0.0, 0.0);
+        let points = vec![
+            ("L2/right_pedicle_tip".to_string(), p(4.0)),
+            ("left_pedicle_entry".to_string(), p(1.0)),
+            ("L2/right_pedicle_entry".to_string(), p(3.0)),
+            ("left_pedicle_tip".to_string(), p(2.0)),
+            ("left_pedicle_isthmus".to_string(), p(9.0)),
+            ("right_pedicle_entry".to_string(), p(5.0)),
+        ];
+        let s = planned_screws(&points);
+        let names: Vec<&str> = s.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["L2/right", "left"]);
+        assert_eq!((s[0].entry, s[0].tip), (p(3.0), p(4.0)));
+        assert_eq!((s[1].entry, s[1].tip), (p(1.0), p(2.0)));
+    }
+
+    #[test]
+    fn the_2d_angle_is_unsigned_and_undefined_for_a_point() {
+        let a = DVec2::new(10.0, 0.0);
+        assert!((angle_2d_deg(a, DVec2::new(10.0, 10.0), 1.0) - 45.0).abs() < 1e-12);
+        assert!((angle_2d_deg(a, DVec2::new(10.0, -10.0), 1.0) - 45.0).abs() < 1e-12);
+        assert!(angle_2d_deg(a, DVec2::new(0.1, 0.0), 1.0).is_nan());
+    }
+}
