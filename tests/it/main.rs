@@ -47,6 +47,7 @@ mod study_physical;
 mod study_physics;
 mod study_report;
 mod study_resume;
+mod study_screws;
 mod study_shard;
 mod study_shard_concurrency;
 mod study_slurm;

@@ -186,8 +186,69 @@ fn refused_with(section: &str, needle: &str) {
     );
 }
 
+/// Spectral fixed images: each model's cell starts from the same poses (a paired comparison); the
+/// spectrum alone keeps the registration at the truth, and the titanium the moving DRR lacks moves the
+/// intensity optimum further from it than the spectrum does.
+#[test]
+fn spectral_fixed_images_are_paired_with_the_monochromatic_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("study.toml");
+    std::fs::write(
+        &cfg,
+        r#"seed = 11
+experiments = ["intensity-registration"]
+[anatomy]
+levels = ["L3"]
+segment = false
+voxel_mm = 0.8
+[intensity_registration]
+targets = ["L3"]
+views = ["ap+lat"]
+levels = [16, 8]
+df_px = [0.0]
+piercing_px = [0.0]
+init_mtre_mm = [0.0, 4.0]
+starts_per_bin = 1
+images = ["mono", "spectral", "spectral+screws"]
+"#,
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let (ok, err) = study(&cfg, &out, &[]);
+    assert!(ok, "{err}");
+    let t = StudyTables::load(&out).unwrap();
+    let row = |m: &str| t.intensity.iter().find(|r| r.fixed_image == m).unwrap();
+    let (mono, spectral, screws) = (row("mono"), row("spectral"), row("spectral+screws"));
+    assert_eq!(t.intensity.len(), 3);
+    assert_eq!(t.intensity_summary.len(), 3);
+    for r in [spectral, screws] {
+        assert_eq!(r.initial_mtre_mm, mono.initial_mtre_mm, "unpaired start");
+    }
+    assert!(mono.final_mtre_mm < 0.5, "{}", mono.final_mtre_mm);
+    assert!(spectral.final_mtre_mm < 2.0, "{}", spectral.final_mtre_mm);
+    assert!(
+        screws.optimum_mtre_mm > spectral.optimum_mtre_mm,
+        "screws {} mm, spectrum alone {} mm",
+        screws.optimum_mtre_mm,
+        spectral.optimum_mtre_mm
+    );
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("### Spectral fixed images: the spectrum and the screws"));
+}
+
 #[test]
 fn bad_intensity_values_are_refused_naming_the_key() {
+    refused("images = []", "images");
+    refused("images = [\"mono\", \"mono\"]", "images");
+    refused(
+        "images = [\"spectral\"]\n[intensity_registration.spectral]\nspectrum = \"200\"",
+        "spectral",
+    );
+    refused(
+        "images = [\"spectral+screws\"]\n[intensity_registration.spectral]\ndetector = \"csi\"",
+        "spectral",
+    );
+    refused_with("images = [\"xray\"]", "images = [\"xray\"]");
     refused("levels = [8, 16]", "levels");
     refused("levels = [0]", "levels");
     refused("views = [\"ap+oblique\"]", "views");
@@ -278,7 +339,7 @@ det_dx_mm = [3.0]
     assert!(t.intensity_summary[1].landmark_mtre_mm > 0.5);
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
-        report.contains("| L3 | ap | — | — | det_roll_deg = 1.5 | 1 |"),
+        report.contains("| L3 | ap | mono | — | — | det_roll_deg = 1.5 | 1 |"),
         "{report}"
     );
 }

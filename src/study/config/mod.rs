@@ -42,6 +42,12 @@ pub const DEFAULT_NOISE_PX: f64 = 0.5;
 /// The target of the phantom levels studied together (`anatomy.segment`).
 pub const SEGMENT_TARGET: &str = "segment";
 
+/// Whether `target` is a segment (several levels together): the phantom's, or `<name>-segment` of CT
+/// targets and datasets. Segments are reported apart, never pooled with single levels.
+pub fn is_segment(target: &str) -> bool {
+    target == SEGMENT_TARGET || target.ends_with("-segment")
+}
+
 /// The whole study.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -124,6 +124,10 @@ impl StudyConfig {
                 }
             }
         }
+        if self.runs(super::Experiment::Screws) {
+            // The screw figure's radiographs use the spectral technique.
+            self.intensity_registration.spectral.model()?;
+        }
         self.validate_grid_intrinsics(&carm)?;
         // A listed heatmap the focal grid never renders would silently never be drawn; the default list
         // (not the user's) draws what the grid has of it.

@@ -230,9 +230,9 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
         .zip(&assumed)
         .map(|(tv, av)| {
             Ok(IntensityView {
-                fixed: ctx
-                    .timings
-                    .time(Phase::RenderTarget, 1, || fixed_image(ctx, t, tv, cell.image))?,
+                fixed: ctx.timings.time(Phase::RenderTarget, 1, || {
+                    fixed_image(ctx, t, tv, cell.image)
+                })?,
                 view: av.clone(),
             })
         })

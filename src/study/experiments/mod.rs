@@ -15,7 +15,7 @@ mod projection;
 pub use projection::OUTLINE_KEY;
 mod registration;
 mod screws;
-pub use screws::{PlannedScrew, planned_screws};
+pub use screws::{PlannedScrew, SCREWS_KEY, planned_screws, screw_image_path};
 mod tracking;
 
 use std::collections::BTreeMap;
@@ -153,6 +153,9 @@ pub struct Target {
     pub markers: Vec<Marker>,
     /// How a CT target was moved where the views aim (recorded in its reference sidecars).
     pub placement: Option<crate::anatomy::ct::Placed>,
+    /// A phantom target in its materials with its planned pedicle screws (when the screws experiment
+    /// runs): the spectral radiographs of the screw figure.
+    pub screw_scene: Option<crate::render::SpectralScene>,
 }
 
 /// What every unit shares.
@@ -431,6 +434,13 @@ fn build_target(
     )?;
     t.clinical =
         crate::anatomy::Landmarks::named_points(sub.pedicle_targets(), name == SEGMENT_TARGET);
+    if cfg.runs(Experiment::Screws) {
+        t.screw_scene = Some(timings.time(Phase::Scene, 1, || {
+            let mut scene = crate::render::phantom_spectral_scene(sub)?;
+            crate::render::add_pedicle_screws(&mut scene, sub)?;
+            Ok::<_, Error>(scene)
+        })?);
+    }
     Ok(t)
 }
 
@@ -470,6 +480,7 @@ fn target_with_landmarks(
         clinical,
         markers,
         placement: None,
+        screw_scene: None,
     })
 }
 

@@ -9,12 +9,22 @@
 //!   views with the assumed views (noise-free, started at the truth: the calibration's bias), and the
 //!   planned screw carried by that pose — its tip, entry and axis errors in 3-D — and the tip as that
 //!   system draws it on each view (`nav_tip_px` of `screws.csv`).
+//!
+//! A phantom target also gets its radiographs for the report's screw figure: the monochromatic DRR and
+//! the spectral one with the screws in place (`[intensity_registration.spectral]`'s technique), in
+//! `references/screws_<target>_<view>_{mono,spectral}.tiff`, the screws' entry and tip points in the
+//! spectral image's sidecar.
+
+use std::path::{Path, PathBuf};
 
 use glam::{DVec2, DVec3};
+use serde_json::json;
 
-use super::{Context, Target};
+use super::{Context, REFERENCES_DIR, Target};
 use crate::geometry::{Perturbation, RigidTransform, View};
+use crate::io::{Sidecar, sidecar_path, write_tiff_f32};
 use crate::registration::{Method, RegistrationOptions, RegistrationProblem, register};
+use crate::render::{Backend, SpectralRenderer, ThicknessOptions};
 use crate::study::config::Family;
 use crate::study::schema::{ScrewNavigationRow, ScrewRow, UnitRows};
 use crate::study::timings::Phase;
@@ -83,6 +93,64 @@ fn navigate(t: &Target, truth: &[View], assumed: &[View]) -> Option<(RigidTransf
     solve().ok()
 }
 
+/// `references/screws_<target>_<view>_<model>.tiff` (`model`: `mono` or `spectral`).
+pub fn screw_image_path(out: &Path, target: &str, view: &str, model: &str) -> PathBuf {
+    out.join(REFERENCES_DIR)
+        .join(format!("screws_{target}_{view}_{model}.tiff"))
+}
+
+/// The sidecar key of the spectral screw image's planned screws (`[{name, entry, tip}]`, world mm).
+pub const SCREWS_KEY: &str = "planned_screws";
+
+/// Writes the monochromatic DRR and the spectral radiograph with the screws of `t` in each view.
+fn write_images(ctx: &Context, t: &Target, screws: &[PlannedScrew], views: &[View]) -> Result<()> {
+    let Some(scene) = &t.screw_scene else {
+        return Ok(());
+    };
+    let technique = &ctx.cfg.intensity_registration.spectral;
+    let spectral = ctx.timings.time(Phase::Scene, 1, || {
+        SpectralRenderer::new(scene, technique.model()?, Backend::Raster)
+    })?;
+    let planned: Vec<serde_json::Value> = screws
+        .iter()
+        .map(|s| json!({ "name": s.name, "entry": s.entry.to_array(), "tip": s.tip.to_array() }))
+        .collect();
+    for view in views {
+        let mono = ctx.timings.time(Phase::RenderTarget, 1, || {
+            t.renderer.render(view, &ThicknessOptions::image_only())
+        })?;
+        let radiograph = ctx
+            .timings
+            .time(Phase::RenderTarget, 1, || spectral.render(view))?;
+        for (model, image, units) in [
+            (
+                "mono",
+                &mono.line_integral,
+                "line integral ∫μ dl (μ in 1/mm)",
+            ),
+            (
+                "spectral",
+                &radiograph.line_integral,
+                "−ln(I/I0) of the detected signal",
+            ),
+        ] {
+            let path = screw_image_path(&ctx.out, &t.name, &view.name, model);
+            write_tiff_f32(&path, image)?;
+            let mut side = Sidecar::new("drr", units, view, &Perturbation::NONE)?;
+            side.details.insert("target".into(), t.name.clone().into());
+            if model == "spectral" {
+                side.details
+                    .insert("technique".into(), technique.describe().into());
+                side.details.insert("spectral".into(), spectral.summary());
+                side.details
+                    .insert(SCREWS_KEY.into(), planned.clone().into());
+            }
+            side.write(&sidecar_path(&path))?;
+        }
+    }
+    Ok(())
+}
+
 /// Runs every perturbation of the grid for the planned screws of `target` (no rows when it has none).
 pub fn run(ctx: &Context, target: &str) -> Result<UnitRows> {
     let t = ctx.target(target)?;
@@ -92,6 +160,7 @@ pub fn run(ctx: &Context, target: &str) -> Result<UnitRows> {
         return Ok(rows);
     }
     let truth: Vec<View> = ctx.cfg.studied_views(&ctx.carm).cloned().collect();
+    write_images(ctx, t, &screws, &truth)?;
     let views_name = truth
         .iter()
         .map(|v| v.name.as_str())

@@ -8,6 +8,7 @@ use std::path::Path;
 use super::composed::Conditions;
 use super::{FigureEntry, Mark, Panel, Section, Series, distinct, panel_chart};
 use crate::Result;
+use crate::study::config::FixedImage;
 use crate::study::schema::{IntensityBinRow, IntensitySummaryRow, StudyTables};
 
 /// `Δf 300, p 30`, `K true` or the physical error (`det_roll_deg=2`).
@@ -107,12 +108,17 @@ fn success_panel(rows: &[&IntensityBinRow], views: &str, reached: bool) -> Panel
 /// intensity tables; returns their manifest entries.
 pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<FigureEntry>> {
     let mut entries = Vec::new();
+    // The monochromatic cells (the spectral ones are compared in the report's table).
+    let mono = FixedImage::Mono.name();
     for target in distinct(tables.intensity_summary.iter().map(|r| r.target.clone())) {
         let summary: Vec<&IntensitySummaryRow> = tables
             .intensity_summary
             .iter()
-            .filter(|r| r.target == target)
+            .filter(|r| r.target == target && r.fixed_image == mono)
             .collect();
+        if summary.is_empty() {
+            continue;
+        }
         let sets = distinct(summary.iter().map(|r| r.views.clone()));
         let cols = sets.len().clamp(1, 3);
         let file = format!("intensity_mtre_{target}.png");
@@ -132,7 +138,7 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
             &file,
             &title,
             &format!(
-                "a panel per view set; per piercing shift the mTRE of the intensity optimum (registration \
+                "monochromatic fixed images; a panel per view set; per piercing shift the mTRE of the intensity optimum (registration \
                  started at the truth), the median final mTRE over {trials} starts, the mTRE of the \
                  landmark registration under the same assumed K, and the mTRE between the two optima \
                  (equal biases can be different poses); the physical errors are in the table, not on \
@@ -143,7 +149,7 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
         let bins: Vec<&IntensityBinRow> = tables
             .intensity_bins
             .iter()
-            .filter(|r| r.target == target)
+            .filter(|r| r.target == target && r.fixed_image == mono)
             .collect();
         let file = format!("intensity_success_{target}.png");
         let title = format!("{target}: success rate vs initial mTRE (van de Kraats)");
@@ -164,7 +170,7 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
             Section::Intensity,
             &file,
             &title,
-            "a column per view set, a line per assumed geometry (true, each Δf and piercing shift, each \
+            "monochromatic fixed images; a column per view set, a line per assumed geometry (true, each Δf and piercing shift, each \
              physical error); top: \
              success (final mTRE to the truth < 2 mm; the capture range is the last bin edge of the \
              leading run at ≥ 95 %, stated only with ≥ 10 starts per bin), bottom: the start ended within 2 mm of the intensity optimum \

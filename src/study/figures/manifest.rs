@@ -22,6 +22,7 @@ pub enum Section {
     Registration,
     Calibration,
     Intensity,
+    Screws,
 }
 
 /// One figure: `file` (a PNG in `figures/`, with its SVG beside it).

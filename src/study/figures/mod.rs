@@ -24,6 +24,7 @@ mod overlay_key;
 mod overlay_points;
 mod registration;
 mod scale_bar;
+mod screws;
 mod setup;
 
 pub use canvas::{Figure, Raster, svg_path, write_figure};
@@ -278,6 +279,7 @@ confidence interval of the mean where trials vary",
     }
     entries.extend(calibration::figures(&figs, tables, &conditions)?);
     entries.extend(intensity::figures(&figs, tables, &conditions)?);
+    entries.extend(screws::figures(out, cfg, tables, &figs, &conditions)?);
     manifest::write(&figs, &entries)?;
     let n = std::fs::read_dir(&figs)
         .map_err(|e| Error::io(&figs, e))?

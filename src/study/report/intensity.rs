@@ -8,7 +8,7 @@ use super::grid::Pitch;
 use super::layout;
 use super::layout::{mean_text, num};
 use crate::registration::intensity::{CAPTURE_MIN_STARTS, CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
-use crate::study::config::{FixedScope, StudyConfig};
+use crate::study::config::{FixedImage, FixedScope, StudyConfig};
 use crate::study::figures::{FigureEntry, Section, distinct};
 use crate::study::schema::{IntensitySummaryRow, StudyTables, ci95_half_width};
 
@@ -82,7 +82,13 @@ counts of a few starts, not rates)",
     );
     layout::figures(md, figs, Section::Intensity, n);
     summary_table(md, rows, pitch);
-    comparison(md, rows, pitch);
+    let mono: Vec<IntensitySummaryRow> = rows
+        .iter()
+        .filter(|r| r.fixed_image == FixedImage::Mono.name())
+        .cloned()
+        .collect();
+    comparison(md, &mono, pitch);
+    super::intensity_spectral::section(md, cfg, rows, pitch);
 }
 
 /// The physical errors of the section in words (empty without any).
@@ -125,7 +131,7 @@ fn grid_mm(s: &crate::study::config::IntensitySection, pitch: Pitch) -> String {
 }
 
 /// The assumed geometry of a cell in words.
-fn assumed(r: &IntensitySummaryRow, pitch: Pitch) -> String {
+pub(super) fn assumed(r: &IntensitySummaryRow, pitch: Pitch) -> String {
     if !r.physical.is_empty() {
         format!("the physical error `{}`", r.physical)
     } else if r.df_px == 0.0 {
@@ -167,7 +173,7 @@ fn successes_mtre(r: &IntensitySummaryRow) -> String {
 fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
     let _ = writeln!(
         md,
-        "| target | views | Δf, {u} | piercing p, {v} | physical error | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| target | views | fixed image | Δf, {u} | piercing p, {v} | physical error | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         u = pitch.unit("SDD error"),
         v = pitch.unit("on the detector")
     );
@@ -187,9 +193,10 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
         };
         let _ = writeln!(
             md,
-            "| {} | {} | {df} | {p} | {physical} | {} | {:.0} % | {} | {} | {} | {} | {:.0} % | {} | {}, {} | {:.0} |",
+            "| {} | {} | {} | {df} | {p} | {physical} | {} | {:.0} % | {} | {} | {} | {} | {:.0} % | {} | {}, {} | {:.0} |",
             r.target,
             r.views,
+            r.fixed_image,
             r.trials,
             100.0 * r.success_rate,
             capture(r.capture_range_mm),
@@ -209,7 +216,13 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
 /// Per target and view set: the floor at the true K, the bias under the largest perturbation, and what
 /// differs from the landmark registration and why.
 fn comparison(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
-    let _ = writeln!(md, "### Intensity beside landmark registration\n");
+    if rows.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "### Intensity beside landmark registration (monochromatic fixed images)\n"
+    );
     for target in distinct(rows.iter().map(|r| r.target.clone())) {
         for views in distinct(
             rows.iter()
@@ -325,7 +338,7 @@ pose that the landmark registration under the same K does not show. ",
 }
 
 /// A capture range as the table prints it: not stated (NaN) below [`CAPTURE_MIN_STARTS`] starts per bin.
-fn capture(mm: f64) -> String {
+pub(super) fn capture(mm: f64) -> String {
     if mm.is_nan() {
         format!("not stated (< {CAPTURE_MIN_STARTS} starts per bin)")
     } else {

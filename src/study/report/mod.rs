@@ -9,6 +9,7 @@ mod comparison;
 mod findings;
 mod grid;
 mod intensity;
+mod intensity_spectral;
 pub mod latex;
 mod layout;
 pub mod literature;
@@ -157,9 +158,9 @@ configuration is `study.toml`.\n",
     screws::section(
         &mut md,
         &cfg.geometry.views,
-        &tables.screws,
-        &tables.screw_navigation,
+        (&tables.screws, &tables.screw_navigation),
         pitch,
+        (&figs, &mut n),
     );
     literature::section(&mut md, &tables.tracking, &first)?;
     renderers_section(&mut md, cfg);

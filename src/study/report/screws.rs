@@ -9,6 +9,7 @@ use std::fmt::Write as _;
 use super::grid::{Pitch, short};
 use super::shift_ratio::is_segment;
 use crate::study::config::Family;
+use crate::study::figures::{FigureEntry, Section};
 use crate::study::schema::{ScrewNavigationRow, ScrewRow};
 
 pub const HEADING: &str = "Pedicle screws drawn and navigated with the wrong geometry";
@@ -44,9 +45,9 @@ fn geometry(family: Family, pert: &str, df: f64, p: f64, pitch: Pitch) -> String
 pub fn section(
     md: &mut String,
     views: &[String],
-    rows: &[ScrewRow],
-    nav: &[ScrewNavigationRow],
+    (rows, nav): (&[ScrewRow], &[ScrewNavigationRow]),
     pitch: Pitch,
+    (figs, n): (&[FigureEntry], &mut usize),
 ) {
     let drawn: Vec<&ScrewRow> = rows.iter().filter(|r| !is_segment(&r.target)).collect();
     let navs: Vec<&ScrewNavigationRow> = nav.iter().filter(|r| !is_segment(&r.target)).collect();
@@ -77,8 +78,13 @@ how well the overlay seems to fit. Each cell is the largest over the levels' scr
         levels.join(", "),
         num(lengths.iter().copied().fold(f64::INFINITY, f64::min), 1),
         num(lengths.iter().copied().fold(f64::NEG_INFINITY, f64::max), 1),
-        views.join(" and ")
+        views
+            .iter()
+            .map(|v| v.to_uppercase())
+            .collect::<Vec<_>>()
+            .join(" and ")
     );
+    super::layout::figures(md, figs, Section::Screws, n);
     let mut header = "| assumed geometry |".to_string();
     let mut rule = "|---|".to_string();
     for v in views {

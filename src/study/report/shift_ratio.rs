@@ -7,7 +7,6 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use crate::study::config::SEGMENT_TARGET;
 use crate::study::figures::distinct;
 use crate::study::schema::{Family, LandmarkRow};
 
@@ -25,11 +24,7 @@ impl Spread {
     }
 }
 
-/// Whether `target` is a segment (several levels together): the phantom's, or `<name>-segment` of CT
-/// targets and datasets. Segments are reported apart, never pooled with single levels.
-pub fn is_segment(target: &str) -> bool {
-    target == SEGMENT_TARGET || target.ends_with("-segment")
-}
+pub use crate::study::config::is_segment;
 
 /// One target's ratio on its fixed landmark set.
 #[derive(Debug, Clone, PartialEq)]
