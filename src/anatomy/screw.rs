@@ -193,9 +193,54 @@ fn frame_along(dir: DVec3) -> DMat3 {
     DMat3::from_cols(x, y, dir)
 }
 
+/// A planned screw: its name (the entry landmark's name without `pedicle_entry`), entry and tip (world mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedScrew {
+    pub name: String,
+    pub entry: DVec3,
+    pub tip: DVec3,
+}
+
+/// The planned screws among `points`: each `PREFIXpedicle_entry` with a `PREFIXpedicle_tip`, in name order.
+pub fn planned_screws(points: &[(String, DVec3)]) -> Vec<PlannedScrew> {
+    let mut out: Vec<PlannedScrew> = points
+        .iter()
+        .filter_map(|(n, entry)| {
+            let prefix = n.strip_suffix("pedicle_entry")?;
+            let tip_name = format!("{prefix}pedicle_tip");
+            let (_, tip) = points.iter().find(|(m, _)| *m == tip_name)?;
+            Some(PlannedScrew {
+                name: prefix.trim_end_matches(['_', '-']).to_string(),
+                entry: *entry,
+                tip: *tip,
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| a.name.cmp(&b.name));
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn screws_pair_each_entry_with_the_tip_of_its_prefix() {
+        let p = |x: f64| DVec3::new(x, 0.0, 0.0);
+        let points = vec![
+            ("L2/right_pedicle_tip".to_string(), p(4.0)),
+            ("left_pedicle_entry".to_string(), p(1.0)),
+            ("L2/right_pedicle_entry".to_string(), p(3.0)),
+            ("left_pedicle_tip".to_string(), p(2.0)),
+            ("left_pedicle_isthmus".to_string(), p(9.0)),
+            ("right_pedicle_entry".to_string(), p(5.0)),
+        ];
+        let s = planned_screws(&points);
+        let names: Vec<&str> = s.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["L2/right", "left"]);
+        assert_eq!((s[0].entry, s[0].tip), (p(3.0), p(4.0)));
+        assert_eq!((s[1].entry, s[1].tip), (p(1.0), p(2.0)));
+    }
 
     #[test]
     fn the_screw_is_closed_and_its_volume_lies_between_core_and_major_cylinders() {

@@ -135,6 +135,12 @@ fn render_inputs(a: &Args) -> anyhow::Result<Vec<(String, PathBuf)>> {
         let (path, _) = split_mesh_spec(spec, 0.0)?;
         v.push((format!("the --implant file {}", path.display()), path));
     }
+    if let Some(path) = &a.spectral.screws_at {
+        v.push((
+            format!("the --screws-at file {}", path.display()),
+            path.clone(),
+        ));
+    }
     if let Some(spec) = &a.spectral.spectrum {
         let path = PathBuf::from(spec);
         if path.is_file() {
@@ -204,10 +210,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let model = a.spectral.model()?;
     if a.ct.ct.is_some() {
-        if !a.spectral.implant.is_empty() || a.spectral.screws {
+        if !a.spectral.implant.is_empty() || a.spectral.screws || a.spectral.screws_at.is_some() {
             bail!(
-                "--implant and --screws place implants among meshes and the phantom; implants in a CT are \
-                 not supported yet"
+                "--implant, --screws and --screws-at place implants among meshes and the phantom; implants \
+                 in a CT are not supported yet"
             );
         }
         return super::render_ct::run_ct(&a.ct, &run, model);
@@ -220,6 +226,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             mu_default: a.mu_default,
             implants: &a.spectral.implant,
             screws: a.spectral.screws,
+            screws_at: a.spectral.screws_at.as_deref(),
         };
         return super::render_spectral::run_spectral(&scene, model, a.backend, &run);
     }

@@ -5,10 +5,13 @@ use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use serde_json::json;
-use spinedrr::anatomy::{PhantomOptions, TriMesh, build_phantom, parse_levels};
+use spinedrr::anatomy::screw::planned_screws;
+use spinedrr::anatomy::{
+    Landmarks, PhantomOptions, TriMesh, build_phantom, parse_levels, read_landmarks,
+};
 use spinedrr::io::{DrrProducts, write_drr_set};
 use spinedrr::render::{
-    Backend, SpectralInput, SpectralRenderer, SpectralScene, add_pedicle_screws,
+    Backend, SpectralInput, SpectralRenderer, SpectralScene, add_pedicle_screws, add_screws,
     phantom_spectral_scene,
 };
 use spinedrr::spectral::{Attenuation, Channel, SpectralModel, model_from_specs};
@@ -59,6 +62,12 @@ pub struct SpectralArgs {
     /// 12 × 14 mm tulip head on the entry point. They displace the bone and tissue they occupy.
     #[arg(long, requires = "spectrum", requires = "phantom")]
     pub screws: bool,
+    /// With --spectrum: a titanium pedicle screw (the --screws screw) along every planned trajectory of a
+    /// landmark file (JSON, Slicer markups, CSV; world mm): each `PREFIXpedicle_entry` with the
+    /// `PREFIXpedicle_tip` of the same prefix (e.g. `left_pedicle_entry` → `left_pedicle_tip`), the tip at
+    /// the tip point. For --mesh scenes (a user's vertebra) or beside --screws.
+    #[arg(long, value_name = "FILE", requires = "spectrum")]
+    pub screws_at: Option<std::path::PathBuf>,
 }
 
 impl SpectralArgs {
@@ -86,6 +95,7 @@ pub struct SceneSpec<'a> {
     pub mu_default: f64,
     pub implants: &'a [String],
     pub screws: bool,
+    pub screws_at: Option<&'a Path>,
 }
 
 /// The spectral scene and its description for the sidecar.
@@ -136,6 +146,28 @@ fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Valu
             );
         };
         scene.add_implant(Arc::new(load_mesh(&path)?), stem(&path), material);
+    }
+    if let Some(path) = s.screws_at {
+        let sets =
+            read_landmarks(path).with_context(|| format!("--screws-at {}", path.display()))?;
+        let several = sets.len() > 1;
+        let screws = planned_screws(&Landmarks::named_points(sets, several));
+        if screws.is_empty() {
+            bail!(
+                "--screws-at {}: no planned screw — name each trajectory's points PREFIXpedicle_entry and \
+                 PREFIXpedicle_tip (e.g. left_pedicle_entry, left_pedicle_tip)",
+                path.display()
+            );
+        }
+        add_screws(&mut scene, &screws)
+            .with_context(|| format!("--screws-at {}", path.display()))?;
+        anatomy["screws_at"] = json!({
+            "file": path.display().to_string(),
+            "screws": screws
+                .iter()
+                .map(|s| json!({"name": s.name, "entry": s.entry.to_array(), "tip": s.tip.to_array()}))
+                .collect::<Vec<_>>(),
+        });
     }
     anatomy["implants"] = json!(s.implants);
     anatomy["meshes"] = describe(&scene);

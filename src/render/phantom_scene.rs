@@ -9,7 +9,7 @@ use std::sync::Arc;
 use super::spectral::{SpectralMesh, SpectralScene};
 use super::{RenderScene, SceneMesh};
 use crate::Result;
-use crate::anatomy::screw::ScrewSpec;
+use crate::anatomy::screw::{PlannedScrew, ScrewSpec};
 use crate::anatomy::{Phantom, Tissue, tissue_hu, tissue_mu};
 use crate::spectral::MaterialAt;
 
@@ -126,9 +126,10 @@ pub fn phantom_spectral_scene(p: &Phantom) -> Result<SpectralScene> {
 }
 
 /// Two titanium (Ti-6Al-4V) pedicle screws per level ([`ScrewSpec::default`]) along the phantom's planned
-/// trajectories (each side's `pedicle_entry` to `pedicle_tip`), added to `scene` as implants.
+/// trajectories (each side's `pedicle_entry` to `pedicle_tip`), added to `scene` as implants named
+/// `<level>_screw_<side>`.
 pub fn add_pedicle_screws(scene: &mut SpectralScene, phantom: &Phantom) -> Result<()> {
-    let titanium = MaterialAt::parse("titanium")?;
+    let mut screws = Vec::new();
     for targets in phantom.pedicle_targets() {
         for side in ["left", "right"] {
             let at = |what: &str| {
@@ -137,11 +138,24 @@ pub fn add_pedicle_screws(scene: &mut SpectralScene, phantom: &Phantom) -> Resul
                     crate::Error::invalid("pedicle targets", format!("{}: no {key}", targets.level))
                 })
             };
-            let name = format!("{}_screw_{side}", targets.level);
-            let (shank, head) = ScrewSpec::default().meshes(&name, at("entry")?, at("tip")?)?;
-            scene.add_implant(Arc::new(shank), name.clone(), titanium);
-            scene.add_implant(Arc::new(head), name, titanium);
+            screws.push(PlannedScrew {
+                name: format!("{}_screw_{side}", targets.level),
+                entry: at("entry")?,
+                tip: at("tip")?,
+            });
         }
+    }
+    add_screws(scene, &screws)
+}
+
+/// Titanium (Ti-6Al-4V) screws of [`ScrewSpec::default`] along `screws` (entry to tip), added to `scene`
+/// as implants named after each screw.
+pub fn add_screws(scene: &mut SpectralScene, screws: &[PlannedScrew]) -> Result<()> {
+    let titanium = MaterialAt::parse("titanium")?;
+    for s in screws {
+        let (shank, head) = ScrewSpec::default().meshes(&s.name, s.entry, s.tip)?;
+        scene.add_implant(Arc::new(shank), s.name.clone(), titanium);
+        scene.add_implant(Arc::new(head), s.name.clone(), titanium);
     }
     Ok(())
 }

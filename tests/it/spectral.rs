@@ -493,3 +493,98 @@ fn a_ct_block_renders_as_the_same_block_of_material_meshes() {
         assert!(covered > 500, "{covered}");
     }
 }
+
+#[test]
+fn screws_at_a_users_landmarks_are_the_screws_given_as_implant_meshes() {
+    let d = tempfile::tempdir().unwrap();
+    let c = s(&cube(d.path(), "c.stl", DVec3::ZERO, 30.0));
+    let (entry, tip) = (DVec3::new(2.0, 25.0, 4.0), DVec3::new(-3.0, -15.0, 6.0));
+    let plan = d.path().join("plan.json");
+    let set = spinedrr::anatomy::Landmarks {
+        level: "L4".into(),
+        points: [
+            ("left_pedicle_entry".to_string(), entry),
+            ("left_pedicle_tip".to_string(), tip),
+            ("center".to_string(), DVec3::ZERO),
+        ]
+        .into_iter()
+        .collect(),
+    };
+    spinedrr::anatomy::write_landmarks(&plan, &[set]).unwrap();
+    let (shank, head) = spinedrr::anatomy::screw::ScrewSpec::default()
+        .meshes("left", entry, tip)
+        .unwrap();
+    let (shank_path, head_path) = (d.path().join("shank.stl"), d.path().join("head.stl"));
+    spinedrr::anatomy::write_mesh(&shank_path, &shank).unwrap();
+    spinedrr::anatomy::write_mesh(&head_path, &head).unwrap();
+    let run = |extra: &[String], out: &str| {
+        let o = d.path().join(out);
+        let mut args: Vec<String> = [
+            "render",
+            "--mesh",
+            &format!("{c}:soft_tissue"),
+            "--view",
+            "ap",
+            "--spectrum",
+            "80",
+        ]
+        .map(String::from)
+        .to_vec();
+        args.extend(extra.iter().cloned());
+        args.extend(["--out".to_string(), s(&o)]);
+        let (ok, err) = crate::common::run(&args);
+        assert!(ok, "{err}");
+        (read_tiff_f32(&o).unwrap().data, o)
+    };
+    let (planned, o) = run(&["--screws-at".into(), s(&plan)], "planned.tiff");
+    let (meshes, _) = run(
+        &[
+            "--implant".into(),
+            format!("{}:titanium", s(&shank_path)),
+            "--implant".into(),
+            format!("{}:titanium", s(&head_path)),
+        ],
+        "meshes.tiff",
+    );
+    let (plain, _) = run(&[], "plain.tiff");
+    // The same screw, once from the plan and once through STL files (f32 vertices): the same image.
+    let worst = planned
+        .iter()
+        .zip(&meshes)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-3, "largest difference {worst}");
+    let screw_pixels = planned
+        .iter()
+        .zip(&plain)
+        .filter(|(a, b)| **a > **b + 0.1)
+        .count();
+    assert!(screw_pixels > 100, "{screw_pixels} pixels show the screw");
+    let sc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(o.with_extension("json")).unwrap()).unwrap();
+    let screws = &sc["details"]["anatomy"]["screws_at"]["screws"];
+    assert_eq!(screws.as_array().unwrap().len(), 1);
+    assert_eq!(screws[0]["name"], "left");
+    // A plan without a trajectory, and a CT, are refused by name.
+    let empty = d.path().join("empty.json");
+    let set = spinedrr::anatomy::Landmarks {
+        level: "L4".into(),
+        points: [("center".to_string(), DVec3::ZERO)].into_iter().collect(),
+    };
+    spinedrr::anatomy::write_landmarks(&empty, &[set]).unwrap();
+    let out = s(&d.path().join("x.tiff"));
+    refused(
+        &[
+            "render",
+            "--mesh",
+            &format!("{c}:soft_tissue"),
+            "--spectrum",
+            "80",
+            "--screws-at",
+            &s(&empty),
+            "--out",
+            &out,
+        ],
+        &["--screws-at", "pedicle_entry"],
+    );
+}

@@ -64,7 +64,7 @@ fn drawn_screws_obey_the_projection_laws_and_navigated_ones_the_tracking_experim
     assert_eq!(t.screws.len(), 2 * 2 * 6);
     assert_eq!(t.screw_navigation.len(), 2 * 6);
     for view in ["ap", "lat"] {
-        let path = out.join(format!("references/screws_L1_{view}_spectral.tiff"));
+        let path = out.join(format!("references/screws/L1_{view}_spectral.tiff"));
         let side = Sidecar::read(&sidecar_path(&path)).unwrap();
         let p = side.p.expect("P in the sidecar");
         let k = side.k;

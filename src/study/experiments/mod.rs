@@ -15,7 +15,7 @@ mod projection;
 pub use projection::OUTLINE_KEY;
 mod registration;
 mod screws;
-pub use screws::{PlannedScrew, SCREWS_KEY, planned_screws, screw_image_path};
+pub use screws::{SCREWS_KEY, screw_image_path};
 mod tracking;
 
 use std::collections::BTreeMap;

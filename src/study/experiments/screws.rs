@@ -21,6 +21,7 @@ use glam::{DVec2, DVec3};
 use serde_json::json;
 
 use super::{Context, REFERENCES_DIR, Target};
+use crate::anatomy::screw::{PlannedScrew, planned_screws};
 use crate::geometry::{Perturbation, RigidTransform, View};
 use crate::io::{Sidecar, sidecar_path, write_tiff_f32};
 use crate::registration::{Method, RegistrationOptions, RegistrationProblem, register};
@@ -32,33 +33,6 @@ use crate::{Error, Result};
 
 /// The truth: targets are built where the views aim.
 const TRUTH: RigidTransform = RigidTransform::IDENTITY;
-
-/// A planned screw: its name (the entry landmark's name without `pedicle_entry`), entry and tip (world mm).
-#[derive(Debug, Clone, PartialEq)]
-pub struct PlannedScrew {
-    pub name: String,
-    pub entry: DVec3,
-    pub tip: DVec3,
-}
-
-/// The planned screws among `points`: each `PREFIXpedicle_entry` with a `PREFIXpedicle_tip`, in name order.
-pub fn planned_screws(points: &[(String, DVec3)]) -> Vec<PlannedScrew> {
-    let mut out: Vec<PlannedScrew> = points
-        .iter()
-        .filter_map(|(n, entry)| {
-            let prefix = n.strip_suffix("pedicle_entry")?;
-            let tip_name = format!("{prefix}pedicle_tip");
-            let (_, tip) = points.iter().find(|(m, _)| *m == tip_name)?;
-            Some(PlannedScrew {
-                name: prefix.trim_end_matches(['_', '-']).to_string(),
-                entry: *entry,
-                tip: *tip,
-            })
-        })
-        .collect();
-    out.sort_by(|a, b| a.name.cmp(&b.name));
-    out
-}
 
 /// The unsigned angle (degrees) between two 2-D directions; NaN when either is shorter than `min`.
 fn angle_2d_deg(a: DVec2, b: DVec2, min: f64) -> f64 {
@@ -93,10 +67,11 @@ fn navigate(t: &Target, truth: &[View], assumed: &[View]) -> Option<(RigidTransf
     solve().ok()
 }
 
-/// `references/screws_<target>_<view>_<model>.tiff` (`model`: `mono` or `spectral`).
+/// `references/screws/<target>_<view>_<model>.tiff` (`model`: `mono` or `spectral`).
 pub fn screw_image_path(out: &Path, target: &str, view: &str, model: &str) -> PathBuf {
     out.join(REFERENCES_DIR)
-        .join(format!("screws_{target}_{view}_{model}.tiff"))
+        .join("screws")
+        .join(format!("{target}_{view}_{model}.tiff"))
 }
 
 /// The sidecar key of the spectral screw image's planned screws (`[{name, entry, tip}]`, world mm).
@@ -135,6 +110,9 @@ fn write_images(ctx: &Context, t: &Target, screws: &[PlannedScrew], views: &[Vie
             ),
         ] {
             let path = screw_image_path(&ctx.out, &t.name, &view.name, model);
+            if let Some(dir) = path.parent() {
+                std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
+            }
             write_tiff_f32(&path, image)?;
             let mut side = Sidecar::new("drr", units, view, &Perturbation::NONE)?;
             side.details.insert("target".into(), t.name.clone().into());
@@ -248,24 +226,6 @@ fn intrinsic_values(family: Family, q: &Perturbation) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn screws_pair_each_entry_with_the_tip_of_its_prefix() {
-        let p = |x: f64| DVec3::new(x, 0.0, 0.0);
-        let points = vec![
-            ("L2/right_pedicle_tip".to_string(), p(4.0)),
-            ("left_pedicle_entry".to_string(), p(1.0)),
-            ("L2/right_pedicle_entry".to_string(), p(3.0)),
-            ("left_pedicle_tip".to_string(), p(2.0)),
-            ("left_pedicle_isthmus".to_string(), p(9.0)),
-            ("right_pedicle_entry".to_string(), p(5.0)),
-        ];
-        let s = planned_screws(&points);
-        let names: Vec<&str> = s.iter().map(|s| s.name.as_str()).collect();
-        assert_eq!(names, ["L2/right", "left"]);
-        assert_eq!((s[0].entry, s[0].tip), (p(3.0), p(4.0)));
-        assert_eq!((s[1].entry, s[1].tip), (p(1.0), p(2.0)));
-    }
 
     #[test]
     fn the_2d_angle_is_unsigned_and_undefined_for_a_point() {

@@ -22,7 +22,9 @@ use crate::study::experiments::{SCREWS_KEY, screw_image_path};
 use crate::study::schema::{ScrewRow, StudyTables};
 
 const PANE: u32 = 470;
-const TITLE_H: u32 = 34;
+/// Blank margin around and between the panes (nothing is drawn to the canvas edge).
+const M: u32 = 12;
+const TITLE_H: u32 = 40;
 const HEAD_H: u32 = 50;
 const FOOT_H: u32 = 64;
 const FONT: u32 = 17;
@@ -189,7 +191,7 @@ fn pane(img: &ImageF32, corner: DVec2, side: f64) -> RgbImage {
 impl Figure for ScrewFigure {
     fn size(&self) -> (u32, u32) {
         (
-            2 * PANE,
+            2 * PANE + 3 * M,
             TITLE_H + (HEAD_H + PANE) * self.views.len() as u32 + FOOT_H,
         )
     }
@@ -208,50 +210,46 @@ impl Figure for ScrewFigure {
                 "{}: monochromatic DRR beside the spectral radiograph with screws",
                 self.target
             ),
-            10,
-            6,
+            M as i32,
+            12,
             22,
             BLACK,
         )?;
         let mut rasters = Vec::new();
         for (k, (v, corner)) in self.views.iter().zip(&self.corners).enumerate() {
             let y0 = TITLE_H + k as u32 * (HEAD_H + PANE);
+            let (left, right) = (M as i32, (2 * M + PANE) as i32);
+            let head = y0 as i32 + 4;
             text(
                 &format!("{}: monochromatic DRR (μ·L)", v.name),
-                10,
-                y0 as i32 + 4,
+                left,
+                head,
                 FONT,
                 BLACK,
             )?;
             text(
                 &format!("{}: spectral, with screws", v.name),
-                PANE as i32 + 10,
-                y0 as i32 + 4,
+                right,
+                head,
                 FONT,
                 BLACK,
             )?;
-            text(
-                &self.technique,
-                PANE as i32 + 10,
-                y0 as i32 + 26,
-                FONT - 3,
-                BLACK,
-            )?;
+            text(&self.technique, right, head + 22, FONT - 3, BLACK)?;
             let top = (y0 + HEAD_H) as i32;
             rasters.push(Raster {
-                x: 0,
+                x: left,
                 y: top,
                 image: pane(&v.mono, *corner, self.side_px),
             });
             rasters.push(Raster {
-                x: PANE as i32,
+                x: right,
                 y: top,
                 image: pane(&v.spectral, *corner, self.side_px),
             });
             let s = f64::from(PANE) / self.side_px;
             let at = |p: DVec2| {
                 let q = (p - *corner) * s;
-                (PANE as i32 + q.x.round() as i32, top + q.y.round() as i32)
+                (right + q.x.round() as i32, top + q.y.round() as i32)
             };
             for (truth, drawn) in &v.axes {
                 root.draw(&PathElement::new(
@@ -280,14 +278,14 @@ impl Figure for ScrewFigure {
                 "green: each screw's axis (entry → tip) where it is; red: drawn under {}",
                 self.drawn_under
             ),
-            10,
+            M as i32,
             y + 8,
             FONT - 1,
             BLACK,
         )?;
         text(
             &format!("every pane shows a window of {window}: both views at one scale"),
-            10,
+            M as i32,
             y + 34,
             FONT - 1,
             BLACK,

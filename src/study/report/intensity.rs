@@ -88,7 +88,6 @@ counts of a few starts, not rates)",
         .cloned()
         .collect();
     comparison(md, &mono, pitch);
-    super::intensity_spectral::section(md, cfg, rows, pitch);
 }
 
 /// The physical errors of the section in words (empty without any).
@@ -338,7 +337,7 @@ pose that the landmark registration under the same K does not show. ",
 }
 
 /// A capture range as the table prints it: not stated (NaN) below [`CAPTURE_MIN_STARTS`] starts per bin.
-pub(super) fn capture(mm: f64) -> String {
+fn capture(mm: f64) -> String {
     if mm.is_nan() {
         format!("not stated (< {CAPTURE_MIN_STARTS} starts per bin)")
     } else {

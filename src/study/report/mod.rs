@@ -154,6 +154,7 @@ configuration is `study.toml`.\n",
     calibration::section(&mut md, cfg, tables, &figs, &mut n);
     calibration_physical::section(&mut md, &tables.calibration_physical, &tables.calibration);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
+    intensity_spectral::section(&mut md, cfg, &tables.intensity_summary, pitch);
     tracking::section(&mut md, cfg, &tables.tracking, &first);
     screws::section(
         &mut md,
