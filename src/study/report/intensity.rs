@@ -37,6 +37,14 @@ pub fn section(
                 .to_string()
         }
     };
+    let fixed = if s.images.iter().any(|i| i.is_spectral()) {
+        format!(
+            "{fixed} (monochromatic in the table's `mono` rows; the spectral rows are compared in *Spectral \
+fixed images* below)"
+        )
+    } else {
+        fixed
+    };
     let noise = if s.photons > 0.0 {
         format!(
             "through the X-ray image model (Poisson noise at I0 = {} photons per pixel, Gaussian blur σ = {} px, log conversion)",
