@@ -185,8 +185,10 @@ impl IntensityCell {
 
 impl IntensitySection {
     /// The quick grid's section: the last view set, Δf {0, 300} without piercing, one start in 0–5 mm,
-    /// the pyramid's binning divided by `extra_binning` (the quick grid's coarser detector), so its
-    /// pixels stay the same size.
+    /// the first fixed-image model only (a spectral one with screws, whose starts fail, costs five times
+    /// a monochromatic one; its technique is still validated and the screws experiment renders it), the
+    /// pyramid's binning divided by `extra_binning` (the quick grid's coarser detector), so its pixels
+    /// stay the same size.
     pub fn quick(&self, extra_binning: u32) -> Self {
         let mut levels: Vec<u32> = self
             .levels
@@ -202,6 +204,7 @@ impl IntensitySection {
             df_px: vec![0.0, 300.0],
             piercing_px: vec![0.0],
             physical: self.physical.first_only(),
+            images: self.images.first().copied().into_iter().collect(),
             ..self.clone()
         }
     }

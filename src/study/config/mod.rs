@@ -278,8 +278,8 @@ impl StudyConfig {
 
     /// This study's targets, views and settings on the quick grid: 2× binned detector (unless already
     /// coarser), Δf {100, 500}, piercing {0, 50}, registration at Δf {0, 100, 500} × piercing {0, 50} with
-    /// 3 trials, intensity registration of the last view set at Δf {0, 300}, one start in 0–5 mm — a
-    /// smoke test of a config before its full run.
+    /// 3 trials, intensity registration of the last view set at Δf {0, 300}, one start in 0–5 mm, the first
+    /// fixed-image model — a smoke test of a config before its full run.
     pub fn with_quick_grid(self) -> Self {
         let intensity_registration = self
             .intensity_registration
