@@ -210,13 +210,19 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let model = a.spectral.model()?;
     if a.ct.ct.is_some() {
-        if !a.spectral.implant.is_empty() || a.spectral.screws || a.spectral.screws_at.is_some() {
-            bail!(
-                "--implant, --screws and --screws-at place implants among meshes and the phantom; implants \
-                 in a CT are not supported yet"
-            );
-        }
-        return super::render_ct::run_ct(&a.ct, &run, model);
+        let (implants, placed) = super::render_spectral::implant_meshes(
+            &a.spectral.implant,
+            a.spectral.screws_at.as_deref(),
+        )?;
+        let implants = super::render_ct::CtImplants {
+            meshes: implants
+                .into_iter()
+                .map(|(_, m, material)| (m, material))
+                .collect(),
+            placed,
+            backend: a.backend,
+        };
+        return super::render_ct::run_ct(&a.ct, &run, model, implants);
     }
     if let Some(model) = model {
         let scene = super::render_spectral::SceneSpec {

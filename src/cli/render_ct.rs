@@ -58,10 +58,26 @@ pub struct CtArgs {
     pub placement: String,
 }
 
+/// The implants of a hybrid CT render (`--implant`, `--screws-at`; with `--spectrum`): meshes with their
+/// materials, the screws placed from a plan (for the sidecar), the mesh backend.
+pub struct CtImplants {
+    pub meshes: Vec<(
+        std::sync::Arc<spinedrr::anatomy::TriMesh>,
+        spinedrr::spectral::MaterialAt,
+    )>,
+    pub placed: Option<serde_json::Value>,
+    pub backend: spinedrr::render::Backend,
+}
+
 /// Renders the CT DRR of `run.view` under `run.perturbation` to `run.out` (float32 TIFF of
 /// `run.values`), with its JSON sidecar and an 8-bit PNG preview beside it; with `run.repeat > 1` prints
 /// the timing statistics as one JSON line on stderr.
-pub fn run_ct(a: &CtArgs, run: &RenderRun, model: Option<SpectralModel>) -> anyhow::Result<()> {
+pub fn run_ct(
+    a: &CtArgs,
+    run: &RenderRun,
+    model: Option<SpectralModel>,
+    implants: CtImplants,
+) -> anyhow::Result<()> {
     let Some(ct_path) = &a.ct else {
         bail!("--ct is required for a CT render");
     };
@@ -124,15 +140,29 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun, model: Option<SpectralModel>) -> anyh
         );
     }
     // With --spectrum: soft-tissue and cortical-bone density grids, one Siddon render each, the energy sum.
+    // Implants are given in the CT file's world (like its landmarks) and move with it.
+    let motion = placed.motion();
+    let moved: Vec<_> = implants
+        .meshes
+        .iter()
+        .map(|(mesh, material)| {
+            let mut m = (**mesh).clone();
+            m.transform(&motion);
+            (std::sync::Arc::new(m), *material)
+        })
+        .collect();
     let spectral = model
-        .map(|m| SpectralCtRenderer::new(&renderer, &ct.values, m))
+        .map(|m| {
+            SpectralCtRenderer::new(&renderer, &ct.values, m)?
+                .with_implants(&moved, implants.backend)
+        })
         .transpose()?;
     let mut times = Vec::with_capacity(run.repeat as usize);
     let mut img = None;
     for _ in 0..run.repeat {
         let start = Instant::now();
         img = Some(match &spectral {
-            Some(s) => s.render(run.rendered).line_integral,
+            Some(s) => s.render(run.rendered)?.line_integral,
             None => renderer.render(run.rendered),
         });
         times.push(start.elapsed().as_secs_f64() * 1e3);
@@ -201,7 +231,13 @@ pub fn run_ct(a: &CtArgs, run: &RenderRun, model: Option<SpectralModel>) -> anyh
         bone_hu: a.bone_hu,
         placement: placed,
         render: renderer.details(),
-        spectral: spectral.as_ref().map(|s| s.summary()),
+        spectral: spectral.as_ref().map(|s| {
+            let mut summary = s.summary();
+            if let Some(p) = &implants.placed {
+                summary["screws_at"] = p.clone();
+            }
+            summary
+        }),
     };
     write_drr(
         run.out,

@@ -11,10 +11,10 @@ use spinedrr::anatomy::{
 };
 use spinedrr::io::{DrrProducts, write_drr_set};
 use spinedrr::render::{
-    Backend, SpectralInput, SpectralRenderer, SpectralScene, add_pedicle_screws, add_screws,
-    phantom_spectral_scene,
+    Backend, SpectralInput, SpectralRenderer, SpectralScene, add_pedicle_screws,
+    phantom_spectral_scene, screw_implants,
 };
-use spinedrr::spectral::{Attenuation, Channel, SpectralModel, model_from_specs};
+use spinedrr::spectral::{Attenuation, Channel, MaterialAt, SpectralModel, model_from_specs};
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
@@ -52,8 +52,10 @@ pub struct SpectralArgs {
     )]
     pub detector: String,
     /// With --spectrum: an implant mesh, FILE:MATERIAL[@DENSITY] (e.g. screw.stl:titanium). Along every ray
-    /// it displaces whatever it occupies (phantom tissue or --mesh surfaces), so the tissue under it is not
-    /// counted twice. Repeat for several implants.
+    /// it displaces whatever it occupies (phantom tissue, --mesh surfaces, or a --ct's voxels: each CT
+    /// material's Siddon integral over the implant's stretch of the ray is subtracted), so the tissue under
+    /// it is not counted twice. With --ct it is in the CT file's world coordinates and moves with the CT's
+    /// --placement. Repeat for several implants.
     #[arg(long, value_name = "FILE:MATERIAL", requires = "spectrum")]
     pub implant: Vec<String>,
     /// With --spectrum and --phantom: two titanium (Ti-6Al-4V) pedicle screws per level, along each
@@ -65,7 +67,8 @@ pub struct SpectralArgs {
     /// With --spectrum: a titanium pedicle screw (the --screws screw) along every planned trajectory of a
     /// landmark file (JSON, Slicer markups, CSV; world mm): each `PREFIXpedicle_entry` with the
     /// `PREFIXpedicle_tip` of the same prefix (e.g. `left_pedicle_entry` → `left_pedicle_tip`), the tip at
-    /// the tip point. For --mesh scenes (a user's vertebra) or beside --screws.
+    /// the tip point. For --mesh scenes (a user's vertebra), a --ct (the plan in the CT file's world
+    /// coordinates, moved with its --placement) or beside --screws.
     #[arg(long, value_name = "FILE", requires = "spectrum")]
     pub screws_at: Option<std::path::PathBuf>,
 }
@@ -138,40 +141,59 @@ fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Valu
         }
         (scene, json!({"files": s.meshes}))
     };
-    for spec in s.implants {
+    let (implants, placed) = implant_meshes(s.implants, s.screws_at)?;
+    for (object, mesh, material) in implants {
+        scene.add_implant(mesh, object, material);
+    }
+    if let Some(p) = placed {
+        anatomy["screws_at"] = p;
+    }
+    anatomy["implants"] = json!(s.implants);
+    anatomy["meshes"] = describe(&scene);
+    Ok((scene, anatomy))
+}
+
+/// Implants as (object, mesh, material).
+pub type Implants = Vec<(String, Arc<TriMesh>, MaterialAt)>;
+
+/// The implants of `--implant FILE:MATERIAL` and `--screws-at PLAN`, and the screws placed from the plan
+/// (for the sidecar).
+pub fn implant_meshes(
+    implants: &[String],
+    screws_at: Option<&Path>,
+) -> anyhow::Result<(Implants, Option<serde_json::Value>)> {
+    let mut out = Vec::new();
+    for spec in implants {
         let (path, value) = split_mesh_spec(spec, 0.0)?;
         let Attenuation::Material(material) = value else {
             bail!(
                 "--implant {spec}: give the implant's material, FILE:MATERIAL[@DENSITY] (e.g. :titanium)"
             );
         };
-        scene.add_implant(Arc::new(load_mesh(&path)?), stem(&path), material);
+        out.push((stem(&path), Arc::new(load_mesh(&path)?), material));
     }
-    if let Some(path) = s.screws_at {
-        let sets =
-            read_landmarks(path).with_context(|| format!("--screws-at {}", path.display()))?;
-        let several = sets.len() > 1;
-        let screws = planned_screws(&Landmarks::named_points(sets, several));
-        if screws.is_empty() {
-            bail!(
-                "--screws-at {}: no planned screw — name each trajectory's points PREFIXpedicle_entry and \
-                 PREFIXpedicle_tip (e.g. left_pedicle_entry, left_pedicle_tip)",
-                path.display()
-            );
-        }
-        add_screws(&mut scene, &screws)
-            .with_context(|| format!("--screws-at {}", path.display()))?;
-        anatomy["screws_at"] = json!({
-            "file": path.display().to_string(),
-            "screws": screws
-                .iter()
-                .map(|s| json!({"name": s.name, "entry": s.entry.to_array(), "tip": s.tip.to_array()}))
-                .collect::<Vec<_>>(),
-        });
+    let Some(path) = screws_at else {
+        return Ok((out, None));
+    };
+    let sets = read_landmarks(path).with_context(|| format!("--screws-at {}", path.display()))?;
+    let several = sets.len() > 1;
+    let screws = planned_screws(&Landmarks::named_points(sets, several));
+    if screws.is_empty() {
+        bail!(
+            "--screws-at {}: no planned screw — name each trajectory's points PREFIXpedicle_entry and \
+             PREFIXpedicle_tip (e.g. left_pedicle_entry, left_pedicle_tip)",
+            path.display()
+        );
     }
-    anatomy["implants"] = json!(s.implants);
-    anatomy["meshes"] = describe(&scene);
-    Ok((scene, anatomy))
+    out.extend(screw_implants(&screws).with_context(|| format!("--screws-at {}", path.display()))?);
+    let placed = json!({
+        "file": path.display().to_string(),
+        "screws": screws
+            .iter()
+            .map(|s| json!({"name": s.name, "entry": s.entry.to_array(), "tip": s.tip.to_array()}))
+            .collect::<Vec<_>>(),
+    });
+    Ok((out, Some(placed)))
 }
 
 fn stem(path: &Path) -> String {

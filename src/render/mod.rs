@@ -22,7 +22,9 @@ mod tracer;
 pub mod volume;
 
 pub use backend::Backend;
-pub use phantom_scene::{add_pedicle_screws, add_screws, phantom_scene, phantom_spectral_scene};
+pub use phantom_scene::{
+    add_pedicle_screws, add_screws, phantom_scene, phantom_spectral_scene, screw_implants,
+};
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh, orient_outward_warning};
 pub use spectral::{
     SpectralDrr, SpectralInput, SpectralMesh, SpectralRenderer, SpectralScene, displace_nested,

@@ -96,17 +96,7 @@ pub(crate) fn integrate_crossings(
     crossings: &mut [Crossing],
     structures: bool,
 ) -> RayIntegral {
-    // Few crossings per ray: an insertion sort by (mesh, distance) beats the general sort.
-    for i in 1..crossings.len() {
-        let c = crossings[i];
-        let mut j = i;
-        while j > 0 && before(&c, &crossings[j - 1]) {
-            crossings[j] = crossings[j - 1];
-            j -= 1;
-        }
-        crossings[j] = c;
-    }
-
+    sort_crossings(crossings);
     let mut out = RayIntegral {
         first_t: f64::INFINITY,
         valid: true,
@@ -128,6 +118,51 @@ pub(crate) fn integrate_crossings(
         mark_silhouette(scene, g, group, length, structures, &mut out);
     }
     out
+}
+
+/// Sorts crossings by (mesh, distance): few per ray, so an insertion sort beats the general sort.
+fn sort_crossings(crossings: &mut [Crossing]) {
+    for i in 1..crossings.len() {
+        let c = crossings[i];
+        let mut j = i;
+        while j > 0 && before(&c, &crossings[j - 1]) {
+            crossings[j] = crossings[j - 1];
+            j -= 1;
+        }
+        crossings[j] = c;
+    }
+}
+
+/// The union of every mesh's inside intervals along one ray from its raw hits (sorted, disjoint, `t` in
+/// mm from the origin), and whether every mesh's crossings paired up. `scratch` is reused between calls.
+pub(crate) fn union_intervals(
+    scene: &RenderScene,
+    origin: DVec3,
+    dir: DVec3,
+    raw: &[RawHit],
+    scratch: &mut Vec<Crossing>,
+) -> (Vec<(f64, f64)>, bool) {
+    refine(scene, origin, dir, raw, scratch);
+    sort_crossings(scratch);
+    let mut all = Vec::new();
+    let mut ok = true;
+    for (_, range) in mesh_groups(scratch) {
+        ok &= mesh_intervals(&scratch[range], &mut all);
+    }
+    (merge_intervals(all), ok)
+}
+
+/// Intervals merged into a sorted, disjoint union.
+fn merge_intervals(mut v: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut merged: Vec<(f64, f64)> = Vec::with_capacity(v.len());
+    for (a, b) in v {
+        match merged.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => merged.push((a, b)),
+        }
+    }
+    merged
 }
 
 /// The runs of `crossings` (sorted by mesh, then distance) that belong to one mesh: `(mesh, range)`.
@@ -192,19 +227,13 @@ fn integrate_with_implants(
         out.valid &= mesh_intervals(&crossings[range.clone()], &mut iv);
         groups.push((g, iv, &crossings[range]));
     }
-    let mut union: Vec<(f64, f64)> = groups
-        .iter()
-        .filter(|g| scene.implants[g.0])
-        .flat_map(|g| g.1.iter().copied())
-        .collect();
-    union.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut merged: Vec<(f64, f64)> = Vec::with_capacity(union.len());
-    for (a, b) in union {
-        match merged.last_mut() {
-            Some(last) if a <= last.1 => last.1 = last.1.max(b),
-            _ => merged.push((a, b)),
-        }
-    }
+    let merged = merge_intervals(
+        groups
+            .iter()
+            .filter(|g| scene.implants[g.0])
+            .flat_map(|g| g.1.iter().copied())
+            .collect(),
+    );
     for (g, iv, group) in &groups {
         let length: f64 = iv.iter().map(|(a, b)| b - a).sum();
         let counted = if scene.implants[*g] {

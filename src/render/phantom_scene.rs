@@ -10,7 +10,7 @@ use super::spectral::{SpectralMesh, SpectralScene};
 use super::{RenderScene, SceneMesh};
 use crate::Result;
 use crate::anatomy::screw::{PlannedScrew, ScrewSpec};
-use crate::anatomy::{Phantom, Tissue, tissue_hu, tissue_mu};
+use crate::anatomy::{Phantom, Tissue, TriMesh, tissue_hu, tissue_mu};
 use crate::spectral::MaterialAt;
 
 /// The phantom's meshes with their μ: per vertebra the cortical surface (object = level name) and the
@@ -151,11 +151,21 @@ pub fn add_pedicle_screws(scene: &mut SpectralScene, phantom: &Phantom) -> Resul
 /// Titanium (Ti-6Al-4V) screws of [`ScrewSpec::default`] along `screws` (entry to tip), added to `scene`
 /// as implants named after each screw.
 pub fn add_screws(scene: &mut SpectralScene, screws: &[PlannedScrew]) -> Result<()> {
-    let titanium = MaterialAt::parse("titanium")?;
-    for s in screws {
-        let (shank, head) = ScrewSpec::default().meshes(&s.name, s.entry, s.tip)?;
-        scene.add_implant(Arc::new(shank), s.name.clone(), titanium);
-        scene.add_implant(Arc::new(head), s.name.clone(), titanium);
+    for (object, mesh, material) in screw_implants(screws)? {
+        scene.add_implant(mesh, object, material);
     }
     Ok(())
+}
+
+/// The meshes of titanium (Ti-6Al-4V) screws of [`ScrewSpec::default`] along `screws`: per screw its
+/// shank and its tulip head, each as (screw name, mesh, material).
+pub fn screw_implants(screws: &[PlannedScrew]) -> Result<Vec<(String, Arc<TriMesh>, MaterialAt)>> {
+    let titanium = MaterialAt::parse("titanium")?;
+    let mut out = Vec::new();
+    for s in screws {
+        let (shank, head) = ScrewSpec::default().meshes(&s.name, s.entry, s.tip)?;
+        out.push((s.name.clone(), Arc::new(shank), titanium));
+        out.push((s.name.clone(), Arc::new(head), titanium));
+    }
+    Ok(out)
 }

@@ -469,28 +469,67 @@ fn a_ct_block_renders_as_the_same_block_of_material_meshes() {
         input(&mixed_box, "cortical_bone@0.96"),
     ])
     .unwrap();
+    // A pedicle screw through both blocks, its head standing out of the CT's tissue: as an implant of the
+    // material meshes (displacement tested against analytic chords above) and of the CT (each material's
+    // Siddon integral over the screw's intervals subtracted).
+    let (shank, head) = spinedrr::anatomy::screw::ScrewSpec::default()
+        .meshes(
+            "s",
+            DVec3::new(14.0, 0.5, 451.0),
+            DVec3::new(-7.0, -1.0, 452.0),
+        )
+        .unwrap();
+    let ti = spinedrr::spectral::MaterialAt::parse("titanium").unwrap();
+    let implants = vec![(Arc::new(shank), ti), (Arc::new(head), ti)];
+    let mut with_screw = meshes.clone();
+    for (m, material) in &implants {
+        with_screw.add_implant(m.clone(), "s".into(), *material);
+    }
     let view = camera();
     let base = VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), None).unwrap();
     for spec in ["mono:60", "100"] {
         let model = || model_from_specs(spec, "al:2.5", "csi:0.6").unwrap();
-        let from_ct = SpectralCtRenderer::new(&base, &ct.values, model())
-            .unwrap()
-            .render(&view)
-            .line_integral;
-        let from_meshes = SpectralRenderer::new(&meshes, model(), Backend::Raster)
-            .unwrap()
-            .render(&view)
-            .unwrap()
-            .line_integral;
-        let mut covered = 0;
-        for (i, (c, m)) in from_ct.data.iter().zip(&from_meshes.data).enumerate() {
-            covered += usize::from(*m > 0.1);
-            assert!(
-                (c - m).abs() < 2e-4 * m.max(1.0),
-                "{spec} pixel {i}: CT {c} vs meshes {m}"
-            );
+        for screw in [false, true] {
+            let ct_renderer = SpectralCtRenderer::new(&base, &ct.values, model()).unwrap();
+            let ct_renderer = if screw {
+                ct_renderer
+                    .with_implants(&implants, Backend::Raster)
+                    .unwrap()
+            } else {
+                ct_renderer
+            };
+            let from_ct = ct_renderer.render(&view).unwrap().line_integral;
+            let scene = if screw { &with_screw } else { &meshes };
+            let from_meshes = SpectralRenderer::new(scene, model(), Backend::Raster)
+                .unwrap()
+                .render(&view)
+                .unwrap()
+                .line_integral;
+            let mut covered = 0;
+            for (i, (c, m)) in from_ct.data.iter().zip(&from_meshes.data).enumerate() {
+                covered += usize::from(*m > 0.1);
+                assert!(
+                    (c - m).abs() < 2e-4 * m.max(1.0),
+                    "{spec} screw {screw} pixel {i}: CT {c} vs meshes {m}"
+                );
+            }
+            assert!(covered > 500, "{covered}");
+            if screw {
+                // The screw is in view: titanium outweighs the tissue it displaces.
+                let plain = SpectralCtRenderer::new(&base, &ct.values, model())
+                    .unwrap()
+                    .render(&view)
+                    .unwrap()
+                    .line_integral;
+                let brighter = from_ct
+                    .data
+                    .iter()
+                    .zip(&plain.data)
+                    .filter(|(c, p)| **c > **p + 0.5)
+                    .count();
+                assert!(brighter > 100, "{brighter} pixels show the screw");
+            }
         }
-        assert!(covered > 500, "{covered}");
     }
 }
 
@@ -587,4 +626,79 @@ fn screws_at_a_users_landmarks_are_the_screws_given_as_implant_meshes() {
         ],
         &["--screws-at", "pedicle_entry"],
     );
+}
+
+/// A plan in the CT file's coordinates moves with the CT's placement: the screw's tip, moved by the
+/// sidecar's recorded translation and projected through the sidecar's P, lies where the hybrid image is
+/// brighter than the CT alone; the sidecar lists the implants.
+#[test]
+fn screws_at_a_plan_in_a_ct_move_with_its_placement() {
+    use spinedrr::anatomy::ct::{Volume, write_ct};
+    let d = tempfile::tempdir().unwrap();
+    // A 60 mm block of 300 HU in a 64³ grid of 1 mm voxels whose corner is at (100, 50, 20) mm.
+    let affine = glam::DMat4::from_translation(DVec3::new(100.0, 50.0, 20.0));
+    let mut v = Volume::filled([64, 64, 64], -1000.0, affine).unwrap();
+    for k in 2..62 {
+        for j in 2..62 {
+            for i in 2..62 {
+                let n = v.linear(i, j, k);
+                v.values[n] = 300.0;
+            }
+        }
+    }
+    let ct = d.path().join("block.nii.gz");
+    write_ct(&ct, &v).unwrap();
+    let (entry, tip) = (
+        DVec3::new(132.0, 100.0, 52.0),
+        DVec3::new(130.0, 62.0, 50.0),
+    );
+    let plan = d.path().join("plan.json");
+    let set = spinedrr::anatomy::Landmarks {
+        level: "L3".into(),
+        points: [
+            ("right_pedicle_entry".to_string(), entry),
+            ("right_pedicle_tip".to_string(), tip),
+        ]
+        .into_iter()
+        .collect(),
+    };
+    spinedrr::anatomy::write_landmarks(&plan, &[set]).unwrap();
+    let render = |extra: &[&str], out: &str| {
+        let o = d.path().join(out);
+        let mut args = vec!["render", "--ct", ct.to_str().unwrap(), "--view", "ap"];
+        args.extend(["--spectrum", "80", "--out", o.to_str().unwrap()]);
+        args.extend(extra);
+        let (ok, err) = crate::common::run(&args);
+        assert!(ok, "{err}");
+        let side: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(o.with_extension("json")).unwrap())
+                .unwrap();
+        (read_tiff_f32(&o).unwrap(), side)
+    };
+    let (plain, _) = render(&[], "plain.tiff");
+    let (hybrid, side) = render(&["--screws-at", plan.to_str().unwrap()], "hybrid.tiff");
+    let spectral = &side["details"]["spectral"];
+    assert_eq!(
+        spectral["implants"].as_array().unwrap().len(),
+        2,
+        "{spectral}"
+    );
+    assert_eq!(spectral["screws_at"]["screws"][0]["name"], "right");
+    let t: Vec<f64> =
+        serde_json::from_value(side["details"]["placement"]["translation_mm"].clone()).unwrap();
+    let p: [[f64; 4]; 3] = serde_json::from_value(side["P"].clone()).unwrap();
+    // 8 mm back from the tip along the axis, inside the shank.
+    let x = tip + (entry - tip).normalize() * 8.0 + DVec3::new(t[0], t[1], t[2]);
+    let row = |r: &[f64; 4]| r[0] * x.x + r[1] * x.y + r[2] * x.z + r[3];
+    let (u, w) = (row(&p[0]) / row(&p[2]), row(&p[1]) / row(&p[2]));
+    let i = w.round() as usize * hybrid.width as usize + u.round() as usize;
+    assert!(
+        hybrid.data[i] > plain.data[i] + 1.0,
+        "at the moved screw ({u:.1}, {w:.1}): hybrid {} vs CT {}",
+        hybrid.data[i],
+        plain.data[i]
+    );
+    // Far from it the CT is untouched.
+    let far = (hybrid.height as usize / 2) * hybrid.width as usize + 5;
+    assert_eq!(hybrid.data[far], plain.data[far]);
 }

@@ -404,6 +404,17 @@ impl ThicknessRenderer {
         stats
     }
 
+    /// The union of the scene's inside intervals along one ray (world frame, unit `dir`; sorted, disjoint,
+    /// mm from `origin`) and whether every mesh's crossings paired up: where an implant is along the ray.
+    pub fn trace_intervals(&self, origin: DVec3, dir: DVec3) -> (Vec<(f64, f64)>, bool) {
+        let mut packet = crate::render::tracer::RayPacket::default();
+        packet.push(origin, dir);
+        let mut hits: [Vec<crate::render::tracer::RawHit>; crate::render::tracer::PACKET] =
+            Default::default();
+        self.ray_tracer().trace_all(&packet, &mut hits);
+        crate::render::pairing::union_intervals(&self.scene, origin, dir, &hits[0], &mut Vec::new())
+    }
+
     /// Traces one ray (world frame, unit `dir`) and returns its line integral and whether its crossings
     /// paired up without repair. For tools and tests that aim rays at chosen points.
     pub fn trace_ray(&self, origin: DVec3, dir: DVec3) -> (f64, bool) {

@@ -299,6 +299,23 @@ impl VolumeRenderer {
         }
     }
 
+    /// `∫ μ dl` along one world ray (unit direction) over the stretch `a ≤ t ≤ b` (mm from its origin),
+    /// with the renderer's method: what lies in an implant's interval of the ray.
+    pub fn segment_integral(&self, ray: &Ray, a: f64, b: f64) -> f64 {
+        let (p0, dp) = self.index_ray(ray);
+        let Some((t0, t1)) = self.clip(p0, dp) else {
+            return 0.0;
+        };
+        let (t0, t1) = (t0.max(a), t1.min(b));
+        if t0 >= t1 {
+            return 0.0;
+        }
+        match self.method {
+            VolumeMethod::Siddon => siddon::integrate(self, p0, dp, t0, t1),
+            VolumeMethod::Trilinear => trilinear::integrate(self, p0, dp, t0, t1, self.step_mm),
+        }
+    }
+
     /// The DRR of `view`: pixel (u, v) holds the line integral along the ray through its centre.
     /// Rows are rendered in parallel (rayon).
     pub fn render(&self, view: &View) -> ImageF32 {
