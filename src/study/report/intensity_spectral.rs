@@ -22,6 +22,15 @@ fn same_cell(a: &IntensitySummaryRow, b: &IntensitySummaryRow) -> bool {
         && a.physical == b.physical
 }
 
+/// The assumed geometry of a cell in words (the true one named so).
+fn cell_words(r: &IntensitySummaryRow, pitch: Pitch) -> String {
+    if r.df_px == 0.0 && r.piercing_px == 0.0 && r.physical.is_empty() {
+        "the true geometry".to_string()
+    } else {
+        assumed(r, pitch)
+    }
+}
+
 /// Writes the subsection (nothing unless the run has spectral fixed images).
 pub fn section(md: &mut String, cfg: &StudyConfig, rows: &[IntensitySummaryRow], pitch: Pitch) {
     let s = &cfg.intensity_registration;
@@ -56,7 +65,7 @@ mTRE of the intensity optimum (the registration started at the truth) under the 
     let joined = names.join(" / ");
     let _ = writeln!(
         md,
-        "| target | views | assumed geometry | success ({joined}) | median final mTRE, mm ({joined}) | bias, mm ({joined}) | reached its optimum ({joined}) |\n|---|---|---|---|---|---|---|"
+        "| target | views | assumed geometry | success ({joined}) | capture range, mm ({joined}) | median final mTRE, mm ({joined}) | bias, mm ({joined}) | reached its optimum ({joined}) |\n|---|---|---|---|---|---|---|---|"
     );
     let base = of(models[0]);
     for r in &base {
@@ -71,17 +80,20 @@ mTRE of the intensity optimum (the registration started at the truth) under the 
                 .collect::<Vec<_>>()
                 .join(" / ")
         };
-        let geometry = if r.df_px == 0.0 && r.piercing_px == 0.0 && r.physical.is_empty() {
-            "the true geometry".to_string()
-        } else {
-            assumed(r, pitch)
-        };
         let _ = writeln!(
             md,
-            "| {} | {} | {geometry} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} |",
             r.target,
             r.views,
+            cell_words(r, pitch),
             col(&|c| format!("{}/{}", c.successes, c.trials)),
+            col(&|c| {
+                if c.capture_range_mm.is_nan() {
+                    "not stated".to_string()
+                } else {
+                    num(c.capture_range_mm, 1)
+                }
+            }),
             col(&|c| num(c.final_mtre_median_mm, 2)),
             col(&|c| num(c.optimum_mtre_mm, 2)),
             col(&|c| format!("{:.0} %", 100.0 * c.reached_optimum_rate)),
@@ -132,7 +144,7 @@ fn findings<'a>(
                     "With `{}` fixed images the bias changes most under {} ({} in {}): {} mm against {} mm \
 with monochromatic ones ({} mm). ",
                     m.name(),
-                    assumed(r, pitch),
+                    cell_words(r, pitch),
                     r.target,
                     r.views,
                     num(r.optimum_mtre_mm, 2),
