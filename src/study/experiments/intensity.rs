@@ -186,9 +186,19 @@ fn landmark_optimum(
     truth: &[View],
     assumed: &[View],
 ) -> Option<RigidTransform> {
+    landmark_registration(landmarks, truth, assumed).map(|r| r.pose)
+}
+
+/// The landmark registration of `landmarks` observed exactly through `truth` and solved with `assumed`
+/// (direct LM from the truth); `None` when the solve fails.
+pub(super) fn landmark_registration(
+    landmarks: &[(String, DVec3)],
+    truth: &[View],
+    assumed: &[View],
+) -> Option<crate::registration::RegistrationResult> {
     let names = landmarks.iter().map(|(n, _)| n.clone()).collect();
     let points = landmarks.iter().map(|(_, p)| *p).collect();
-    let solve = || -> Result<RigidTransform> {
+    let solve = || -> Result<crate::registration::RegistrationResult> {
         let observed = RegistrationProblem::synthesize(names, points, truth, &TRUTH)?;
         let problem = observed.with_views(|v| {
             assumed
@@ -201,7 +211,7 @@ fn landmark_optimum(
             init: Some(TRUTH),
             ..RegistrationOptions::default()
         };
-        Ok(register(&problem, Method::Direct, &opts)?.pose)
+        register(&problem, Method::Direct, &opts)
     };
     solve().ok()
 }

@@ -21,18 +21,14 @@ use glam::{DVec2, DVec3};
 use serde_json::json;
 
 use super::{Context, REFERENCES_DIR, Target};
+use crate::Result;
 use crate::anatomy::screw::{PlannedScrew, planned_screws};
 use crate::geometry::{Perturbation, RigidTransform, View};
 use crate::io::{Sidecar, sidecar_path, write_tiff_f32};
-use crate::registration::{Method, RegistrationOptions, RegistrationProblem, register};
 use crate::render::{Backend, SpectralRenderer, ThicknessOptions};
 use crate::study::config::Family;
 use crate::study::schema::{ScrewNavigationRow, ScrewRow, UnitRows};
 use crate::study::timings::Phase;
-use crate::{Error, Result};
-
-/// The truth: targets are built where the views aim.
-const TRUTH: RigidTransform = RigidTransform::IDENTITY;
 
 /// The unsigned angle (degrees) between two 2-D directions; NaN when either is shorter than `min`.
 fn angle_2d_deg(a: DVec2, b: DVec2, min: f64) -> f64 {
@@ -46,25 +42,8 @@ fn angle_2d_deg(a: DVec2, b: DVec2, min: f64) -> f64 {
 /// The landmark registration of `t` observed exactly through `truth` and solved with `assumed` (direct
 /// LM from the truth): the pose, residual and convergence; `None` when the solve fails.
 fn navigate(t: &Target, truth: &[View], assumed: &[View]) -> Option<(RigidTransform, f64, bool)> {
-    let names = t.landmarks.iter().map(|(n, _)| n.clone()).collect();
-    let points = t.landmarks.iter().map(|(_, p)| *p).collect();
-    let solve = || -> Result<(RigidTransform, f64, bool)> {
-        let observed = RegistrationProblem::synthesize(names, points, truth, &TRUTH)?;
-        let problem = observed.with_views(|v| {
-            assumed
-                .iter()
-                .find(|a| a.name == v.name)
-                .cloned()
-                .ok_or_else(|| Error::Internal(format!("no assumed view '{}'", v.name)))
-        })?;
-        let opts = RegistrationOptions {
-            init: Some(TRUTH),
-            ..RegistrationOptions::default()
-        };
-        let r = register(&problem, Method::Direct, &opts)?;
-        Ok((r.pose, r.residual_px, r.converged))
-    };
-    solve().ok()
+    super::intensity::landmark_registration(&t.landmarks, truth, assumed)
+        .map(|r| (r.pose, r.residual_px, r.converged))
 }
 
 /// `references/screws/<target>_<view>_<model>.tiff` (`model`: `mono` or `spectral`).
