@@ -135,9 +135,16 @@ def render_spectral(
     phantom: str | None = None, soft_tissue: bool = False, screws: bool = False, filters: str = "",
     detector: str = "csi:0.6",
     backend: Backend = "raster",
+    ct: npt.NDArray[Any] | None = None, affine: F64 | None = None, mask: Bool | None = None,
+    placement: Literal["volume-centre", "label-centre", "auto", "keep"] = "volume-centre",
+    implants: Sequence[tuple[Mesh, str] | tuple[Mesh, str, F64]] | None = None,
+    screws_at: Mapping[str, Sequence[float]] | None = None,
 ) -> tuple[F32, dict[str, Any]]:
-    """``(−ln(I/I0) float32 H × W, spectral record)`` as ``spinedrr render --spectrum …`` writes them; meshes
-    take μ (float) or ``"MATERIAL[@DENSITY]"``, or ``phantom="L1-L5"`` renders the phantom's tissues."""
+    """``(−ln(I/I0) float32 H × W, spectral record)`` as ``spinedrr render --spectrum …`` writes them. The
+    anatomy is one of ``meshes`` (μ or ``"MATERIAL[@DENSITY]"``), ``phantom="L1-L5"`` or ``ct`` (HU array
+    with its ``affine``, ``mask``, ``placement``); ``implants`` (material meshes, optionally with a 4 × 4
+    pose) and ``screws_at`` (a plan's ``PREFIXpedicle_entry``/``PREFIXpedicle_tip`` points) displace what
+    they occupy."""
 
 def intensity(line_integral: F32, i0: float) -> F32:
     """``I0 · exp(−L)`` of a line-integral image, as ``spinedrr render --intensity I0`` writes it."""

@@ -300,19 +300,106 @@ pub fn material_coefficients(
         .collect()
 }
 
-/// A spectral render of meshes `(mesh, object, MU or MATERIAL[@DENSITY])`, as `spinedrr render --mesh …
-/// --spectrum …`, or of the phantom's spectral scene: the polychromatic line integral, the sidecar's
-/// `spectral` record, and the warnings of meshes partly inside another. `phantom`: levels, whether the
-/// soft-tissue outline and the pedicle screws are added, as `--phantom LEVELS [--soft-tissue] [--screws]`.
+/// What a spectral render is of: meshes `(mesh, object, MU or MATERIAL[@DENSITY])` (as `--mesh`), the
+/// phantom (levels, soft tissue, pedicle screws: `--phantom LEVELS [--soft-tissue] [--screws]`) or a CT
+/// (its voxels' keep mask and placement: `--ct … --placement`).
+pub enum SpectralAnatomy<'a> {
+    Meshes(Vec<(Arc<TriMesh>, String, String)>),
+    Phantom(&'a str, bool, bool),
+    Ct(CtVolume, Option<Vec<bool>>, &'a str),
+}
+
+/// An implant mesh, its `MATERIAL[@DENSITY]` and its optional row-major 4 × 4 pose.
+pub type ImplantMesh = (Arc<TriMesh>, String, Option<[[f64; 4]; 4]>);
+
+/// Implants of a spectral render: meshes with `MATERIAL[@DENSITY]` and an optional row-major 4 × 4 pose
+/// (`--implant FILE:MATERIAL[:POSE]`), and a plan's named points (`--screws-at`).
+#[derive(Default)]
+pub struct SpectralImplants {
+    pub meshes: Vec<ImplantMesh>,
+    pub plan: Vec<(String, [f64; 3])>,
+}
+
+impl SpectralImplants {
+    /// (object, mesh placed by its pose, material), the plan's screws after the meshes.
+    fn resolve(self) -> Result<Vec<(String, Arc<TriMesh>, spinedrr::spectral::MaterialAt)>> {
+        let mut out = Vec::new();
+        for (i, (mesh, material, pose)) in self.meshes.into_iter().enumerate() {
+            let material = spinedrr::spectral::MaterialAt::parse(&material).map_err(|e| {
+                Error::invalid(format!("implants[{i}]"), format!("'{material}': {e}"))
+            })?;
+            let mesh = match pose {
+                Some(rows) => {
+                    let pose = RigidTransform::from_rows(rows, &format!("implants[{i}] pose"))?;
+                    let mut m = (*mesh).clone();
+                    m.transform(&pose);
+                    Arc::new(m)
+                }
+                None => mesh,
+            };
+            out.push((mesh.name.clone(), mesh, material));
+        }
+        if !self.plan.is_empty() {
+            let points: Vec<(String, DVec3)> = self
+                .plan
+                .into_iter()
+                .map(|(n, p)| (n, DVec3::from_array(p)))
+                .collect();
+            let screws = spinedrr::anatomy::screw::planned_screws(&points);
+            if screws.is_empty() {
+                return Err(Error::invalid(
+                    "screws_at",
+                    "no planned screw: name each trajectory's points PREFIXpedicle_entry and \
+                     PREFIXpedicle_tip (e.g. left_pedicle_entry, left_pedicle_tip)",
+                ));
+            }
+            out.extend(spinedrr::render::screw_implants(&screws)?);
+        }
+        Ok(out)
+    }
+}
+
+/// A spectral render, as `spinedrr render --spectrum …` of the same anatomy and implants: the
+/// polychromatic line integral, the sidecar's `spectral` record, and the warnings of meshes partly
+/// inside another. A CT's implants are in its file's world and move with its placement, as the CLI's.
 pub fn render_spectral(
-    meshes: Vec<(Arc<TriMesh>, String, String)>,
-    phantom: Option<(&str, bool, bool)>,
+    anatomy: SpectralAnatomy,
+    implants: SpectralImplants,
     model: SpectralModel,
     backend: Backend,
     view: &View,
 ) -> Result<(ImageF32, serde_json::Value, Vec<String>)> {
-    let (scene, warnings) = match phantom {
-        Some((levels, soft_tissue, screws)) => {
+    let implants = implants.resolve()?;
+    let (scene, warnings) = match anatomy {
+        SpectralAnatomy::Ct(mut ct, keep, placement) => {
+            let placement = Placement::parse(placement, keep.is_some())?;
+            let mask = match keep {
+                Some(keep) => Some(
+                    VoxelMask::from_keep(&ct, keep)
+                        .ok_or_else(|| Error::invalid("mask", "keeps no voxel"))?,
+                ),
+                None => None,
+            };
+            let placed = place(&ct, placement, mask.as_ref())?;
+            let motion = placed.motion();
+            move_volume(&mut ct, &motion);
+            let renderer =
+                VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), mask.as_ref())?;
+            let moved: Vec<_> = implants
+                .into_iter()
+                .map(|(_, mesh, material)| {
+                    let mut m = (*mesh).clone();
+                    m.transform(&motion);
+                    (Arc::new(m), material)
+                })
+                .collect();
+            view.intrinsics.validate()?;
+            let r = spinedrr::render::SpectralCtRenderer::new(&renderer, &ct.values, model)?
+                .with_implants(&moved, backend)?;
+            let drr = r.render(view)?;
+            return Ok((drr.line_integral, r.summary(), Vec::new()));
+        }
+        SpectralAnatomy::Phantom(levels, soft_tissue, screws) => {
             let opts = PhantomOptions {
                 levels: parse_levels(levels)?,
                 soft_tissue,
@@ -325,7 +412,7 @@ pub fn render_spectral(
             }
             (scene, Vec::new())
         }
-        None => {
+        SpectralAnatomy::Meshes(meshes) => {
             let items = meshes
                 .into_iter()
                 .map(|(mesh, object, a)| {
@@ -340,6 +427,10 @@ pub fn render_spectral(
             SpectralScene::from_meshes(items)?
         }
     };
+    let mut scene = scene;
+    for (object, mesh, material) in implants {
+        scene.add_implant(mesh, object, material);
+    }
     let r = SpectralRenderer::new(&scene, model, backend)?;
     let drr = r.render(view)?;
     Ok((drr.line_integral, r.summary(), warnings))

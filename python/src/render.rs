@@ -264,7 +264,7 @@ fn volume_shape<'a, 'py>(
 }
 
 /// A CT array as x-fastest Hounsfield units (f32, as the library stores a CT).
-fn hu_values(obj: &Bound<'_, PyAny>) -> PyResult<([usize; 3], Vec<f32>)> {
+pub(crate) fn hu_values(obj: &Bound<'_, PyAny>) -> PyResult<([usize; 3], Vec<f32>)> {
     let (arr, d) = volume_shape(obj, "hu", None)?;
     let dt = arr.dtype();
     let py = arr.py();
@@ -285,7 +285,7 @@ fn hu_values(obj: &Bound<'_, PyAny>) -> PyResult<([usize; 3], Vec<f32>)> {
 }
 
 /// A boolean mask on the CT's grid, x-fastest.
-fn mask_values(obj: &Bound<'_, PyAny>, dims: [usize; 3]) -> PyResult<Vec<bool>> {
+pub(crate) fn mask_values(obj: &Bound<'_, PyAny>, dims: [usize; 3]) -> PyResult<Vec<bool>> {
     let (arr, _) = volume_shape(obj, "mask", Some(dims))?;
     if !arr.dtype().is_equiv_to(&numpy::dtype::<bool>(arr.py())) {
         return Err(PyTypeError::new_err(format!(

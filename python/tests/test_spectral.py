@@ -172,3 +172,50 @@ def test_python_spectral_render_equals_the_cli(cli, tmp_path, coarse):
         spinedrr.material_mu_rho("water", [500.0])
     with pytest.raises(TypeError, match="exactly one"):
         spinedrr.render_spectral(view, "80")
+
+
+def test_python_spectral_ct_and_posed_implants_equal_the_cli(cli, tmp_path, coarse, phantom_dir):
+    """A CT with screws from a plan, and meshes with an implant placed by a pose: bit for bit the CLI's
+    `--ct … --screws-at` and `--implant FILE:MATERIAL:POSE.json`."""
+    nib = pytest.importorskip("nibabel")
+    geometry, carm = coarse
+    view = carm.view("lat")
+    ct_path = phantom_dir / "ct.nii.gz"
+    img = nib.load(ct_path)
+    plan = {"left_pedicle_entry": [18.0, -32.0, 1.0], "left_pedicle_tip": [8.0, 4.0, 0.0]}
+    (tmp_path / "plan.json").write_text(json.dumps([{"level": "L3", "landmarks": plan}]))
+    ref = cli.render(tmp_path / "ct.tiff", "--ct", ct_path, "--geometry", geometry, "--view", "lat",
+                     "--spectrum", "80", "--screws-at", tmp_path / "plan.json")
+    hu = img.get_fdata()
+    got, spectral = spinedrr.render_spectral(view, "80", ct=hu, affine=img.affine, screws_at=plan)
+    np.testing.assert_array_equal(got, ref)
+    assert len(spectral["implants"]) == 2  # the screw's shank and head
+    plain, _ = spinedrr.render_spectral(view, "80", ct=hu, affine=img.affine)
+    assert np.count_nonzero(got > plain + 0.5) > 5  # the screw shows
+    # A titanium rod in its own frame, placed by a pose, in the L3 cortical mesh.
+    rod = tmp_path / "rod.obj"
+    box_obj(rod, (-2.0, -2.0, 0.0), (2.0, 2.0, 30.0))
+    c, s = np.cos(0.7), np.sin(0.7)
+    pose = np.array([[1.0, 0, 0, 4.0], [0, c, -s, -20.0], [0, s, c, 3.0], [0, 0, 0, 1.0]])
+    (tmp_path / "pose.json").write_text(json.dumps({"matrix": pose.tolist()}))
+    cortical = phantom_dir / "L3_cortical.stl"
+    ref = cli.render(tmp_path / "m.tiff", "--mesh", f"{cortical}:cortical_bone", "--geometry", geometry,
+                     "--view", "lat", "--spectrum", "80", "--implant", f"{rod}:titanium:{tmp_path / 'pose.json'}")
+    got, _ = spinedrr.render_spectral(view, "80", meshes=[(spinedrr.read_mesh(str(cortical)), "cortical_bone")],
+                                      implants=[(spinedrr.read_mesh(str(rod)), "titanium", pose)])
+    np.testing.assert_array_equal(got, ref)
+    unposed, _ = spinedrr.render_spectral(view, "80", meshes=[(spinedrr.read_mesh(str(cortical)), "cortical_bone")],
+                                          implants=[(spinedrr.read_mesh(str(rod)), "titanium")])
+    assert np.count_nonzero(np.abs(unposed - got) > 0.1) > 5  # the pose moved the rod
+    # Bad inputs say what is wrong.
+    with pytest.raises(TypeError, match="exactly one"):
+        spinedrr.render_spectral(view, "80", phantom="L3", ct=hu, affine=img.affine)
+    with pytest.raises(TypeError, match="affine"):
+        spinedrr.render_spectral(view, "80", ct=hu)
+    with pytest.raises(ValueError, match="pedicle_entry"):
+        spinedrr.render_spectral(view, "80", ct=hu, affine=img.affine, screws_at={"center": [0.0, 0.0, 0.0]})
+    with pytest.raises(ValueError, match="reflection"):
+        spinedrr.render_spectral(view, "80", phantom="L3",
+                                 implants=[(spinedrr.read_mesh(str(rod)), "titanium", np.diag([1.0, 1, -1, 1]))])
+    with pytest.raises(ValueError, match="unobtainium"):
+        spinedrr.render_spectral(view, "80", phantom="L3", implants=[(spinedrr.read_mesh(str(rod)), "unobtainium")])

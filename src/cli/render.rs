@@ -19,7 +19,7 @@ use spinedrr::spectral::Attenuation;
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
-    mesh_corners, mesh_mu_cause, mesh_zero_cause, split_mesh_spec,
+    mesh_corners, mesh_mu_cause, mesh_zero_cause, split_implant_spec, split_mesh_spec,
 };
 use super::render_timing::{median_min, peak_rss_mb};
 
@@ -132,8 +132,11 @@ fn render_inputs(a: &Args) -> anyhow::Result<Vec<(String, PathBuf)>> {
         v.push((format!("the --mesh file {}", path.display()), path));
     }
     for spec in &a.spectral.implant {
-        let (path, _) = split_mesh_spec(spec, 0.0)?;
+        let (path, _, pose) = split_implant_spec(spec)?;
         v.push((format!("the --implant file {}", path.display()), path));
+        if let Some(pose) = pose {
+            v.push((format!("the --implant pose {}", pose.display()), pose));
+        }
     }
     if let Some(path) = &a.spectral.screws_at {
         v.push((

@@ -46,6 +46,19 @@ pub fn split_mesh_spec(spec: &str, default_mu: f64) -> anyhow::Result<(PathBuf, 
     }
 }
 
+/// `--implant FILE:MATERIAL[@DENSITY][:POSE]`: the mesh, its attenuation (as [`split_mesh_spec`]) and
+/// the pose file, when the last `:` part ends in `.json`.
+pub fn split_implant_spec(spec: &str) -> anyhow::Result<(PathBuf, Attenuation, Option<PathBuf>)> {
+    let (mesh, pose) = match spec.rsplit_once(':') {
+        Some((rest, p)) if p.to_ascii_lowercase().ends_with(".json") => {
+            (rest, Some(PathBuf::from(p)))
+        }
+        _ => (spec, None),
+    };
+    let (path, attenuation) = split_mesh_spec(mesh, 0.0)?;
+    Ok((path, attenuation, pose))
+}
+
 /// The corners of the bounding box of `meshes` (world mm), what [`check_not_empty`] projects to say where
 /// the anatomy landed.
 pub fn mesh_corners<'a>(meshes: impl IntoIterator<Item = &'a TriMesh>) -> Vec<DVec3> {

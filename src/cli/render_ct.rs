@@ -65,7 +65,8 @@ pub struct CtImplants {
         std::sync::Arc<spinedrr::anatomy::TriMesh>,
         spinedrr::spectral::MaterialAt,
     )>,
-    pub placed: Option<serde_json::Value>,
+    /// The sidecar's record of what placed them ([`super::render_spectral::implant_meshes`]).
+    pub placed: serde_json::Value,
     pub backend: spinedrr::render::Backend,
 }
 
@@ -233,9 +234,7 @@ pub fn run_ct(
         render: renderer.details(),
         spectral: spectral.as_ref().map(|s| {
             let mut summary = s.summary();
-            if let Some(p) = &implants.placed {
-                summary["screws_at"] = p.clone();
-            }
+            super::render_spectral::merge_placed(&mut summary, implants.placed.clone());
             summary
         }),
     };

@@ -9,6 +9,7 @@ use spinedrr::anatomy::screw::planned_screws;
 use spinedrr::anatomy::{
     Landmarks, PhantomOptions, TriMesh, build_phantom, parse_levels, read_landmarks,
 };
+use spinedrr::geometry::RigidTransform;
 use spinedrr::io::{DrrProducts, write_drr_set};
 use spinedrr::render::{
     Backend, SpectralInput, SpectralRenderer, SpectralScene, add_pedicle_screws,
@@ -18,7 +19,7 @@ use spinedrr::spectral::{Attenuation, Channel, MaterialAt, SpectralModel, model_
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
-    mesh_corners, split_mesh_spec,
+    mesh_corners, split_implant_spec, split_mesh_spec,
 };
 use super::render_timing::{median_min, peak_rss_mb};
 
@@ -51,7 +52,10 @@ pub struct SpectralArgs {
         requires = "spectrum"
     )]
     pub detector: String,
-    /// With --spectrum: an implant mesh, FILE:MATERIAL[@DENSITY] (e.g. screw.stl:titanium). Along every ray
+    /// With --spectrum: an implant mesh, FILE:MATERIAL[@DENSITY][:POSE.json] (e.g. screw.stl:titanium or
+    /// screw.stl:titanium:pose.json). A pose file places the mesh (model → world): {"R": [[3 × 3 rows]],
+    /// "t": [mm]} — the layout of `spinedrr register`'s R.json — or {"matrix": [[4 × 4 rows]]}; without
+    /// one the mesh is placed as its file gives it. Along every ray
     /// it displaces whatever it occupies (phantom tissue, --mesh surfaces, or a --ct's voxels: each CT
     /// material's Siddon integral over the implant's stretch of the ray is subtracted), so the tissue under
     /// it is not counted twice. With --ct it is in the CT file's world coordinates and moves with the CT's
@@ -145,9 +149,7 @@ fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Valu
     for (object, mesh, material) in implants {
         scene.add_implant(mesh, object, material);
     }
-    if let Some(p) = placed {
-        anatomy["screws_at"] = p;
-    }
+    merge_placed(&mut anatomy, placed);
     anatomy["implants"] = json!(s.implants);
     anatomy["meshes"] = describe(&scene);
     Ok((scene, anatomy))
@@ -156,24 +158,37 @@ fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Valu
 /// Implants as (object, mesh, material).
 pub type Implants = Vec<(String, Arc<TriMesh>, MaterialAt)>;
 
-/// The implants of `--implant FILE:MATERIAL` and `--screws-at PLAN`, and the screws placed from the plan
-/// (for the sidecar).
+/// The implants of `--implant FILE:MATERIAL[:POSE]` and `--screws-at PLAN`, and what placed them for the
+/// sidecar: `implant_poses` (each posed implant's spec and the 4 × 4 matrix applied, so the record holds
+/// the pose even if its file changes) and `screws_at` (the plan's file and screws).
 pub fn implant_meshes(
     implants: &[String],
     screws_at: Option<&Path>,
-) -> anyhow::Result<(Implants, Option<serde_json::Value>)> {
+) -> anyhow::Result<(Implants, serde_json::Value)> {
     let mut out = Vec::new();
+    let mut placed = json!({});
+    let mut poses = Vec::new();
     for spec in implants {
-        let (path, value) = split_mesh_spec(spec, 0.0)?;
+        let (path, value, pose) = split_implant_spec(spec)?;
         let Attenuation::Material(material) = value else {
             bail!(
-                "--implant {spec}: give the implant's material, FILE:MATERIAL[@DENSITY] (e.g. :titanium)"
+                "--implant {spec}: give the implant's material, FILE:MATERIAL[@DENSITY][:POSE.json] (e.g. \
+                 :titanium)"
             );
         };
-        out.push((stem(&path), Arc::new(load_mesh(&path)?), material));
+        let mut mesh = load_mesh(&path)?;
+        if let Some(pose_path) = pose {
+            let pose = read_pose(&pose_path).with_context(|| format!("--implant {spec}"))?;
+            mesh.transform(&pose);
+            poses.push(json!({"implant": spec, "matrix": pose.to_rows()}));
+        }
+        out.push((stem(&path), Arc::new(mesh), material));
+    }
+    if !poses.is_empty() {
+        placed["implant_poses"] = json!(poses);
     }
     let Some(path) = screws_at else {
-        return Ok((out, None));
+        return Ok((out, placed));
     };
     let sets = read_landmarks(path).with_context(|| format!("--screws-at {}", path.display()))?;
     let several = sets.len() > 1;
@@ -186,14 +201,31 @@ pub fn implant_meshes(
         );
     }
     out.extend(screw_implants(&screws).with_context(|| format!("--screws-at {}", path.display()))?);
-    let placed = json!({
+    placed["screws_at"] = json!({
         "file": path.display().to_string(),
         "screws": screws
             .iter()
             .map(|s| json!({"name": s.name, "entry": s.entry.to_array(), "tip": s.tip.to_array()}))
             .collect::<Vec<_>>(),
     });
-    Ok((out, Some(placed)))
+    Ok((out, placed))
+}
+
+/// Adds the keys of [`implant_meshes`]' record to a sidecar object.
+pub fn merge_placed(into: &mut serde_json::Value, placed: serde_json::Value) {
+    if let (Some(into), serde_json::Value::Object(p)) = (into.as_object_mut(), placed) {
+        into.extend(p);
+    }
+}
+
+/// The pose of an `--implant …:POSE.json` file (model → world).
+fn read_pose(path: &Path) -> anyhow::Result<RigidTransform> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading the pose file {}", path.display()))?;
+    Ok(RigidTransform::from_json_str(
+        &text,
+        &path.display().to_string(),
+    )?)
 }
 
 fn stem(path: &Path) -> String {

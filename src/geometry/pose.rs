@@ -133,6 +133,42 @@ impl RigidTransform {
         )
     }
 
+    /// A pose from JSON `text` (`origin` names it in errors): `{"R": [[…]], "t": […]}` (row-major
+    /// rotation and translation, mm — the layout of `spinedrr register`'s `R.json`, whose other keys are
+    /// ignored) or `{"matrix": [[…] × 4]}` (row-major 4 × 4 `[R t; 0 1]`). The rotation is checked as in
+    /// [`RigidTransform::from_rows`].
+    pub fn from_json_str(text: &str, origin: &str) -> Result<Self> {
+        #[derive(Deserialize)]
+        struct PoseFile {
+            #[serde(rename = "R")]
+            r: Option<[[f64; 3]; 3]>,
+            t: Option<[f64; 3]>,
+            matrix: Option<[[f64; 4]; 4]>,
+        }
+        let p: PoseFile = serde_json::from_str(text).map_err(|e| {
+            Error::invalid(
+                origin,
+                format!("not a pose ({{\"R\": [[…]], \"t\": […]}} or {{\"matrix\": …}}): {e}"),
+            )
+        })?;
+        match (p.r, p.t, p.matrix) {
+            (Some(r), Some(t), None) => Self::from_rt(r, t, &format!("{origin}: R")),
+            (None, None, Some(m)) => Self::from_rows(m, &format!("{origin}: matrix")),
+            (None, None, None) => Err(Error::invalid(
+                origin,
+                "has no pose: give \"R\" (3 × 3 rows) and \"t\" (mm), or \"matrix\" (4 × 4 rows)",
+            )),
+            (Some(_), None, None) | (None, Some(_), None) => Err(Error::invalid(
+                origin,
+                "gives only one of \"R\" and \"t\": a pose needs both",
+            )),
+            _ => Err(Error::invalid(
+                origin,
+                "gives both \"matrix\" and \"R\"/\"t\": give one",
+            )),
+        }
+    }
+
     /// Row-major rotation.
     pub fn rotation_rows(&self) -> [[f64; 3]; 3] {
         self.rotation.transpose().to_cols_array_2d()
@@ -276,6 +312,35 @@ mod tests {
                 .apply(DVec3::ONE)
                 .abs_diff_eq(DVec3::ONE, 1e-12)
         );
+    }
+
+    #[test]
+    fn pose_files_read_both_layouts_and_refuse_half_a_pose() {
+        let r = rotation_exp(DVec3::new(0.1, -0.2, 0.3));
+        let t = DVec3::new(1.0, 2.0, -3.0);
+        let pose = RigidTransform::new(r, t);
+        let rt =
+            serde_json::json!({"R": pose.rotation_rows(), "t": t.to_array(), "residual_px": 0.1});
+        let m = serde_json::json!({"matrix": pose.to_rows()});
+        for text in [rt.to_string(), m.to_string()] {
+            let back = RigidTransform::from_json_str(&text, "p.json").unwrap();
+            let p = DVec3::new(10.0, -4.0, 7.0);
+            assert!((back.apply(p) - pose.apply(p)).length() < 1e-12);
+        }
+        for (text, needle) in [
+            (r#"{"t": [0, 0, 0]}"#, "only one"),
+            (r#"{"name": "x"}"#, "has no pose"),
+            (
+                r#"{"R": [[1,0,0],[0,1,0],[0,0,-1]], "t": [0,0,0]}"#,
+                "reflection",
+            ),
+            ("[1, 2]", "not a pose"),
+        ] {
+            let e = RigidTransform::from_json_str(text, "p.json")
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("p.json") && e.contains(needle), "{e}");
+        }
     }
 
     #[test]

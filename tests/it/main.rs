@@ -37,6 +37,7 @@ mod render_models;
 mod render_products;
 mod render_thickness;
 mod spectral;
+mod spectral_implant_pose;
 mod spectral_implants;
 mod study_cohort;
 mod study_ct;
