@@ -129,14 +129,15 @@ pub fn prepare(cfg: &StudyConfig, timings: &Timings) -> Result<Vec<IntensityTarg
 
 /// The fixed image of `t` in the true `view` in the model `image`: the line integral (monochromatic,
 /// or the spectral `−ln(I/I0)`), through the X-ray model (Poisson at `photons`, blur, log) when
-/// `photons > 0`, its noise seeded per (target, view) — the same noise draws for both models.
+/// `photons > 0`, its noise seeded per (target, view) — the same noise draws for both models. `cfg` is the
+/// study's (its section and seed).
 fn fixed_image(
-    ctx: &Context,
+    cfg: &StudyConfig,
     t: &IntensityTarget,
     view: &View,
     image: FixedImage,
 ) -> Result<ImageF32> {
-    let s = &ctx.cfg.intensity_registration;
+    let s = &cfg.intensity_registration;
     let spectral = match image {
         FixedImage::Mono => None,
         FixedImage::Spectral => Some(&t.spectral),
@@ -159,11 +160,7 @@ fn fixed_image(
     if s.photons <= 0.0 {
         return Ok(li);
     }
-    let seed = derive_seed(
-        ctx.cfg.seed,
-        &format!("int-fixed/{}/{}", t.name, view.name),
-        0,
-    );
+    let seed = derive_seed(cfg.seed, &format!("int-fixed/{}/{}", t.name, view.name), 0);
     Ok(XrayModel::new(s.photons, s.blur_px, seed, true)?.apply(&li))
 }
 
@@ -241,7 +238,7 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
         .map(|(tv, av)| {
             Ok(IntensityView {
                 fixed: ctx.timings.time(Phase::RenderTarget, 1, || {
-                    fixed_image(ctx, t, tv, cell.image)
+                    fixed_image(&ctx.cfg, t, tv, cell.image)
                 })?,
                 view: av.clone(),
             })
@@ -364,4 +361,61 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
         });
     }
     Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(photons: f64) -> StudyConfig {
+        StudyConfig::from_toml_str(
+            &format!(
+                r#"seed = 5
+experiments = ["intensity-registration"]
+[anatomy]
+levels = ["L3"]
+segment = false
+voxel_mm = 0.8
+[intensity_registration]
+targets = ["L3"]
+views = ["lat"]
+fixed = "anatomy"
+photons = {photons:?}
+images = ["spectral+screws"]
+"#
+            ),
+            "test",
+        )
+        .unwrap()
+    }
+
+    /// The realistic fixed image — the whole phantom, the spectrum, the screws — takes the X-ray model's
+    /// quantum noise from its own signal: against the noise-free image L, `−ln(N/I0)` with `N ~ Poisson(λ =
+    /// I0 · e^{−L})` has mean `L + 1/(2λ)` and variance `1/λ` (the delta method to second order, accurate
+    /// at the λ ≥ 1350 counts kept here): the standardised differences have mean 0 and variance 1.
+    #[test]
+    fn spectral_fixed_images_with_screws_take_the_poisson_noise_of_their_own_signal() {
+        let (noisy_cfg, clean_cfg) = (config(1e4), config(0.0));
+        let t = &prepare(&noisy_cfg, &Timings::default()).unwrap()[0];
+        let view = noisy_cfg.carm().unwrap().view("lat").unwrap().clone();
+        let image = FixedImage::SpectralScrews;
+        let noisy = fixed_image(&noisy_cfg, t, &view, image).unwrap();
+        let clean = fixed_image(&clean_cfg, t, &view, image).unwrap();
+        let z: Vec<f64> = noisy
+            .data
+            .iter()
+            .zip(&clean.data)
+            .filter(|(_, l)| (0.2..2.0).contains(*l))
+            .map(|(n, l)| {
+                // λ counts; E[−ln(N/I0)] = L + 1/(2λ) to second order, Var = 1/λ.
+                let lambda = 1e4 * (-f64::from(*l)).exp();
+                (f64::from(*n) - f64::from(*l) - 0.5 / lambda) * lambda.sqrt()
+            })
+            .collect();
+        assert!(z.len() > 20_000, "{} pixels", z.len());
+        let mean = z.iter().sum::<f64>() / z.len() as f64;
+        let var = z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / z.len() as f64;
+        assert!(mean.abs() < 0.03, "mean {mean}");
+        assert!((var - 1.0).abs() < 0.03, "variance {var}");
+    }
 }
