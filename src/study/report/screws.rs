@@ -1,8 +1,9 @@
 //! *Pedicle screws*: `screws.csv` and `screw_navigation.csv` in the report — per assumed geometry, the
 //! largest on-screen offset of a planned screw's tip drawn with the wrong calibration in each view (px and
 //! mm at the screw), the largest drawn axis rotation, and where a navigation system registered with that
-//! calibration puts the screw in 3-D. Single levels only (each built where the views aim); every number
-//! is a row of the two tables, the largest over the levels' screws.
+//! calibration puts the screw in 3-D. The table has the single levels (each built where the views aim);
+//! a paragraph sets the L1–L5 segment's screws beside them under the largest focal offset. Every number
+//! is a row of the two tables, the largest over the screws it names.
 
 use std::fmt::Write as _;
 
@@ -156,6 +157,83 @@ how well the overlay seems to fit. Each cell is the largest over the levels' scr
     let _ = writeln!(md);
     axis_law(md, &drawn);
     worst(md, &drawn, &navs, pitch);
+    segment(md, views, (rows, nav), (&drawn, &navs), pitch);
+}
+
+/// The segment's screws (each level at its place in the stack, the views aimed at the stack's centre),
+/// beside the single levels', under the largest focal offset of the grid: the scaling about the
+/// principal point draws a tip in proportion to its distance from it, which the single levels at the
+/// isocentre do not show. Every number is a row of the two tables.
+fn segment(
+    md: &mut String,
+    views: &[String],
+    (rows, nav): (&[ScrewRow], &[ScrewNavigationRow]),
+    (single, single_nav): (&[&ScrewRow], &[&ScrewNavigationRow]),
+    pitch: Pitch,
+) {
+    let seg: Vec<&ScrewRow> = rows.iter().filter(|r| is_segment(&r.target)).collect();
+    let Some((df, _)) = largest(
+        &seg.iter()
+            .copied()
+            .filter(|r| r.family == Family::Focal)
+            .collect::<Vec<_>>(),
+        |r| r.df_px,
+    ) else {
+        return;
+    };
+    let cell = |r: &ScrewRow| r.family == Family::Focal && r.df_px == df;
+    let (mut parts, mut alone) = (Vec::new(), Vec::new());
+    for v in views {
+        let of = |rows: &[&ScrewRow]| {
+            let here: Vec<&ScrewRow> = rows
+                .iter()
+                .copied()
+                .filter(|r| cell(r) && r.view == *v)
+                .collect();
+            largest(&here, |r| r.tip_px).map(|(px, r)| (px, r.tip_mm, r.screw.clone()))
+        };
+        if let (Some((px, mm, screw)), Some((single_px, _, _))) = (of(&seg), of(single)) {
+            parts.push(format!(
+                "{} px in {} ({} mm at the screw; {} screw)",
+                num(px, 2),
+                v.to_uppercase(),
+                num(mm, 2),
+                screw.replace('/', "'s ")
+            ));
+            alone.push(num(single_px, 2));
+        }
+    }
+    if parts.is_empty() {
+        return;
+    }
+    let nav_of = |rows: &[&ScrewNavigationRow]| {
+        let here: Vec<&ScrewNavigationRow> = rows
+            .iter()
+            .copied()
+            .filter(|r| r.family == Family::Focal && r.df_px == df && r.converged)
+            .collect();
+        largest(&here, |r| r.tip_mm).map(|(x, _)| x)
+    };
+    let seg_nav: Vec<&ScrewNavigationRow> = nav.iter().filter(|r| is_segment(&r.target)).collect();
+    let navigated = match (nav_of(&seg_nav), nav_of(single_nav)) {
+        (Some(a), Some(b)) => format!(
+            " Navigated, the segment's largest tip error is {} mm against {} mm for the levels alone.",
+            num(a, 2),
+            num(b, 2)
+        ),
+        _ => String::new(),
+    };
+    let _ = writeln!(
+        md,
+        "In the L1–L5 segment — the same screws, each level at its place in the stack, the views aimed at \
+the stack's centre (`{}` rows of the tables, not in the table above) — a focal error draws a tip in \
+proportion to its distance from the principal point, so the screws far from it are drawn further: under {} \
+the largest drawn tip offset is {}, against {} px for the levels alone at the isocentre.{navigated}\n",
+        seg[0].target,
+        pitch.df_words(df),
+        parts.join(" and "),
+        alone.join(" and ")
+    );
 }
 
 /// The law the intrinsic families obey on the screen: Δf scales the image about the principal point and
@@ -230,4 +308,98 @@ that tip is {}.\n",
         num(n.residual_px, 2),
         views.join(", ")
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn drawn(target: &str, screw: &str, view: &str, df: f64, tip_px: f64) -> ScrewRow {
+        ScrewRow {
+            target: target.into(),
+            screw: screw.into(),
+            view: view.into(),
+            family: Family::Focal,
+            perturbation: format!("df={df}"),
+            df_px: df,
+            piercing_px: 0.0,
+            length_mm: 45.0,
+            tip_px,
+            tip_mm: tip_px / 5.0,
+            entry_px: tip_px / 2.0,
+            entry_mm: tip_px / 10.0,
+            axis_deg: 0.0,
+            projected_length_px: 150.0,
+            nav_tip_px: 1.0,
+        }
+    }
+
+    fn navigated(target: &str, df: f64, tip_mm: f64) -> ScrewNavigationRow {
+        ScrewNavigationRow {
+            target: target.into(),
+            screw: "L1/left".into(),
+            views: "ap+lat".into(),
+            family: Family::Focal,
+            perturbation: format!("df={df}"),
+            df_px: df,
+            piercing_px: 0.0,
+            tip_mm,
+            entry_mm: tip_mm / 2.0,
+            axis_deg: 0.1,
+            residual_px: 1.0,
+            converged: true,
+        }
+    }
+
+    /// The segment's paragraph reads the largest focal cell's rows: the segment's largest tip per view
+    /// with its screw, the single levels' largest in the same cell, and the navigated maxima.
+    #[test]
+    fn the_segment_paragraph_states_the_largest_focal_cell_of_each_target_kind() {
+        let views = vec!["ap".to_string(), "lat".to_string()];
+        let mut rows = Vec::new();
+        for (df, k) in [(100.0, 1.0), (500.0, 5.0)] {
+            rows.push(drawn("L1", "L1/left", "ap", df, 1.0 * k));
+            rows.push(drawn("L1", "L1/left", "lat", df, 4.0 * k));
+            rows.push(drawn("segment", "L1/right", "ap", df, 8.0 * k));
+            rows.push(drawn("segment", "L5/left", "ap", df, 7.0 * k));
+            rows.push(drawn("segment", "L5/left", "lat", df, 9.0 * k));
+        }
+        let nav = vec![
+            navigated("L1", 500.0, 1.8),
+            navigated("segment", 500.0, 1.2),
+            navigated("segment", 100.0, 9.0),
+        ];
+        let single: Vec<&ScrewRow> = rows.iter().filter(|r| r.target == "L1").collect();
+        let single_nav: Vec<&ScrewNavigationRow> =
+            nav.iter().filter(|r| r.target == "L1").collect();
+        let mut md = String::new();
+        segment(
+            &mut md,
+            &views,
+            (&rows, &nav),
+            (&single, &single_nav),
+            Pitch(None),
+        );
+        for want in [
+            "40 px in AP (8 mm at the screw; L1's right screw)",
+            "45 px in LAT (9 mm at the screw; L5's left screw)",
+            "against 5 and 20 px",
+            "largest tip error is 1.2 mm against 1.8 mm",
+        ] {
+            assert!(md.contains(want), "{want}: {md}");
+        }
+        // Without segment rows, no paragraph.
+        let mut none = String::new();
+        segment(
+            &mut none,
+            &views,
+            (
+                &single.iter().map(|r| (*r).clone()).collect::<Vec<_>>(),
+                &[],
+            ),
+            (&single, &[]),
+            Pitch(None),
+        );
+        assert!(none.is_empty(), "{none}");
+    }
 }
