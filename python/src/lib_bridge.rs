@@ -207,25 +207,35 @@ pub fn render_ct(
     view: &View,
 ) -> Result<ImageF32> {
     let method: VolumeMethod = method.parse()?;
-    let placement = Placement::parse(placement, keep.is_some())?;
-    let mask = match keep {
-        Some(keep) => Some(
-            VoxelMask::from_keep(&ct, keep)
-                .ok_or_else(|| Error::invalid("mask", "keeps no voxel"))?,
-        ),
-        None => None,
-    };
-    let placed = place(&ct, placement, mask.as_ref())?;
-    move_volume(&mut ct, &placed.motion());
-    let ct = &ct;
+    let (mask, _) = place_ct(&mut ct, keep, placement)?;
     let opts = VolumeRenderOptions {
         method,
         mu_water,
         step_mm,
     };
-    let renderer = VolumeRenderer::new(ct, &opts, mask.as_ref())?;
+    let renderer = VolumeRenderer::new(&ct, &opts, mask.as_ref())?;
     view.intrinsics.validate()?;
     Ok(renderer.render(view))
+}
+
+/// Moves `ct` where `spinedrr render --placement PLACEMENT` moves it (with its keep mask, when given):
+/// the mask on the CT's grid and the motion applied.
+fn place_ct(
+    ct: &mut CtVolume,
+    keep: Option<Vec<bool>>,
+    placement: &str,
+) -> Result<(Option<VoxelMask>, RigidTransform)> {
+    let placement = Placement::parse(placement, keep.is_some())?;
+    let mask = match keep {
+        Some(keep) => Some(
+            VoxelMask::from_keep(ct, keep)
+                .ok_or_else(|| Error::invalid("mask", "keeps no voxel"))?,
+        ),
+        None => None,
+    };
+    let motion = place(ct, placement, mask.as_ref())?.motion();
+    move_volume(ct, &motion);
+    Ok((mask, motion))
 }
 
 pub fn ct_volume(
@@ -322,7 +332,7 @@ pub struct SpectralImplants {
 
 impl SpectralImplants {
     /// (object, mesh placed by its pose, material), the plan's screws after the meshes.
-    fn resolve(self) -> Result<Vec<(String, Arc<TriMesh>, spinedrr::spectral::MaterialAt)>> {
+    fn resolve(self) -> Result<spinedrr::render::ImplantMeshes> {
         let mut out = Vec::new();
         for (i, (mesh, material, pose)) in self.meshes.into_iter().enumerate() {
             let material = spinedrr::spectral::MaterialAt::parse(&material).map_err(|e| {
@@ -345,15 +355,7 @@ impl SpectralImplants {
                 .into_iter()
                 .map(|(n, p)| (n, DVec3::from_array(p)))
                 .collect();
-            let screws = spinedrr::anatomy::screw::planned_screws(&points);
-            if screws.is_empty() {
-                return Err(Error::invalid(
-                    "screws_at",
-                    "no planned screw: name each trajectory's points PREFIXpedicle_entry and \
-                     PREFIXpedicle_tip (e.g. left_pedicle_entry, left_pedicle_tip)",
-                ));
-            }
-            out.extend(spinedrr::render::screw_implants(&screws)?);
+            out.extend(spinedrr::render::planned_screw_implants(&points, "screws_at")?.1);
         }
         Ok(out)
     }
@@ -372,27 +374,11 @@ pub fn render_spectral(
     let implants = implants.resolve()?;
     let (scene, warnings) = match anatomy {
         SpectralAnatomy::Ct(mut ct, keep, placement) => {
-            let placement = Placement::parse(placement, keep.is_some())?;
-            let mask = match keep {
-                Some(keep) => Some(
-                    VoxelMask::from_keep(&ct, keep)
-                        .ok_or_else(|| Error::invalid("mask", "keeps no voxel"))?,
-                ),
-                None => None,
-            };
-            let placed = place(&ct, placement, mask.as_ref())?;
-            let motion = placed.motion();
-            move_volume(&mut ct, &motion);
+            let (mask, motion) = place_ct(&mut ct, keep, placement)?;
             let renderer =
                 VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), mask.as_ref())?;
-            let moved: Vec<_> = implants
-                .into_iter()
-                .map(|(_, mesh, material)| {
-                    let mut m = (*mesh).clone();
-                    m.transform(&motion);
-                    (Arc::new(m), material)
-                })
-                .collect();
+            let implants: Vec<_> = implants.into_iter().map(|(_, m, mat)| (m, mat)).collect();
+            let moved = spinedrr::render::moved_implants(&implants, &motion);
             view.intrinsics.validate()?;
             let r = spinedrr::render::SpectralCtRenderer::new(&renderer, &ct.values, model)?
                 .with_implants(&moved, backend)?;

@@ -142,16 +142,7 @@ pub fn run_ct(
     }
     // With --spectrum: soft-tissue and cortical-bone density grids, one Siddon render each, the energy sum.
     // Implants are given in the CT file's world (like its landmarks) and move with it.
-    let motion = placed.motion();
-    let moved: Vec<_> = implants
-        .meshes
-        .iter()
-        .map(|(mesh, material)| {
-            let mut m = (**mesh).clone();
-            m.transform(&motion);
-            (std::sync::Arc::new(m), *material)
-        })
-        .collect();
+    let moved = spinedrr::render::moved_implants(&implants.meshes, &placed.motion());
     let spectral = model
         .map(|m| {
             SpectralCtRenderer::new(&renderer, &ct.values, m)?

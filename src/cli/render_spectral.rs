@@ -5,7 +5,6 @@ use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use serde_json::json;
-use spinedrr::anatomy::screw::planned_screws;
 use spinedrr::anatomy::{
     Landmarks, PhantomOptions, TriMesh, build_phantom, parse_levels, read_landmarks,
 };
@@ -13,9 +12,9 @@ use spinedrr::geometry::RigidTransform;
 use spinedrr::io::{DrrProducts, write_drr_set};
 use spinedrr::render::{
     Backend, SpectralInput, SpectralRenderer, SpectralScene, add_pedicle_screws,
-    phantom_spectral_scene, screw_implants,
+    phantom_spectral_scene, planned_screw_implants,
 };
-use spinedrr::spectral::{Attenuation, Channel, MaterialAt, SpectralModel, model_from_specs};
+use spinedrr::spectral::{Attenuation, Channel, SpectralModel, model_from_specs};
 
 use super::render_checks::{
     RenderRun, check_finite, check_not_empty, check_not_negative, check_source_outside,
@@ -156,7 +155,7 @@ fn build_scene(s: &SceneSpec) -> anyhow::Result<(SpectralScene, serde_json::Valu
 }
 
 /// Implants as (object, mesh, material).
-pub type Implants = Vec<(String, Arc<TriMesh>, MaterialAt)>;
+pub type Implants = spinedrr::render::ImplantMeshes;
 
 /// The implants of `--implant FILE:MATERIAL[:POSE]` and `--screws-at PLAN`, and what placed them for the
 /// sidecar: `implant_poses` (each posed implant's spec and the 4 × 4 matrix applied, so the record holds
@@ -192,15 +191,9 @@ pub fn implant_meshes(
     };
     let sets = read_landmarks(path).with_context(|| format!("--screws-at {}", path.display()))?;
     let several = sets.len() > 1;
-    let screws = planned_screws(&Landmarks::named_points(sets, several));
-    if screws.is_empty() {
-        bail!(
-            "--screws-at {}: no planned screw — name each trajectory's points PREFIXpedicle_entry and \
-             PREFIXpedicle_tip (e.g. left_pedicle_entry, left_pedicle_tip)",
-            path.display()
-        );
-    }
-    out.extend(screw_implants(&screws).with_context(|| format!("--screws-at {}", path.display()))?);
+    let (screws, meshes) = planned_screw_implants(&Landmarks::named_points(sets, several), "plan")
+        .with_context(|| format!("--screws-at {}", path.display()))?;
+    out.extend(meshes);
     placed["screws_at"] = json!({
         "file": path.display().to_string(),
         "screws": screws

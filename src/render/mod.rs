@@ -23,14 +23,15 @@ pub mod volume;
 
 pub use backend::Backend;
 pub use phantom_scene::{
-    add_pedicle_screws, add_screws, phantom_scene, phantom_spectral_scene, screw_implants,
+    ImplantMeshes, add_pedicle_screws, add_screws, phantom_scene, phantom_spectral_scene,
+    planned_screw_implants, screw_implants,
 };
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh, orient_outward_warning};
 pub use spectral::{
     SpectralDrr, SpectralInput, SpectralMesh, SpectralRenderer, SpectralScene, displace_nested,
     energy_sum,
 };
-pub use spectral_ct::SpectralCtRenderer;
+pub use spectral_ct::{SpectralCtRenderer, moved_implants};
 pub use thickness::{
     Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions, ThicknessRenderer,
 };

@@ -157,9 +157,31 @@ pub fn add_screws(scene: &mut SpectralScene, screws: &[PlannedScrew]) -> Result<
     Ok(())
 }
 
+/// Implant meshes, each as (object name, mesh, material).
+pub type ImplantMeshes = Vec<(String, Arc<TriMesh>, MaterialAt)>;
+
+/// The screws planned by named points (each `PREFIXpedicle_entry` with its `PREFIXpedicle_tip`, see
+/// [`crate::anatomy::screw::planned_screws`]) and their meshes ([`screw_implants`]); points without a pair
+/// are refused, naming `field`.
+pub fn planned_screw_implants(
+    points: &[(String, glam::DVec3)],
+    field: &str,
+) -> Result<(Vec<PlannedScrew>, ImplantMeshes)> {
+    let screws = crate::anatomy::screw::planned_screws(points);
+    if screws.is_empty() {
+        return Err(crate::Error::invalid(
+            field,
+            "no planned screw — name each trajectory's points PREFIXpedicle_entry and PREFIXpedicle_tip \
+             (e.g. left_pedicle_entry, left_pedicle_tip)",
+        ));
+    }
+    let meshes = screw_implants(&screws)?;
+    Ok((screws, meshes))
+}
+
 /// The meshes of titanium (Ti-6Al-4V) screws of [`ScrewSpec::default`] along `screws`: per screw its
 /// shank and its tulip head, each as (screw name, mesh, material).
-pub fn screw_implants(screws: &[PlannedScrew]) -> Result<Vec<(String, Arc<TriMesh>, MaterialAt)>> {
+pub fn screw_implants(screws: &[PlannedScrew]) -> Result<ImplantMeshes> {
     let titanium = MaterialAt::parse("titanium")?;
     let mut out = Vec::new();
     for s in screws {

@@ -215,3 +215,18 @@ impl SpectralCtRenderer {
         s
     }
 }
+/// `implants` (given in a CT file's world, like its landmarks) moved by `motion`, the CT's placement, so
+/// they stay where they were in the anatomy.
+pub fn moved_implants(
+    implants: &[(Arc<TriMesh>, MaterialAt)],
+    motion: &crate::geometry::RigidTransform,
+) -> Vec<(Arc<TriMesh>, MaterialAt)> {
+    implants
+        .iter()
+        .map(|(mesh, material)| {
+            let mut m = (**mesh).clone();
+            m.transform(motion);
+            (Arc::new(m), *material)
+        })
+        .collect()
+}
