@@ -93,16 +93,21 @@ fn main() {
     }
     println!("cargo:rustc-env=SPINEDRR_GIT_COMMIT={commit}");
     println!("cargo:rustc-env=SPINEDRR_CODE_DIGEST={}", code_digest());
-    // Rerun when HEAD moves: HEAD itself (a checkout), the branch it names (a commit), packed refs.
+    // Rerun when HEAD moves: HEAD itself (a checkout), a commit on any branch (the loose refs, a directory
+    // cargo scans for changed files) and packed refs. Only paths that exist: cargo takes a missing file as
+    // changed, so a checkout without packed refs (a fresh `git init`) or a branch whose ref was packed
+    // reran this script, and recompiled the library, on every build.
     if let Some(dir) = git(&["rev-parse", "--git-dir"]).map(PathBuf::from) {
-        println!("cargo:rerun-if-changed={}", dir.join("HEAD").display());
-        println!(
-            "cargo:rerun-if-changed={}",
-            dir.join("packed-refs").display()
-        );
-        if let Some(branch) = git(&["symbolic-ref", "-q", "HEAD"]) {
-            let common = git(&["rev-parse", "--git-common-dir"]).map_or(dir, PathBuf::from);
-            println!("cargo:rerun-if-changed={}", common.join(branch).display());
+        let common =
+            git(&["rev-parse", "--git-common-dir"]).map_or_else(|| dir.clone(), PathBuf::from);
+        for p in [
+            dir.join("HEAD"),
+            common.join("refs/heads"),
+            common.join("packed-refs"),
+        ] {
+            if p.exists() {
+                println!("cargo:rerun-if-changed={}", p.display());
+            }
         }
     }
 }
