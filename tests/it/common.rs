@@ -14,13 +14,13 @@ use std::process::{Command, ExitStatus, Output};
 /// The phantom mesh cache of every `spinedrr` the tests run (`SPINEDRR_CACHE_DIR`), inside the build's
 /// target directory: the runs share meshes with each other, never with the user's own cache, and a
 /// fresh clone starts with none.
+pub const MESH_CACHE: &str = concat!(env!("CARGO_TARGET_TMPDIR"), "/phantom-mesh-cache");
+
 /// A study config's `experiments` line: every experiment but the intensity registration, which studies
 /// the phantom's L3 whatever the anatomy (its default target) and dominated the time of the studies that
 /// test other targets (`study_intensity` and `registration_intensity*` test it).
 pub const ALL_BUT_INTENSITY: &str = "experiments = [\"projection\", \"landmarks\", \"registration\", \
 \"calibration\", \"tracking\", \"screws\"]";
-
-pub const MESH_CACHE: &str = concat!(env!("CARGO_TARGET_TMPDIR"), "/phantom-mesh-cache");
 
 /// A `spinedrr` command line under construction.
 pub struct Spinedrr(Command);
