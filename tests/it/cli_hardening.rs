@@ -306,6 +306,7 @@ fn ct_renders_time_repeats_and_refuse_inapplicable_values() {
     assert_eq!(timing["repeat"], 3);
     assert_eq!(timing["rays_traced"], 1024 * 1024);
     assert!(timing["median_ms"].as_f64().unwrap() >= timing["min_ms"].as_f64().unwrap());
+    assert!(timing["first_ms"].as_f64().unwrap() >= timing["min_ms"].as_f64().unwrap());
     let step = [
         "render",
         "--ct",

@@ -13,17 +13,20 @@
 //! volume's box (or a mask's bounding box) in continuous voxel-index space via the inverse affine; the ray
 //! parameter stays in world millimetres because the index map is affine.
 
+mod prefix;
 mod select;
 pub mod siddon;
 pub mod trilinear;
 
 use std::fmt;
 use std::str::FromStr;
+use std::sync::OnceLock;
 
 use glam::{DMat4, DVec2, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use self::prefix::AxisPrefix;
 pub use self::select::select_voxels;
 
 pub use crate::anatomy::ct::{CtVolume, VoxelMask};
@@ -100,6 +103,9 @@ pub struct VolumeRenderer {
     method: VolumeMethod,
     mu_water: f64,
     step_mm: f64,
+    /// Per dominant axis, μ's running sums over the clip box for Siddon's runs of whole slabs: built on
+    /// the first ray that walks along that axis (an AP view needs one axis, a lateral another).
+    pub(crate) prefix: [OnceLock<AxisPrefix>; 3],
 }
 
 /// What a CT DRR's sidecar records about its making (`details`).
@@ -187,6 +193,7 @@ impl VolumeRenderer {
             method: opts.method,
             mu_water: opts.mu_water,
             step_mm,
+            prefix: Default::default(),
         })
     }
 
@@ -206,7 +213,18 @@ impl VolumeRenderer {
             .zip(hu.par_iter())
             .map(|(&m, &h)| if m == 0.0 { 0.0 } else { value(h) })
             .collect();
-        Ok(VolumeRenderer { mu, ..self.clone() })
+        // New values, so new running sums: none are carried over from this renderer.
+        Ok(VolumeRenderer {
+            dims: self.dims,
+            mu,
+            world_to_index: self.world_to_index,
+            lo: self.lo,
+            hi: self.hi,
+            method: self.method,
+            mu_water: self.mu_water,
+            step_mm: self.step_mm,
+            prefix: Default::default(),
+        })
     }
 
     /// Whether world point `p` lies inside the box of the voxels that attenuate (μ > 0, after the mask),
@@ -231,6 +249,12 @@ impl VolumeRenderer {
             }
         }
         lo[0] != usize::MAX && inside(lo, hi)
+    }
+
+    /// μ's running sums along `axis` over the clip box, built on first use.
+    pub(crate) fn axis_prefix(&self, axis: usize) -> &AxisPrefix {
+        self.prefix[axis]
+            .get_or_init(|| AxisPrefix::build(&self.mu, self.dims, self.lo, self.hi, axis))
     }
 
     /// The trilinear step actually used (mm).
