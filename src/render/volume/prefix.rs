@@ -9,8 +9,6 @@
 
 use std::fmt;
 
-use rayon::prelude::*;
-
 /// `S` along axis `axis` over the clip box `[lo, hi]`. Entry `(i, j, k)` (relative to `lo`, the prefix
 /// axis running `0..=n_axis`) holds the sum of its column's voxels before it. The layout puts the lower
 /// of the two other axes fastest, then the prefix axis, then the higher one: the rays of neighbouring
@@ -54,9 +52,12 @@ impl AxisPrefix {
         let mu_stride = [1, dims[0], dims[0] * dims[1]];
         let corner: usize = (0..3).map(|a| lo[a] * mu_stride[a]).sum();
         let mut sums = vec![0.0f64; n[p] * (n[axis] + 1) * n[q]];
-        // One slab of constant q per task: rows of n[p] sums, row i + 1 = row i + the box's voxels at
-        // depth i along the prefix axis.
-        sums.par_chunks_mut(n[p] * (n[axis] + 1))
+        // One slab of constant q at a time: rows of n[p] sums, row i + 1 = row i + the box's voxels at
+        // depth i along the prefix axis. Sequential on purpose: this runs inside `OnceLock::get_or_init`
+        // on the first ray that needs it, usually in a rayon task; a parallel build there could let this
+        // thread, while it waits for a stolen half, pick up another ray of the same renderer and re-enter
+        // the initialisation (a deadlock). The other threads wait for it, once per renderer and axis.
+        sums.chunks_mut(n[p] * (n[axis] + 1))
             .enumerate()
             .for_each(|(k, slab)| {
                 for i in 0..n[axis] {
