@@ -299,8 +299,9 @@ fn sorted_crossings(mu: &[f32], dims: [usize; 3], p0: DVec3, dp: DVec3) -> f64 {
 }
 
 /// The CT renderer's Siddon integrals through the real CT equal Siddon's original sorted-crossings form
-/// (to 1e-5 relative; the renderer sums runs of whole slabs in f32) for rays from every side, each of the
-/// three axes dominant in index space for a share of them (issue #33: faster, and exact as before).
+/// for rays from every side, each of the three axes dominant in index space for a share of them (issue
+/// #33: faster, and exact as before). To 1e-9 relative, where the issue asks for 1e-5: the renderer
+/// regroups the same sum in f64 (differences of running sums), so only f64 rounding separates the two.
 #[test]
 fn real_ct_siddon_equals_sorted_plane_crossings() {
     let Some(data) = real_data() else { return };
@@ -338,7 +339,7 @@ fn real_ct_siddon_equals_sorted_plane_crossings() {
         let (p0, dp) = (w2i.transform_point3(source), w2i.transform_vector3(dir));
         let want = sorted_crossings(&mu, ct.dims, p0, dp);
         assert!(
-            (got - want).abs() <= 1e-5 * want.max(1e-3),
+            (got - want).abs() <= 1e-9 * want.max(1e-3),
             "ray {k} from {source} along {dir}: {got} against {want}"
         );
         let abs = dp.abs();
