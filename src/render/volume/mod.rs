@@ -3,8 +3,9 @@
 //! unitless).
 //!
 //! Two ray integrators over the same μ voxel grid:
-//! * [`VolumeMethod::Siddon`]: exact for the piecewise-constant voxel model (Siddon 1985, in Jacobs et al.
-//!   1998's incremental form), see [`siddon`];
+//! * [`VolumeMethod::Siddon`]: exact for the piecewise-constant voxel model (Siddon 1985), walked from
+//!   one minor-axis crossing to the next with differences of running sums along the dominant axis, see
+//!   [`siddon`];
 //! * [`VolumeMethod::Trilinear`]: midpoint-rule samples of the trilinearly interpolated μ field, see
 //!   [`trilinear`].
 //!
@@ -38,7 +39,7 @@ use crate::{Error, Result};
 /// How a ray's line integral is evaluated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum VolumeMethod {
-    /// Exact voxel traversal (Siddon / Jacobs).
+    /// Exact voxel traversal (Siddon's voxel model).
     #[default]
     Siddon,
     /// Trilinear interpolation sampled at ≤ half the smallest voxel spacing.
@@ -103,7 +104,7 @@ pub struct VolumeRenderer {
     method: VolumeMethod,
     mu_water: f64,
     step_mm: f64,
-    /// Per dominant axis, μ's running sums over the clip box for Siddon's runs of whole slabs: built on
+    /// Per dominant axis, μ's running sums over the clip box for the Siddon walk: built on
     /// the first ray that walks along that axis (an AP view needs one axis, a lateral another).
     pub(crate) prefix: [OnceLock<AxisPrefix>; 3],
 }
