@@ -21,7 +21,7 @@ pub mod trilinear;
 
 use std::fmt;
 use std::str::FromStr;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use glam::{DMat4, DVec2, DVec3};
 use rayon::prelude::*;
@@ -105,8 +105,9 @@ pub struct VolumeRenderer {
     mu_water: f64,
     step_mm: f64,
     /// Per dominant axis, μ's running sums over the clip box for the Siddon walk: built on
-    /// the first ray that walks along that axis (an AP view needs one axis, a lateral another).
-    pub(crate) prefix: [OnceLock<AxisPrefix>; 3],
+    /// the first ray that walks along that axis (an AP view needs one axis, a lateral another), and
+    /// shared by clones (μ never changes after construction; [`Self::with_values`] starts afresh).
+    pub(crate) prefix: [OnceLock<Arc<AxisPrefix>>; 3],
 }
 
 /// What a CT DRR's sidecar records about its making (`details`).
@@ -254,8 +255,11 @@ impl VolumeRenderer {
 
     /// μ's running sums along `axis` over the clip box, built on first use.
     pub(crate) fn axis_prefix(&self, axis: usize) -> &AxisPrefix {
-        self.prefix[axis]
-            .get_or_init(|| AxisPrefix::build(&self.mu, self.dims, self.lo, self.hi, axis))
+        self.prefix[axis].get_or_init(|| {
+            Arc::new(AxisPrefix::build(
+                &self.mu, self.dims, self.lo, self.hi, axis,
+            ))
+        })
     }
 
     /// The trilinear step actually used (mm).

@@ -16,7 +16,6 @@ use std::fmt;
 /// of the two other axes fastest, then the prefix axis, then the higher one: the rays of neighbouring
 /// pixels walk neighbouring columns (x in an AP view, y in a lateral one), whose sums at the same depth
 /// then share cache lines.
-#[derive(Clone)]
 pub(crate) struct AxisPrefix {
     pub(crate) sums: Vec<f64>,
     /// Strides of `sums` per axis.

@@ -206,4 +206,44 @@ mod tests {
             assert!(per_axis.iter().all(|&n| n >= 30), "{per_axis:?}");
         }
     }
+
+    /// A clone shares the running sums already built; a renderer with new values builds its own, so its
+    /// integrals are of the new values (stale sums would give the old ones).
+    #[test]
+    fn clones_share_the_running_sums_and_new_values_get_their_own() {
+        let dims = [9usize, 8, 7];
+        let n = dims.iter().product::<usize>();
+        let mu: Vec<f32> = (0..n).map(|i| (i % 5) as f32 * 0.01).collect();
+        let r = VolumeRenderer {
+            dims,
+            mu,
+            world_to_index: DMat4::IDENTITY,
+            lo: [0, 0, 0],
+            hi: dims.map(|d| d - 1),
+            method: VolumeMethod::Siddon,
+            mu_water: 1.0,
+            step_mm: 0.5,
+            prefix: Default::default(),
+        };
+        let (origin, dir) = (
+            DVec3::new(-20.0, 3.2, 2.9),
+            DVec3::new(1.0, 0.05, 0.1).normalize(),
+        );
+        let (t0, t1) = r.clip(origin, dir).unwrap();
+        let before = integrate(&r, origin, dir, t0, t1);
+        let copy = r.clone();
+        assert!(std::ptr::eq(copy.axis_prefix(0), r.axis_prefix(0)));
+        let hu: Vec<f32> = (0..n).map(|i| (i % 7) as f32).collect();
+        let other = r.with_values(&hu, |h| 0.02 + 0.01 * h).unwrap();
+        assert!(other.prefix.iter().all(|p| p.get().is_none()));
+        let (got, want) = (
+            integrate(&other, origin, dir, t0, t1),
+            sorted_crossings(&other, origin, dir, t0, t1),
+        );
+        assert!((got - want).abs() <= 1e-9 * want, "{got} vs {want}");
+        assert!(
+            (got - before).abs() > 1e-3,
+            "{got} vs {before}: the old values' integral"
+        );
+    }
 }
