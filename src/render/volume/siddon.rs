@@ -12,10 +12,11 @@
 //! `(C(x_end) − C(x_start)) / dp_A` with `C(x) = ∫ μ_column` from the box's edge to `x`, which is the
 //! linear interpolation of the column's running sums `S(i) = Σ_{i' < i} μ` at the cell edges
 //! ([`super::prefix`]): `C` is piecewise linear with slope μ in each voxel. So a ray costs two
-//! interpolations per minor-axis crossing, however many voxels it crosses along `A`: a DRR ray through a
-//! CT crosses ~500 voxels but ~40 minor planes. The result is the sum Jacobs' step-by-step walk makes,
-//! regrouped: equal to ~1e-15 relative (the sums are f64); `C` is continuous, so a crossing that rounding
-//! puts in the neighbouring voxel along `A` changes nothing.
+//! interpolations per minor-axis crossing, however many voxels it crosses along `A`: a 1024² AP ray
+//! through a 512 × 512 × 133 CT crosses ~550 voxels but ~37 minor planes (`cargo bench --bench all --
+//! volume` counts both). The result is the sum Jacobs' step-by-step walk makes, regrouped, up to f64
+//! rounding (tested against Siddon's sorted crossings to 1e-9 relative); `C` is continuous, so a crossing
+//! that rounding puts in the neighbouring voxel along `A` changes nothing.
 
 use glam::DVec3;
 
