@@ -114,6 +114,18 @@ def render_mesh(
     """Line integral ``Σ μ·L`` (float32 H × W); with ``masks``/``depth``/``stats`` a tuple
     ``(image, masks, depth, stats)`` of what was asked for."""
 
+class CtRenderer:
+    """A CT volume DRR renderer of a fixed CT, built once: ``render_ct``'s arguments but the view. HU → μ
+    and the Siddon walk's running sums are computed once; each ``render`` equals ``render_ct`` bit for bit."""
+
+    def __init__(
+        self, hu: npt.NDArray[Any], affine: F64, mask: Bool | None = None,
+        method: Literal["siddon", "trilinear"] = "siddon", mu_water: float = ..., step_mm: float | None = None,
+        placement: Literal["volume-centre", "label-centre", "auto", "keep"] = "volume-centre",
+    ) -> None: ...
+    def render(self, view: View) -> F32:
+        """Line integrals of μ along the rays of ``view`` (float32 H × W)."""
+
 def render_ct(
     hu: npt.NDArray[Any], affine: F64, view: View, mask: Bool | None = None,
     method: Literal["siddon", "trilinear"] = "siddon", mu_water: float = ..., step_mm: float | None = None,

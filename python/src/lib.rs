@@ -42,6 +42,7 @@ fn spinedrr_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<anatomy::PyMesh>()?;
     m.add_class::<anatomy::PyPhantom>()?;
     m.add_class::<render::PyRenderer>()?;
+    m.add_class::<render::PyCtRenderer>()?;
     m.add_function(wrap_pyfunction!(anatomy::phantom, m)?)?;
     m.add_function(wrap_pyfunction!(anatomy::read_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_mesh, m)?)?;

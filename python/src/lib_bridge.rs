@@ -195,10 +195,40 @@ impl Renderer {
     }
 }
 
-/// A CT DRR as `spinedrr render --ct` renders it: volume, optional voxel mask, method, μ_water, step.
+/// A CT prepared as `spinedrr render --ct` prepares it (volume, optional voxel mask, method, μ_water,
+/// step, placement), for any number of views: μ and Siddon's running sums are built once.
+pub struct CtRenderer(VolumeRenderer);
+
+impl CtRenderer {
+    pub fn new(
+        mut ct: CtVolume,
+        keep: Option<Vec<bool>>,
+        method: &str,
+        mu_water: f64,
+        step_mm: Option<f64>,
+        placement: &str,
+    ) -> Result<Self> {
+        let method: VolumeMethod = method.parse()?;
+        let (mask, _) = place_ct(&mut ct, keep, placement)?;
+        let opts = VolumeRenderOptions {
+            method,
+            mu_water,
+            step_mm,
+        };
+        Ok(CtRenderer(VolumeRenderer::new(&ct, &opts, mask.as_ref())?))
+    }
+
+    /// The DRR of `view`, as `spinedrr render --ct … --view …` writes it.
+    pub fn render(&self, view: &View) -> Result<ImageF32> {
+        view.intrinsics.validate()?;
+        Ok(self.0.render(view))
+    }
+}
+
+/// One CT DRR: [`CtRenderer::new`] then [`CtRenderer::render`].
 #[allow(clippy::too_many_arguments)]
 pub fn render_ct(
-    mut ct: CtVolume,
+    ct: CtVolume,
     keep: Option<Vec<bool>>,
     method: &str,
     mu_water: f64,
@@ -206,16 +236,7 @@ pub fn render_ct(
     placement: &str,
     view: &View,
 ) -> Result<ImageF32> {
-    let method: VolumeMethod = method.parse()?;
-    let (mask, _) = place_ct(&mut ct, keep, placement)?;
-    let opts = VolumeRenderOptions {
-        method,
-        mu_water,
-        step_mm,
-    };
-    let renderer = VolumeRenderer::new(&ct, &opts, mask.as_ref())?;
-    view.intrinsics.validate()?;
-    Ok(renderer.render(view))
+    CtRenderer::new(ct, keep, method, mu_water, step_mm, placement)?.render(view)
 }
 
 /// Moves `ct` where `spinedrr render --placement PLACEMENT` moves it (with its keep mask, when given):

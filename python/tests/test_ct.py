@@ -61,6 +61,24 @@ def test_ct_label_and_bone_masks_equal_cli(cli, ct, phantom_dir, carm, tmp_path)
     assert np.all(bone <= full + 1e-6) and bone.max() > 0
 
 
+def test_a_ct_renderer_renders_many_views_as_render_ct(ct, phantom_dir, carm):
+    img, _ = ct
+    hu = img.get_fdata()
+    seg = np.asanyarray(nib.load(phantom_dir / "seg.nii.gz").dataobj)
+    views = [carm.view("ap"), carm.view("lat"), carm.view("ap").perturbed(spinedrr.Perturbation.parse("df=500,dcx=20"))]
+    for kwargs in [{}, {"mask": seg != 0, "placement": "label-centre"}, {"method": "trilinear"}]:
+        renderer = spinedrr.CtRenderer(hu, img.affine, **kwargs)
+        # Views in turn and again (the running sums are built by the first view along an axis, then reused).
+        for view in views + views[:1]:
+            image = renderer.render(view)
+            assert image.dtype == np.float32 and image.max() > 0.1
+            assert same_bits(image, spinedrr.render_ct(hu, img.affine, view, **kwargs))
+    with pytest.raises(ValueError, match="unknown|siddon"):
+        spinedrr.CtRenderer(hu, img.affine, method="joseph")
+    with pytest.raises(ValueError, match="invalid mask: keeps no voxel"):
+        spinedrr.CtRenderer(hu, img.affine, mask=np.zeros(hu.shape, dtype=bool))
+
+
 def test_bad_ct_inputs(ct, carm):
     img, _ = ct
     hu = img.get_fdata()
