@@ -306,7 +306,11 @@ fn ct_renders_time_repeats_and_refuse_inapplicable_values() {
     assert_eq!(timing["repeat"], 3);
     assert_eq!(timing["rays_traced"], 1024 * 1024);
     assert!(timing["median_ms"].as_f64().unwrap() >= timing["min_ms"].as_f64().unwrap());
-    assert!(timing["first_ms"].as_f64().unwrap() >= timing["min_ms"].as_f64().unwrap());
+    // The first render's own time (it builds the Siddon walk's running sums): reported beside the median.
+    assert!(
+        timing["first_ms"].as_f64().is_some_and(|t| t > 0.0),
+        "first_ms missing or not positive in {timing}"
+    );
     let step = [
         "render",
         "--ct",
