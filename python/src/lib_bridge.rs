@@ -225,20 +225,6 @@ impl CtRenderer {
     }
 }
 
-/// One CT DRR: [`CtRenderer::new`] then [`CtRenderer::render`].
-#[allow(clippy::too_many_arguments)]
-pub fn render_ct(
-    ct: CtVolume,
-    keep: Option<Vec<bool>>,
-    method: &str,
-    mu_water: f64,
-    step_mm: Option<f64>,
-    placement: &str,
-    view: &View,
-) -> Result<ImageF32> {
-    CtRenderer::new(ct, keep, method, mu_water, step_mm, placement)?.render(view)
-}
-
 /// Moves `ct` where `spinedrr render --placement PLACEMENT` moves it (with its keep mask, when given):
 /// the mask on the CT's grid and the motion applied.
 fn place_ct(

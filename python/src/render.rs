@@ -324,19 +324,7 @@ pub fn render_ct<'py>(
     step_mm: Option<f64>,
     placement: &str,
 ) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
-    let (dims, values) = hu_values(hu)?;
-    let affine = matrix::<4, 4>(affine, "affine")?;
-    let keep = mask.map(|m| mask_values(m, dims)).transpose()?;
-    let v = view.inner.clone();
-    let method = method.to_string();
-    let placement = placement.to_string();
-    let img = py
-        .detach(move || {
-            let ct = lib::ct_volume(dims, values, affine)?;
-            lib::render_ct(ct, keep, &method, mu_water, step_mm, &placement, &v)
-        })
-        .py_err()?;
-    image_to_py(py, img)
+    PyCtRenderer::new(py, hu, affine, mask, method, mu_water, step_mm, placement)?.render(py, view)
 }
 
 /// A CT volume DRR renderer of a fixed CT: build once, render any number of views, each the result of

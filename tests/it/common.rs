@@ -18,9 +18,17 @@ pub const MESH_CACHE: &str = concat!(env!("CARGO_TARGET_TMPDIR"), "/phantom-mesh
 
 /// A study config's `experiments` line: every experiment but the intensity registration, which studies
 /// the phantom's L3 whatever the anatomy (its default target) and dominated the time of the studies that
-/// test other targets (`study_intensity` and `registration_intensity*` test it).
-pub const ALL_BUT_INTENSITY: &str = "experiments = [\"projection\", \"landmarks\", \"registration\", \
-\"calibration\", \"tracking\", \"screws\"]";
+/// test other targets (`study_intensity` and `registration_intensity*` test it). Derived from
+/// `Experiment::ALL`, so an experiment added later runs here too.
+pub fn all_but_intensity() -> String {
+    use spinedrr::study::config::Experiment;
+    let names: Vec<String> = Experiment::ALL
+        .iter()
+        .filter(|&&e| e != Experiment::IntensityRegistration)
+        .map(|e| format!("{:?}", e.name()))
+        .collect();
+    format!("experiments = [{}]", names.join(", "))
+}
 
 /// A `spinedrr` command line under construction.
 pub struct Spinedrr(Command);

@@ -18,7 +18,7 @@ use spinedrr::study::StudyTables;
 use spinedrr::study::config::RegistrationMethod;
 use spinedrr::study::schema::{Family, ProjectionRow};
 
-use crate::common::{ALL_BUT_INTENSITY, Spinedrr};
+use crate::common::{Spinedrr, all_but_intensity};
 
 /// Where the scanner puts the phantom's origin (mm): far from where the views aim.
 const SCANNER_OFFSET: [f64; 3] = [30.0, -20.0, 400.0];
@@ -106,7 +106,7 @@ fn study_out() -> &'static Path {
         // The CT targets through every experiment but the intensity registration (which studies the
         // phantom's L3: measured, this module's tests took 57 CPU-seconds with it, 15 without).
         let cfg = format!(
-            "{ALL_BUT_INTENSITY}\n\
+            "{experiments}\n\
 [anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.0\nmarker_radius_mm = 4.0\n\
 [[anatomy.ct]]\nname = \"syn\"\nct = {ct:?}\nseg = {seg:?}\nlabels = \"totalseg\"\n\
 levels = [\"L1\", \"L2\"]\nsegment = true\n\
@@ -114,6 +114,7 @@ levels = [\"L1\", \"L2\"]\nsegment = true\n\
 [[anatomy.ct]]\nname = \"upright\"\nct = {ct:?}\nseg = {seg:?}\nlevels = [\"L1\"]\nalign = \"anatomical\"\n\
 [[anatomy.ct]]\nname = \"tilt\"\nct = {tct:?}\nseg = {tseg:?}\nlevels = [\"L1\"]\nalign = \"anatomical\"\n\
 {GRID}",
+            experiments = all_but_intensity(),
             ct = i.join("ct.nii").to_str().unwrap(),
             seg = i.join("seg.nii").to_str().unwrap(),
             tct = i.join("tilt.nii").to_str().unwrap(),

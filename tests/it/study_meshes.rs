@@ -9,7 +9,7 @@ use spinedrr::anatomy::{TriMesh, write_mesh};
 use spinedrr::study::schema::Family;
 use spinedrr::study::{StudyConfig, StudyTables};
 
-use crate::common::{ALL_BUT_INTENSITY, Spinedrr};
+use crate::common::{Spinedrr, all_but_intensity};
 
 /// Runs `spinedrr study --config CFG --out OUT [EXTRA…]`.
 fn run_study(cfg: &Path, out: &Path, extra: &[&str]) -> Output {
@@ -87,7 +87,7 @@ fn mesh_target_study_obeys_the_homography_law() {
     // The box through every experiment but the intensity registration (the phantom's L3, not the box:
     // measured, this test took 39 CPU-seconds with it, 3 without).
     let text = std::fs::read_to_string(&cfg_path).unwrap();
-    std::fs::write(&cfg_path, format!("{ALL_BUT_INTENSITY}\n{text}")).unwrap();
+    std::fs::write(&cfg_path, format!("{}\n{text}", all_but_intensity())).unwrap();
     let out = dir.path().join("out");
     let o = run_study(&cfg_path, &out, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
