@@ -65,7 +65,7 @@ pub fn run(c: &mut Criterion) {
                     "summary {label:6} {view_name:3} {:6} tris {tris:6} build {build_ms:7.1} ms  drr {best:7.2} ms  \
                      with masks+depth {best_full:7.2} ms  rays {:7} ({:.1} M/s)  hits {:7} ({:.1} M/s)  \
                      repaired {}  first-hit floor {floor_ms:.2} ms  ratio {:.2}",
-                    backend_name(*backend),
+                    backend.name(),
                     s.rays_traced,
                     s.rays_traced as f64 / best / 1e3,
                     s.hits,
@@ -78,7 +78,7 @@ pub fn run(c: &mut Criterion) {
             g.sample_size(20);
             for (backend, r, _) in &renderers {
                 g.throughput(Throughput::Elements(1024 * 1024));
-                g.bench_function(backend_name(*backend), |b| {
+                g.bench_function(backend.name(), |b| {
                     b.iter(|| r.render(view, &drr).expect("render"))
                 });
             }
@@ -96,13 +96,5 @@ pub fn run(c: &mut Criterion) {
             b.iter(|| Backend::Bvh.renderer(scene.clone()).expect("build"))
         });
         g.finish();
-    }
-}
-
-fn backend_name(b: Backend) -> &'static str {
-    match b {
-        Backend::Embree => "embree",
-        Backend::Bvh => "bvh",
-        Backend::Raster => "raster",
     }
 }

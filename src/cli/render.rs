@@ -71,11 +71,14 @@ pub struct Args {
     /// world_to_camera and P = K [R | t] beside the reference's.
     #[arg(long, default_value = "none", value_name = "SPEC")]
     perturb: String,
-    /// How rays find the surfaces: `raster` (exact edge functions per pixel, the fastest; a view with a
-    /// vertex at or behind the source plane is traced with Embree), `embree` (all hits in one Embree
-    /// traversal) or `bvh` (the pure-Rust reference). All give the same path lengths (to ~1e-7 mm).
-    #[arg(long, value_enum, default_value_t = Backend::Raster, conflicts_with = "ct")]
-    backend: Backend,
+    /// What renders. Meshes and phantoms: `raster` (the default; exact edge functions per pixel, the
+    /// fastest; a view with a vertex at or behind the source plane is traced with Embree), `embree` (all
+    /// hits in one Embree traversal) or `bvh` (the pure-Rust reference); all give the same path lengths
+    /// (to ~1e-7 mm). A CT (`--ct`) renders on the CPU unless `gpu` is given: compute shaders through
+    /// wgpu on the machine's GPU (Vulkan, Metal or DX12; Mesa's software Vulkan, lavapipe, where there is
+    /// none), the same Siddon or trilinear integral to ~1e-5; the sidecar names the adapter.
+    #[arg(long, value_enum, value_name = "BACKEND")]
+    backend: Option<Backend>,
     /// Write silhouette masks per object and per structure (meshes and phantom only).
     #[arg(long, conflicts_with = "ct")]
     masks: bool,
@@ -223,9 +226,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .map(|(_, m, material)| (m, material))
                 .collect(),
             placed,
-            backend: a.backend,
+            backend: Backend::Raster,
         };
-        return super::render_ct::run_ct(&a.ct, &run, model, implants);
+        let gpu = match a.backend {
+            None => false,
+            Some(Backend::Gpu) => true,
+            Some(b) => bail!(
+                "--backend {} renders meshes; a CT (--ct) renders on the CPU (leave --backend out) or \
+                 with --backend gpu",
+                Backend::name(b)
+            ),
+        };
+        return super::render_ct::run_ct(&a.ct, &run, model, implants, gpu);
+    }
+    let mesh_backend = a.backend.unwrap_or(Backend::Raster);
+    if mesh_backend == Backend::Gpu {
+        bail!("--backend {}", spinedrr::render::GPU_MESHES);
     }
     if let Some(model) = model {
         let scene = super::render_spectral::SceneSpec {
@@ -237,7 +253,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             screws: a.spectral.screws,
             screws_at: a.spectral.screws_at.as_deref(),
         };
-        return super::render_spectral::run_spectral(&scene, model, a.backend, &run);
+        return super::render_spectral::run_spectral(&scene, model, mesh_backend, &run);
     }
 
     let (scene, anatomy) = build_scene(&a)?;
@@ -252,7 +268,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     check_source_outside(&rendered, &named)?;
     let corners = mesh_corners(scene.meshes.iter().map(|m| m.mesh.as_ref()));
     let mu_cause = mesh_mu_cause(&scene);
-    let renderer = a.backend.renderer(scene)?;
+    let renderer = mesh_backend.renderer(scene)?;
     let mut times = Vec::with_capacity(a.repeat as usize);
     let opts = ThicknessOptions {
         masks: a.masks,

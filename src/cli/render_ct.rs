@@ -72,13 +72,21 @@ pub struct CtImplants {
 
 /// Renders the CT DRR of `run.view` under `run.perturbation` to `run.out` (float32 TIFF of
 /// `run.values`), with its JSON sidecar and an 8-bit PNG preview beside it; with `run.repeat > 1` prints
-/// the timing statistics as one JSON line on stderr.
+/// the timing statistics as one JSON line on stderr. With `gpu`, the rays run in a compute shader on
+/// the machine's GPU adapter (`--backend gpu`).
 pub fn run_ct(
     a: &CtArgs,
     run: &RenderRun,
     model: Option<SpectralModel>,
     implants: CtImplants,
+    gpu: bool,
 ) -> anyhow::Result<()> {
+    if gpu && (model.is_some() || !implants.meshes.is_empty()) {
+        bail!(
+            "--backend gpu renders monochromatic CT DRRs so far: drop --spectrum and --implant/--screws-at, \
+             or --backend gpu"
+        );
+    }
     let Some(ct_path) = &a.ct else {
         bail!("--ct is required for a CT render");
     };
@@ -149,16 +157,23 @@ pub fn run_ct(
                 .with_implants(&moved, implants.backend)
         })
         .transpose()?;
+    let on_gpu = if gpu {
+        Some(OnGpu::new(&renderer)?)
+    } else {
+        None
+    };
     let mut times = Vec::with_capacity(run.repeat as usize);
     let mut img = None;
     for _ in 0..run.repeat {
         let start = Instant::now();
-        img = Some(match &spectral {
-            Some(s) => s.render(run.rendered)?.line_integral,
-            None => renderer.render(run.rendered),
+        img = Some(match (&spectral, &on_gpu) {
+            (Some(s), _) => s.render(run.rendered)?.line_integral,
+            (None, Some(g)) => g.render(run.rendered)?,
+            (None, None) => renderer.render(run.rendered),
         });
         times.push(start.elapsed().as_secs_f64() * 1e3);
     }
+    let adapter = on_gpu.as_ref().map(OnGpu::adapter);
     let Some(img) = img else {
         bail!("invalid --repeat 0: render at least once");
     };
@@ -171,7 +186,8 @@ pub fn run_ct(
         eprintln!(
             "{}",
             json!({
-                "backend": format!("volume-{method}"),
+                "backend": format!("{}-{method}", if gpu { "gpu" } else { "volume" }),
+                "adapter": adapter,
                 "view": run.view.name,
                 "repeat": run.repeat,
                 "median_ms": median_ms,
@@ -227,6 +243,7 @@ pub fn run_ct(
         bone_hu: a.bone_hu,
         placement: placed,
         render: renderer.details(),
+        gpu_adapter: adapter,
         spectral: spectral.as_ref().map(|s| {
             let mut summary = s.summary();
             super::render_spectral::merge_placed(&mut summary, implants.placed.clone());
@@ -256,6 +273,9 @@ struct CtInputs {
     placement: Placed,
     #[serde(flatten)]
     render: VolumeDetails,
+    /// The GPU adapter that rendered it, with --backend gpu.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    gpu_adapter: Option<String>,
     /// The spectral model and the HU conversion, with --spectrum.
     #[serde(skip_serializing_if = "Option::is_none")]
     spectral: Option<serde_json::Value>,
@@ -284,4 +304,46 @@ fn ct_zero_cause(hu: &[f32], keep: Option<&[bool]>) -> Option<String> {
             }
         )
     })
+}
+
+/// The GPU renderer of `--backend gpu` (the build's `gpu` feature).
+#[cfg(feature = "gpu")]
+struct OnGpu(spinedrr::render::gpu::GpuCtRenderer);
+
+#[cfg(feature = "gpu")]
+impl OnGpu {
+    fn new(cpu: &VolumeRenderer) -> anyhow::Result<OnGpu> {
+        use spinedrr::render::gpu::{GpuContext, GpuCtRenderer};
+        let ctx = GpuContext::new().context("--backend gpu")?;
+        Ok(OnGpu(GpuCtRenderer::new(ctx, cpu)?))
+    }
+
+    fn render(&self, view: &spinedrr::geometry::View) -> anyhow::Result<spinedrr::io::ImageF32> {
+        Ok(self.0.render(view)?)
+    }
+
+    fn adapter(&self) -> String {
+        self.0.adapter_name()
+    }
+}
+
+/// Without the `gpu` feature, `--backend gpu` is refused (no value of this type exists).
+#[cfg(not(feature = "gpu"))]
+enum OnGpu {}
+
+#[cfg(not(feature = "gpu"))]
+impl OnGpu {
+    fn new(_: &VolumeRenderer) -> anyhow::Result<OnGpu> {
+        bail!(
+            "--backend gpu: this spinedrr was built without its gpu feature (cargo build --features gpu)"
+        )
+    }
+
+    fn render(&self, _: &spinedrr::geometry::View) -> anyhow::Result<spinedrr::io::ImageF32> {
+        match *self {}
+    }
+
+    fn adapter(&self) -> String {
+        match *self {}
+    }
 }

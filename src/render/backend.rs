@@ -22,11 +22,18 @@ pub enum Backend {
     /// structure; the fastest for DRRs. A view with a vertex at or behind the source plane is traced
     /// with Embree instead.
     Raster,
+    /// Compute shaders through wgpu (Vulkan, Metal, DX12; Mesa's lavapipe where there is no GPU):
+    /// CT volume DRRs (`render --ct`) so far, not meshes.
+    Gpu,
 }
+
+/// Why the GPU backend cannot take a mesh scene.
+pub const GPU_MESHES: &str = "the gpu backend renders CT volumes (render --ct, Siddon or trilinear) \
+    so far; meshes, phantoms and implants render with raster, embree or bvh";
 
 impl Backend {
     /// The backend named `name` as `--backend` and the study's `backend` key spell it (`raster`,
-    /// `embree`, `bvh`).
+    /// `embree`, `bvh`, `gpu`).
     pub fn parse(name: &str) -> Result<Backend> {
         use clap::ValueEnum;
         Backend::from_str(name, false).map_err(|_| {
@@ -44,12 +51,20 @@ impl Backend {
         })
     }
 
+    /// The backend's name as `--backend` spells it.
+    pub fn name(self) -> String {
+        use clap::ValueEnum;
+        self.to_possible_value()
+            .map_or_else(|| format!("{self:?}"), |v| v.get_name().to_string())
+    }
+
     /// Builds a renderer for `scene` with this backend.
     pub fn renderer(self, scene: RenderScene) -> Result<ThicknessRenderer> {
         let tracer: Box<dyn HitTracer> = match self {
             Backend::Embree => Box::new(EmbreeTracer::new(&scene)?),
             Backend::Bvh => Box::new(BvhTracer::new(&scene)),
             Backend::Raster => return Ok(ThicknessRenderer::raster(scene, raster_fallback)),
+            Backend::Gpu => return Err(Error::invalid("backend", GPU_MESHES)),
         };
         Ok(ThicknessRenderer::new(scene, tracer))
     }

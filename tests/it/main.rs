@@ -16,6 +16,8 @@ mod cli_values;
 mod common;
 mod ct_structures;
 mod fuzz_regressions;
+#[cfg(feature = "gpu")]
+mod gpu_ct;
 mod landmark_formats;
 mod meshing_cli;
 mod meshing_decimate;

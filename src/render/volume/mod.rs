@@ -262,6 +262,11 @@ impl VolumeRenderer {
         })
     }
 
+    /// The ray integrator.
+    pub fn method(&self) -> VolumeMethod {
+        self.method
+    }
+
     /// The trilinear step actually used (mm).
     pub fn step_mm(&self) -> f64 {
         self.step_mm

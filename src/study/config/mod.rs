@@ -202,11 +202,7 @@ impl Default for StudyConfig {
 impl GeometrySection {
     /// The backend's user spelling (`raster`, `embree`, `bvh`), as `--backend` and the config take it.
     pub fn backend_name(&self) -> String {
-        use clap::ValueEnum;
-        self.backend.to_possible_value().map_or_else(
-            || format!("{:?}", self.backend),
-            |v| v.get_name().to_string(),
-        )
+        self.backend.name()
     }
 }
 

@@ -232,6 +232,8 @@ vertex at or behind the source plane is traced with Embree instead)"
             "the Embree backend: Intel Embree ray tracing, all hits in one traversal"
         }
         Backend::Bvh => "the BVH backend: the pure-Rust f64 BVH with a watertight triangle test",
+        // Refused by StudyConfig::validate until the GPU renders meshes.
+        Backend::Gpu => "the GPU backend: compute shaders through wgpu",
     }
 }
 

@@ -1,0 +1,144 @@
+//! The GPU backend (`--backend gpu`): compute shaders in WGSL through `wgpu`, on whatever the machine
+//! offers — Vulkan, Metal or DX12 — with one code base. Where there is no GPU, Mesa's software Vulkan
+//! (lavapipe, Debian's `mesa-vulkan-drivers`) runs the same shaders on the CPU, which is how the tests
+//! compare this backend with the CPU renderers.
+//!
+//! [`GpuContext`] is the device (one per process is enough: it is shared through an `Arc`);
+//! [`GpuCtRenderer`] renders CT DRRs (exact Siddon and trilinear) of a [`super::volume::VolumeRenderer`]'s
+//! μ grid. Every wgpu call that can fail is checked inside an error scope, so a refused buffer, a shader
+//! the driver cannot compile or a lost device is an [`Error`], never a panic.
+
+mod ct;
+
+use std::sync::Arc;
+
+pub use ct::GpuCtRenderer;
+
+use crate::{Error, Result};
+
+/// A GPU device and its queue, with what the adapter says about itself.
+pub struct GpuContext {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    info: wgpu::AdapterInfo,
+    limits: wgpu::Limits,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext")
+            .field("adapter", &self.adapter_name())
+            .finish()
+    }
+}
+
+/// What to install when no adapter is found.
+const NO_ADAPTER_HELP: &str = "the gpu backend needs a Vulkan, Metal or DX12 adapter; on Linux \
+    without a GPU (or without its Vulkan driver), Mesa's software Vulkan provides one: \
+    apt-get install mesa-vulkan-drivers (scripts/install-deps.sh installs it)";
+
+impl GpuContext {
+    /// Opens the highest-performance adapter the system offers (a discrete GPU before an integrated
+    /// one, a hardware one before lavapipe), with every limit the adapter supports.
+    pub fn new() -> Result<Arc<GpuContext>> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+            backends: wgpu::Backends::PRIMARY,
+            ..wgpu::InstanceDescriptor::new_without_display_handle()
+        });
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| Error::Resource(format!("no GPU adapter found ({e}): {NO_ADAPTER_HELP}")))?;
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("spinedrr"),
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| {
+            Error::Resource(format!(
+                "GPU adapter {} refused a device: {e}",
+                describe(&info)
+            ))
+        })?;
+        // Every call below runs in an error scope; an error outside one (a bug) is reported, not a panic.
+        device.on_uncaptured_error(Arc::new(|e| {
+            eprintln!("warning: GPU error outside an error scope: {e}");
+        }));
+        Ok(Arc::new(GpuContext {
+            device,
+            queue,
+            info,
+            limits,
+        }))
+    }
+
+    /// The adapter as a sidecar records it: name, backend, device type and driver.
+    pub fn adapter_name(&self) -> String {
+        describe(&self.info)
+    }
+
+    /// Whether the adapter is a software rasteriser (lavapipe, WARP): timings there say nothing about a
+    /// GPU.
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// Runs `f` with validation and out-of-memory errors captured: a wgpu error becomes an
+    /// [`Error::External`] naming `what`.
+    pub(crate) fn checked<T>(&self, what: &str, f: impl FnOnce() -> T) -> Result<T> {
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let value = f();
+        let errors = [
+            pollster::block_on(validation.pop()),
+            pollster::block_on(oom.pop()),
+        ];
+        match errors.into_iter().flatten().next() {
+            None => Ok(value),
+            Some(e) => Err(Error::External {
+                library: "wgpu",
+                message: format!("{what} on {}: {e}", self.adapter_name()),
+            }),
+        }
+    }
+
+    /// Waits for the queue's work; a lost device or a timeout is an error naming `what`.
+    pub(crate) fn wait(&self, what: &str) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| Error::External {
+                library: "wgpu",
+                message: format!("{what} on {}: {e}", self.adapter_name()),
+            })
+    }
+
+    /// The largest 3-D texture edge the adapter takes.
+    pub(crate) fn max_texture_3d(&self) -> u32 {
+        self.limits.max_texture_dimension_3d
+    }
+
+    /// The largest storage buffer binding (bytes).
+    pub(crate) fn max_storage_binding(&self) -> u64 {
+        self.limits.max_storage_buffer_binding_size
+    }
+
+    /// The most workgroups one dispatch may have along an axis.
+    pub(crate) fn max_workgroups(&self) -> u32 {
+        self.limits.max_compute_workgroups_per_dimension
+    }
+}
+
+fn describe(info: &wgpu::AdapterInfo) -> String {
+    let mut s = format!("{} ({:?}, {:?}", info.name, info.backend, info.device_type);
+    if !info.driver.is_empty() {
+        s.push_str(&format!(", {} {}", info.driver, info.driver_info));
+    }
+    s.push(')');
+    s
+}
