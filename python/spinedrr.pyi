@@ -116,13 +116,18 @@ def render_mesh(
 
 class CtRenderer:
     """A CT volume DRR renderer of a fixed CT, built once: ``render_ct``'s arguments but the view. HU → μ
-    and the Siddon walk's running sums are computed once; each ``render`` equals ``render_ct`` bit for bit."""
+    and the Siddon walk's running sums are computed once; each ``render`` equals ``render_ct`` bit for bit.
+    ``backend="gpu"`` renders with compute shaders on the machine's GPU adapter (to ~1e-5 relative)."""
 
     def __init__(
         self, hu: npt.NDArray[Any], affine: F64, mask: Bool | None = None,
         method: Literal["siddon", "trilinear"] = "siddon", mu_water: float = ..., step_mm: float | None = None,
         placement: Literal["volume-centre", "label-centre", "auto", "keep"] = "volume-centre",
+        backend: Literal["cpu", "gpu"] = "cpu",
     ) -> None: ...
+    @property
+    def adapter(self) -> str | None:
+        """The GPU adapter that renders (``backend="gpu"``), or ``None`` on the CPU."""
     def render(self, view: View) -> F32:
         """Line integrals of μ along the rays of ``view`` (float32 H × W)."""
 

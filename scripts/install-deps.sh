@@ -8,6 +8,9 @@ set -euo pipefail
 packages=(libembree-dev libopencv-dev clang libclang-dev pkg-config chromium python3-pip)
 # slurm-wlm, munge: the single-node cluster tests/it/study_slurm.rs starts (scripts/slurm-local.sh).
 packages+=(slurm-wlm munge)
+# mesa-vulkan-drivers (lavapipe, Mesa's software Vulkan) and the Vulkan loader: the GPU backend's tests
+# (tests/it/gpu_ct.rs) run its compute shaders on the CPU where there is no GPU.
+packages+=(mesa-vulkan-drivers libvulkan1)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then

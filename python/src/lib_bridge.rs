@@ -197,9 +197,14 @@ impl Renderer {
 
 /// A CT prepared as `spinedrr render --ct` prepares it (volume, optional voxel mask, method, μ_water,
 /// step, placement), for any number of views: μ and Siddon's running sums are built once.
-pub struct CtRenderer(VolumeRenderer);
+pub struct CtRenderer {
+    cpu: VolumeRenderer,
+    /// With `backend="gpu"`: the same CT on the machine's GPU adapter.
+    gpu: Option<spinedrr::render::gpu::GpuCtRenderer>,
+}
 
 impl CtRenderer {
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         mut ct: CtVolume,
         keep: Option<Vec<bool>>,
@@ -207,21 +212,48 @@ impl CtRenderer {
         mu_water: f64,
         step_mm: Option<f64>,
         placement: &str,
+        backend: &str,
     ) -> Result<Self> {
         let method: VolumeMethod = method.parse()?;
+        let on_gpu = match backend {
+            "cpu" => false,
+            "gpu" => true,
+            _ => {
+                return Err(Error::invalid(
+                    "backend",
+                    format!("{backend:?}: a CT renders on the \"cpu\" or the \"gpu\""),
+                ));
+            }
+        };
         let (mask, _) = place_ct(&mut ct, keep, placement)?;
         let opts = VolumeRenderOptions {
             method,
             mu_water,
             step_mm,
         };
-        Ok(CtRenderer(VolumeRenderer::new(&ct, &opts, mask.as_ref())?))
+        let cpu = VolumeRenderer::new(&ct, &opts, mask.as_ref())?;
+        let gpu = if on_gpu {
+            let ctx = spinedrr::render::gpu::GpuContext::new()?;
+            Some(spinedrr::render::gpu::GpuCtRenderer::new(ctx, &cpu)?)
+        } else {
+            None
+        };
+        Ok(CtRenderer { cpu, gpu })
     }
 
-    /// The DRR of `view`, as `spinedrr render --ct … --view …` writes it.
+    /// The DRR of `view`, as `spinedrr render --ct … --view …` writes it (with `--backend gpu` on the
+    /// GPU).
     pub fn render(&self, view: &View) -> Result<ImageF32> {
         view.intrinsics.validate()?;
-        Ok(self.0.render(view))
+        match &self.gpu {
+            Some(g) => g.render(view),
+            None => Ok(self.cpu.render(view)),
+        }
+    }
+
+    /// The GPU adapter that renders, or `None` on the CPU.
+    pub fn adapter(&self) -> Option<String> {
+        self.gpu.as_ref().map(|g| g.adapter_name())
     }
 }
 

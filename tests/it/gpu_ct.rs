@@ -83,18 +83,34 @@ fn views(target: DVec3, n: u32) -> Vec<View> {
     v
 }
 
-/// The largest per-pixel difference relative to the CPU value over the pixels whose CPU value is at
-/// least `floor`, and the largest absolute difference over all pixels.
-fn worst(gpu: &ImageF32, cpu: &ImageF32, floor: f32) -> (f64, f64) {
-    let (mut rel, mut abs) = (0.0f64, 0.0f64);
+/// Asserts `gpu` equals `cpu` within 1e-5 of the image's largest value everywhere and of each pixel's
+/// own value wherever it carries a tenth of the largest. Trilinear's midpoint rule takes ⌈length / step⌉
+/// samples, which jumps where a ray's length crosses a whole number of steps (rings around an AP view's
+/// central ray, in the CPU's image too): within f32's rounding of such a ring a ray may take one sample
+/// more or fewer than in f64, so for trilinear up to 1e-3 of the rays that hit may differ, by at most
+/// 1e-4 of the largest value (python/tests/test_ct.py measured 12 of 48 000 rays, ≤ 2.4e-5).
+fn assert_close(method: VolumeMethod, gpu: &ImageF32, cpu: &ImageF32, what: &str) {
+    let max = f64::from(cpu.max());
+    let hit = cpu.data.iter().filter(|&&c| c > 0.0).count();
+    let (mut rel, mut abs, mut ringed) = (0.0f64, 0.0f64, 0usize);
     for (g, c) in gpu.data.iter().zip(&cpu.data) {
-        let d = f64::from((g - c).abs());
+        let (g, c) = (f64::from(*g), f64::from(*c));
+        let d = (g - c).abs();
+        if method == VolumeMethod::Trilinear && d > 1e-5 * max {
+            assert!(d <= 1e-4 * max, "{what}: {g} against {c} (max {max})");
+            ringed += 1;
+            continue;
+        }
         abs = abs.max(d);
-        if *c >= floor {
-            rel = rel.max(d / f64::from(*c));
+        if c >= 0.1 * max {
+            rel = rel.max(d / c);
         }
     }
-    (rel, abs)
+    assert!(
+        rel <= 1e-5 && abs <= 1e-5 * max && ringed as f64 <= 1e-3 * hit as f64,
+        "{what}: GPU against CPU {rel:.2e} relative, {abs:.2e} absolute (max {max}), {ringed} of {hit} \
+         rays off by a sample"
+    );
 }
 
 #[test]
@@ -118,14 +134,9 @@ fn gpu_siddon_and_trilinear_equal_the_cpu_renderer_on_an_oblique_random_ct() {
             assert!(max > 0.2, "{method}: the view misses the CT ({max})");
             let hit = c.data.iter().filter(|&&x| x > 0.0).count();
             assert!(hit > 500, "{method}: only {hit} pixels see the CT");
-            // Within 1e-5 of the image's largest value everywhere, and within 1e-5 of its own value
-            // wherever a pixel carries a tenth of the largest (on this worst case, rays that only clip
-            // a corner of the box carry little and keep f32's ~1e-7 absolute, up to ~2e-5 of their own).
-            let (rel, abs) = worst(g, &c, 0.1 * max);
-            assert!(
-                rel <= 1e-5 && abs <= 1e-5 * f64::from(max),
-                "{method}: GPU against CPU {rel:.2e} relative, {abs:.2e} absolute (max {max})"
-            );
+            // (On this worst case, rays that only clip a corner of the box carry little and keep f32's
+            // ~1e-7 absolute, up to ~2e-5 of their own value: hence the tenth.)
+            assert_close(method, g, &c, &format!("{method} {}", view.name));
         }
         // One view alone is the same as in the batch.
         let one = gpu.render(&vs[1]).unwrap();
@@ -162,12 +173,7 @@ fn gpu_masked_level_equals_the_cpu_masked_render() {
         let gpu = GpuCtRenderer::new(ctx.clone(), &cpu).unwrap();
         for (view, g) in vs.iter().zip(gpu.render_views(&vs).unwrap()) {
             let c = cpu.render(view);
-            let max = c.max();
-            let (rel, abs) = worst(&g, &c, 0.1 * max);
-            assert!(
-                rel <= 1e-5 && abs <= 1e-5 * f64::from(max),
-                "{method} masked: {rel:.2e} relative, {abs:.2e} absolute (max {max})"
-            );
+            assert_close(method, &g, &c, &format!("{method} masked"));
         }
     }
 }
@@ -224,11 +230,8 @@ fn cli_backend_gpu_renders_ct_and_refuses_what_it_cannot() {
         let on_gpu = spinedrr::io::read_tiff_f32(&dir.path().join("gpu.tiff")).unwrap();
         let max = cpu.max();
         assert!(max > 0.2, "{method}: {max}");
-        let (rel, abs) = worst(&on_gpu, &cpu, 0.1 * max);
-        assert!(
-            rel <= 1e-5 && abs <= 1e-5 * f64::from(max),
-            "{method}: {rel:.2e} relative, {abs:.2e} absolute"
-        );
+        let m: VolumeMethod = method.parse().unwrap();
+        assert_close(m, &on_gpu, &cpu, &format!("CLI {method}"));
         let side: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("gpu.json")).unwrap())
                 .unwrap();

@@ -238,7 +238,9 @@ fn mu_at(p: vec3<f32>) -> f32 {
     return lerp(lerp(c00, c10, y.z), lerp(c01, c11, y.z), z.z);
 }
 
-// Midpoint rule over the clipped ray: N = ⌈len / step⌉ samples of trilinear μ, h = len / N.
+// Midpoint rule over the clipped ray: N = ⌈len / step⌉ samples of trilinear μ, h = len / N. N jumps
+// where len crosses a whole number of steps (in an AP view, on rings around the central ray): within f32's
+// rounding of such a ring a ray may take one sample more or fewer than the f64 CPU renderer's.
 @compute @workgroup_size(8, 8, 1)
 fn trilinear(@builtin(global_invocation_id) gid: vec3<u32>) {
     let u = gid.x;
