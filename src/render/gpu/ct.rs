@@ -23,7 +23,7 @@ use glam::{DMat3, DVec3};
 use super::GpuContext;
 use crate::geometry::View;
 use crate::io::ImageF32;
-use crate::render::volume::{VolumeDetails, VolumeMethod, VolumeRenderer};
+use crate::render::volume::{VolumeDetails, VolumeMethod, VolumeRenderer, footprint};
 use crate::{Error, Result};
 
 /// One view's rays (`View` in ct.wgsl): rows of `Rᵀ K⁻¹`; rows of its index-space image `Mi` and of the
@@ -53,6 +53,8 @@ struct Globals {
     dims: [u32; 4],
     /// Width, height, and a 0 the shader's `opaque` needs to be a run-time value.
     image: [u32; 4],
+    /// First column and row, width and height of the pixels traced.
+    window: [u32; 4],
     h_max: [f32; 4],
 }
 
@@ -254,7 +256,22 @@ impl GpuCtRenderer {
         let n = views.len() as u32;
         let pixels = u64::from(w) * u64::from(h);
         let out_bytes = 4 * pixels * u64::from(n);
-        let groups = [w.div_ceil(WORKGROUP), h.div_ceil(WORKGROUP), n];
+        // Only the pixels whose rays can meet the box are traced (as on the CPU): the union of the views'
+        // footprints; a masked level's box covers a small part of the detector.
+        let hi = [0, 1, 2].map(|a| self.lo[a] + self.dims[a] as usize - 1);
+        let window = views
+            .iter()
+            .filter_map(|v| footprint(&self.world_to_index, self.lo, hi, v))
+            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1), a.2.min(b.2), a.3.max(b.3)));
+        let Some((u0, u1, v0, v1)) = window else {
+            return Ok(views.iter().map(|_| ImageF32::zeros(w, h)).collect());
+        };
+        let window = [u0, v0, u1 + 1 - u0, v1 + 1 - v0].map(|x| x as u32);
+        let groups = [
+            window[2].div_ceil(WORKGROUP),
+            window[3].div_ceil(WORKGROUP),
+            n,
+        ];
         let max_groups = self.ctx.max_workgroups();
         if out_bytes > self.ctx.max_storage_binding() || groups.iter().any(|&g| g > max_groups) {
             return Err(Error::invalid(
@@ -268,13 +285,11 @@ impl GpuCtRenderer {
                 ),
             ));
         }
-        if pixels == 0 {
-            return Ok(views.iter().map(|_| ImageF32::zeros(w, h)).collect());
-        }
         let rays: Vec<ViewRays> = views.iter().map(|v| self.view_rays(v)).collect();
         let globals = Globals {
             dims: [self.dims[0], self.dims[1], self.dims[2], n],
             image: [w, h, 0, 0],
+            window,
             h_max: [self.step_mm as f32, 0.0, 0.0, 0.0],
         };
         let device = &self.ctx.device;

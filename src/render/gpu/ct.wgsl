@@ -46,6 +46,9 @@ struct Globals {
     dims: vec4<u32>,
     // Detector width and height (xy); z is always 0 (see `opaque`).
     image: vec4<u32>,
+    // The pixels traced: first column and row (xy), width and height (zw), the union of the views'
+    // footprints of the box (the rest of the output stays 0: wgpu zeroes new buffers).
+    window: vec4<u32>,
     // Trilinear step h_max in mm (x).
     h_max: vec4<f32>,
 }
@@ -150,12 +153,12 @@ fn kahan(s: vec2<f32>, x: f32) -> vec2<f32> {
 // voxel's μ times the length of the ray inside it.
 @compute @workgroup_size(8, 8, 1)
 fn siddon(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let u = gid.x;
-    let v = gid.y;
-    let k = gid.z;
-    if u >= G.image.x || v >= G.image.y || k >= G.dims.w {
+    if gid.x >= G.window.z || gid.y >= G.window.w || gid.z >= G.dims.w {
         return;
     }
+    let u = gid.x + G.window.x;
+    let v = gid.y + G.window.y;
+    let k = gid.z;
     let r = pixel_ray(k, u, v);
     if r.len <= 0.0 {
         out[out_index(k, u, v)] = 0.0;
@@ -243,12 +246,12 @@ fn mu_at(p: vec3<f32>) -> f32 {
 // rounding of such a ring a ray may take one sample more or fewer than the f64 CPU renderer's.
 @compute @workgroup_size(8, 8, 1)
 fn trilinear(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let u = gid.x;
-    let v = gid.y;
-    let k = gid.z;
-    if u >= G.image.x || v >= G.image.y || k >= G.dims.w {
+    if gid.x >= G.window.z || gid.y >= G.window.w || gid.z >= G.dims.w {
         return;
     }
+    let u = gid.x + G.window.x;
+    let v = gid.y + G.window.y;
+    let k = gid.z;
     let r = pixel_ray(k, u, v);
     if r.len <= 0.0 {
         out[out_index(k, u, v)] = 0.0;

@@ -385,49 +385,60 @@ impl VolumeRenderer {
             });
     }
 
-    /// The inclusive pixel range `(u0, u1, v0, v1)` whose rays can meet the clip box: the bounding box of
-    /// its eight projected corners widened by a pixel (the projection of a box in front of the source is
-    /// the convex hull of its projected corners), the whole detector when a corner is not in front of
-    /// the source, `None` when it lies off the detector.
-    fn footprint(&self, view: &View) -> Option<(usize, usize, usize, usize)> {
-        let (w, h) = (
-            view.intrinsics.width as usize,
-            view.intrinsics.height as usize,
-        );
-        if w == 0 || h == 0 {
-            return None;
-        }
-        let whole = Some((0, w - 1, 0, h - 1));
-        let index_to_world = self.world_to_index.inverse();
-        let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
-        let (i_lo, i_hi) = (
-            DVec3::from_array(self.lo.map(|v| v as f64 - 0.5)),
-            DVec3::from_array(self.hi.map(|v| v as f64 + 0.5)),
-        );
-        for i in box_corners(i_lo, i_hi) {
-            let x = index_to_world.transform_point3(i);
-            if view.depth(x).is_nan() || view.depth(x) <= 1e-6 {
-                return whole;
-            }
-            let px = view.project(x);
-            if !px.is_finite() {
-                return whole;
-            }
-            lo = lo.min(px);
-            hi = hi.max(px);
-        }
-        let (lo, hi) = ((lo - 1.0).ceil(), (hi + 1.0).floor());
-        if hi.x < 0.0 || hi.y < 0.0 || lo.x > (w - 1) as f64 || lo.y > (h - 1) as f64 {
-            return None;
-        }
-        let clamp = |x: f64, n: usize| x.clamp(0.0, (n - 1) as f64) as usize;
-        Some((
-            clamp(lo.x, w),
-            clamp(hi.x, w),
-            clamp(lo.y, h),
-            clamp(hi.y, h),
-        ))
+    /// The inclusive pixel range `(u0, u1, v0, v1)` whose rays can meet the clip box ([`footprint`]).
+    pub(crate) fn footprint(&self, view: &View) -> Option<(usize, usize, usize, usize)> {
+        footprint(&self.world_to_index, self.lo, self.hi, view)
     }
+}
+
+/// The inclusive pixel range `(u0, u1, v0, v1)` whose rays can meet the clip box: the bounding box of
+/// its eight projected corners widened by a pixel (the projection of a box in front of the source is
+/// the convex hull of its projected corners), the whole detector when a corner is not in front of
+/// the source, `None` when it lies off the detector.
+/// (`world_to_index` maps world points to continuous voxel indices; the box is `[lo − ½, hi + ½]`.)
+pub(crate) fn footprint(
+    world_to_index: &DMat4,
+    lo: [usize; 3],
+    hi: [usize; 3],
+    view: &View,
+) -> Option<(usize, usize, usize, usize)> {
+    let (w, h) = (
+        view.intrinsics.width as usize,
+        view.intrinsics.height as usize,
+    );
+    if w == 0 || h == 0 {
+        return None;
+    }
+    let whole = Some((0, w - 1, 0, h - 1));
+    let index_to_world = world_to_index.inverse();
+    let (mut p_lo, mut p_hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    let (i_lo, i_hi) = (
+        DVec3::from_array(lo.map(|v| v as f64 - 0.5)),
+        DVec3::from_array(hi.map(|v| v as f64 + 0.5)),
+    );
+    for i in box_corners(i_lo, i_hi) {
+        let x = index_to_world.transform_point3(i);
+        if view.depth(x).is_nan() || view.depth(x) <= 1e-6 {
+            return whole;
+        }
+        let px = view.project(x);
+        if !px.is_finite() {
+            return whole;
+        }
+        p_lo = p_lo.min(px);
+        p_hi = p_hi.max(px);
+    }
+    let (lo, hi) = ((p_lo - 1.0).ceil(), (p_hi + 1.0).floor());
+    if hi.x < 0.0 || hi.y < 0.0 || lo.x > (w - 1) as f64 || lo.y > (h - 1) as f64 {
+        return None;
+    }
+    let clamp = |x: f64, n: usize| x.clamp(0.0, (n - 1) as f64) as usize;
+    Some((
+        clamp(lo.x, w),
+        clamp(hi.x, w),
+        clamp(lo.y, h),
+        clamp(hi.y, h),
+    ))
 }
 
 /// Renders the DRR of `ct` seen from `view` (see [`VolumeRenderer`]).
