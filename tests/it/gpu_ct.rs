@@ -171,7 +171,17 @@ fn gpu_masked_level_equals_the_cpu_masked_render() {
         };
         let cpu = VolumeRenderer::new(&ct, &opts, Some(&mask)).unwrap();
         let gpu = GpuCtRenderer::new(ctx.clone(), &cpu).unwrap();
-        for (view, g) in vs.iter().zip(gpu.render_views(&vs).unwrap()) {
+        let batch = gpu.render_views(&vs).unwrap();
+        // One at a time, each render reuses the last one's buffers: a view whose footprint differs
+        // from the last one's must not keep any of its pixels.
+        for (view, b) in vs.iter().zip(&batch) {
+            assert_eq!(
+                gpu.render(view).unwrap().data,
+                b.data,
+                "{method}: reused buffers"
+            );
+        }
+        for (view, g) in vs.iter().zip(batch) {
             let c = cpu.render(view);
             assert_close(method, &g, &c, &format!("{method} masked"));
         }

@@ -14,8 +14,7 @@
 //! (WGSL has none wider); how it keeps the error near f32's resolution is written at the top of
 //! `ct.wgsl`, and the tests hold it to the CPU's f64 renderer (1e-5 relative).
 
-use std::sync::Arc;
-use std::sync::mpsc;
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
@@ -74,6 +73,17 @@ pub struct GpuCtRenderer {
     volume: wgpu::TextureView,
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
+    /// The last render's output and read-back buffers, reused by the next render of the same size (a
+    /// registration or `--repeat` renders one size again and again); held for the whole render, so
+    /// renders from several threads take turns, as they would on the one queue.
+    buffers: Mutex<Option<OutBuffers>>,
+}
+
+/// A render's output (storage) and read-back (mappable) buffers, `bytes` long each.
+struct OutBuffers {
+    bytes: u64,
+    out: wgpu::Buffer,
+    staging: wgpu::Buffer,
 }
 
 impl std::fmt::Debug for GpuCtRenderer {
@@ -215,6 +225,7 @@ impl GpuCtRenderer {
             volume,
             layout,
             pipeline,
+            buffers: Mutex::new(None),
         })
     }
 
@@ -293,7 +304,35 @@ impl GpuCtRenderer {
             h_max: [self.step_mm as f32, 0.0, 0.0, 0.0],
         };
         let device = &self.ctx.device;
-        let staging = self.ctx.checked("rendering CT DRRs", || {
+        let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
+        if slot.as_ref().is_some_and(|b| b.bytes != out_bytes) {
+            *slot = None;
+        }
+        let bufs =
+            match &mut *slot {
+                Some(b) => b,
+                empty => empty.insert(self.ctx.checked("allocating the DRRs' buffers", || {
+                    OutBuffers {
+                        bytes: out_bytes,
+                        out: device.create_buffer(&wgpu::BufferDescriptor {
+                            label: Some("ct DRRs"),
+                            size: out_bytes,
+                            usage: wgpu::BufferUsages::STORAGE
+                                | wgpu::BufferUsages::COPY_SRC
+                                | wgpu::BufferUsages::COPY_DST,
+                            mapped_at_creation: false,
+                        }),
+                        staging: device.create_buffer(&wgpu::BufferDescriptor {
+                            label: Some("ct DRRs read back"),
+                            size: out_bytes,
+                            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                            mapped_at_creation: false,
+                        }),
+                    }
+                })?),
+            };
+        let (out, staging) = (&bufs.out, &bufs.staging);
+        self.ctx.checked("rendering CT DRRs", || {
             use wgpu::util::DeviceExt;
             let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("ct globals"),
@@ -304,18 +343,6 @@ impl GpuCtRenderer {
                 label: Some("ct views"),
                 contents: bytemuck::cast_slice(&rays),
                 usage: wgpu::BufferUsages::STORAGE,
-            });
-            let out = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("ct DRRs"),
-                size: out_bytes,
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            let staging = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("ct DRRs read back"),
-                size: out_bytes,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
             });
             let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("ct"),
@@ -340,16 +367,35 @@ impl GpuCtRenderer {
                 ],
             });
             let mut encoder = device.create_command_encoder(&Default::default());
+            // The pixels outside the footprint stay 0 (a reused buffer holds the last render).
+            encoder.clear_buffer(out, 0, None);
             {
                 let mut pass = encoder.begin_compute_pass(&Default::default());
                 pass.set_pipeline(&self.pipeline);
                 pass.set_bind_group(0, &bind, &[]);
                 pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
             }
-            encoder.copy_buffer_to_buffer(&out, 0, &staging, 0, out_bytes);
+            encoder.copy_buffer_to_buffer(out, 0, staging, 0, out_bytes);
             self.ctx.queue.submit([encoder.finish()]);
-            staging
         })?;
+        let data = self.read_back(staging);
+        if data.is_err() {
+            // A buffer left mapped (or lost with the device) is not reused.
+            *slot = None;
+        }
+        let data = data?;
+        Ok(data
+            .chunks_exact(pixels as usize)
+            .map(|c| ImageF32 {
+                width: w,
+                height: h,
+                data: c.to_vec(),
+            })
+            .collect())
+    }
+
+    /// The f32 values of `staging` once the queue's work is done (mapped, copied out, unmapped).
+    fn read_back(&self, staging: &wgpu::Buffer) -> Result<Vec<f32>> {
         let (sender, receiver) = mpsc::channel();
         staging.map_async(wgpu::MapMode::Read, .., move |r| {
             let _ = sender.send(r);
@@ -373,14 +419,7 @@ impl GpuCtRenderer {
             bytemuck::cast_slice(&mapped).to_vec()
         };
         staging.unmap();
-        Ok(data
-            .chunks_exact(pixels as usize)
-            .map(|c| ImageF32 {
-                width: w,
-                height: h,
-                data: c.to_vec(),
-            })
-            .collect())
+        Ok(data)
     }
 
     /// The shader's description of `view`'s rays in the clip box's index coordinates. The ray of pixel
