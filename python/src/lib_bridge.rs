@@ -233,7 +233,7 @@ impl CtRenderer {
         };
         let cpu = VolumeRenderer::new(&ct, &opts, mask.as_ref())?;
         let gpu = if on_gpu {
-            let ctx = spinedrr::render::gpu::GpuContext::new()?;
+            let ctx = spinedrr::render::gpu::GpuContext::shared()?;
             Some(spinedrr::render::gpu::GpuCtRenderer::new(ctx, &cpu)?)
         } else {
             None

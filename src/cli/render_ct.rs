@@ -314,7 +314,7 @@ struct OnGpu(spinedrr::render::gpu::GpuCtRenderer);
 impl OnGpu {
     fn new(cpu: &VolumeRenderer) -> anyhow::Result<OnGpu> {
         use spinedrr::render::gpu::{GpuContext, GpuCtRenderer};
-        let ctx = GpuContext::new().context("--backend gpu")?;
+        let ctx = GpuContext::shared().context("--backend gpu")?;
         Ok(OnGpu(GpuCtRenderer::new(ctx, cpu)?))
     }
 

@@ -10,7 +10,7 @@
 
 mod ct;
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 
 pub use ct::GpuCtRenderer;
 
@@ -38,6 +38,20 @@ const NO_ADAPTER_HELP: &str = "the gpu backend needs a Vulkan, Metal or DX12 ada
     apt-get install mesa-vulkan-drivers (scripts/install-deps.sh installs it)";
 
 impl GpuContext {
+    /// The process's device: opened by the first call ([`GpuContext::new`]) and shared by every later
+    /// one (renderers of many CTs, Python objects), so a device is opened once. A failure is not kept:
+    /// the next call tries again.
+    pub fn shared() -> Result<Arc<GpuContext>> {
+        static SHARED: Mutex<Option<Arc<GpuContext>>> = Mutex::new(None);
+        let mut slot = SHARED.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(ctx) = &*slot {
+            return Ok(Arc::clone(ctx));
+        }
+        let ctx = GpuContext::new()?;
+        *slot = Some(Arc::clone(&ctx));
+        Ok(ctx)
+    }
+
     /// Opens the highest-performance adapter the system offers (a discrete GPU before an integrated
     /// one, a hardware one before lavapipe), with every limit the adapter supports.
     pub fn new() -> Result<Arc<GpuContext>> {
