@@ -13,8 +13,9 @@
 //   from the host (f64) split into a hi part of 12 significant bits, whose product with a pixel
 //   coordinate below 4096 is exact, and a lo part; the sums of products are error-free (two_sum);
 // * the entry point e = X + t0·d is kept as hi + lo, and each plane crossing is computed from its plane's
-//   coordinate, ((plane − e_hi) − e_lo)·(1/d) (plane − e_hi is exact: the two are within a voxel), never
-//   by adding Δt to the previous crossing;
+//   coordinate, ((plane − e_hi) − e_lo)·(1/d) (the two are within a voxel, so plane − e_hi is exact, or
+//   off by f32's resolution of a fraction of a voxel near the box's first planes), never by adding Δt to
+//   the previous crossing;
 // * t is measured from X, and the source sits at t_src = −z_c·|Rᵀ K⁻¹ (u, v, 1)| (z_c: the box centre's
 //   depth), before which nothing is integrated;
 // * sums of μ·ℓ are compensated (Kahan), so ~550 terms keep ~7 digits.
