@@ -266,3 +266,28 @@ pub fn assert_figures_inside_canvas(figs: &Path) -> usize {
     assert!(cut.is_empty(), "drawn to the canvas edge: {cut:?}");
     checked
 }
+
+/// A C-arm-like square view of `target` from `target + offset` (mm): `n` × `n` pixels, focal length 12 n,
+/// the principal point at the centre, image up along world z (y when looking along z).
+pub fn view_from(target: glam::DVec3, offset: glam::DVec3, n: u32) -> spinedrr::geometry::View {
+    let c = (n as f64 - 1.0) / 2.0;
+    let k = spinedrr::geometry::Intrinsics {
+        fx: 12.0 * n as f64,
+        fy: 12.0 * n as f64,
+        skew: 0.0,
+        cx: c,
+        cy: c,
+        width: n,
+        height: n,
+    };
+    let up = if offset.cross(glam::DVec3::Z).length() < 1e-6 * offset.length() {
+        glam::DVec3::Y
+    } else {
+        glam::DVec3::Z
+    };
+    spinedrr::geometry::View::new(
+        "test",
+        k,
+        spinedrr::geometry::RigidTransform::look_at(target + offset, target, up).unwrap(),
+    )
+}

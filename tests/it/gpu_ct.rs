@@ -6,10 +6,12 @@ use std::sync::Arc;
 
 use glam::{DMat3, DMat4, DVec3};
 use spinedrr::anatomy::ct::{CtVolume, LabelMap, VoxelMask};
-use spinedrr::geometry::{Intrinsics, Perturbation, RigidTransform, View};
+use spinedrr::geometry::{Perturbation, View};
 use spinedrr::io::ImageF32;
 use spinedrr::render::gpu::{GpuContext, GpuCtRenderer};
 use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
+
+use crate::common::view_from;
 
 /// The process's device (opened once, shared by the tests).
 pub fn gpu() -> Arc<GpuContext> {
@@ -36,30 +38,6 @@ fn noisy_ct(dims: [usize; 3], seed: u64) -> CtVolume {
         *v = -1000.0 + 3000.0 * ((s >> 11) as f64 / (1u64 << 53) as f64) as f32;
     }
     ct
-}
-
-/// A C-arm-like view of `target` from `offset` (mm), n × n pixels covering the volume.
-fn view_from(target: DVec3, offset: DVec3, n: u32) -> View {
-    let c = (n as f64 - 1.0) / 2.0;
-    let k = Intrinsics {
-        fx: 12.0 * n as f64,
-        fy: 12.0 * n as f64,
-        skew: 0.0,
-        cx: c,
-        cy: c,
-        width: n,
-        height: n,
-    };
-    let up = if offset.cross(DVec3::Z).length() < 1e-6 * offset.length() {
-        DVec3::Y
-    } else {
-        DVec3::Z
-    };
-    View::new(
-        "gpu-test",
-        k,
-        RigidTransform::look_at(target + offset, target, up).unwrap(),
-    )
 }
 
 /// Views from the front, the side, along the table and obliquely (each index axis dominant for some),

@@ -3,7 +3,7 @@
 use glam::{DMat3, DMat4, DVec2, DVec3};
 use spinedrr::anatomy::MU_WATER_PER_MM;
 use spinedrr::anatomy::ct::{CtVolume, LabelMap, Volume, VoxelMask};
-use spinedrr::geometry::{Intrinsics, Perturbation, Ray, RigidTransform, View, apply_homography};
+use spinedrr::geometry::{Perturbation, Ray, View, apply_homography};
 use spinedrr::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer, render_volume};
 
 /// A rotation (not axis aligned) and anisotropic spacings: the world box is an oblique cuboid.
@@ -138,22 +138,7 @@ fn rendered_box_matches_analytic_chords_per_pixel() {
 
 /// A `n × n` view of `target` from 400 mm, oblique to the volume axes.
 fn small_view(target: DVec3, n: u32) -> View {
-    let c = (n as f64 - 1.0) / 2.0;
-    let k = Intrinsics {
-        fx: 12.0 * n as f64,
-        fy: 12.0 * n as f64,
-        skew: 0.0,
-        cx: c,
-        cy: c,
-        width: n,
-        height: n,
-    };
-    let source = target + DVec3::new(120.0, -370.0, 90.0);
-    View::new(
-        "test",
-        k,
-        RigidTransform::look_at(source, target, DVec3::Z).unwrap(),
-    )
+    crate::common::view_from(target, DVec3::new(120.0, -370.0, 90.0), n)
 }
 
 /// A smooth volume: a Gaussian blob (σ = 3.5 voxels) of up to 1500 HU on water.

@@ -150,21 +150,39 @@ fn kahan(s: vec2<f32>, x: f32) -> vec2<f32> {
     return vec2<f32>(t, opaque(t - s.x) - y);
 }
 
-// Siddon's exact radiological path (Jacobs' incremental form): the voxel sequence the ray crosses, each
-// voxel's μ times the length of the ray inside it.
+// The entry points: invocation `gid` traces its pixel of the window, view gid.z, with the method's
+// integral, and writes it (0 where the ray misses the box).
 @compute @workgroup_size(8, 8, 1)
 fn siddon(@builtin(global_invocation_id) gid: vec3<u32>) {
+    trace(gid, false);
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn trilinear(@builtin(global_invocation_id) gid: vec3<u32>) {
+    trace(gid, true);
+}
+
+fn trace(gid: vec3<u32>, by_trilinear: bool) {
     if gid.x >= G.window.z || gid.y >= G.window.w || gid.z >= G.dims.w {
         return;
     }
     let u = gid.x + G.window.x;
     let v = gid.y + G.window.y;
-    let k = gid.z;
-    let r = pixel_ray(k, u, v);
-    if r.len <= 0.0 {
-        out[out_index(k, u, v)] = 0.0;
-        return;
+    let r = pixel_ray(gid.z, u, v);
+    var value = 0.0;
+    if r.len > 0.0 {
+        if by_trilinear {
+            value = trilinear_integral(r);
+        } else {
+            value = siddon_integral(r);
+        }
     }
+    out[out_index(gid.z, u, v)] = value;
+}
+
+// Siddon's exact radiological path (Jacobs' incremental form): the voxel sequence the ray crosses, each
+// voxel's μ times the length of the ray inside it.
+fn siddon_integral(r: Ray) -> f32 {
     let n = vec3<i32>(G.dims.xyz);
     // The voxel of the entry point (clamped: the entry face itself rounds either way).
     var idx = clamp(vec3<i32>(floor(r.e + 0.5)), vec3<i32>(0), n - 1);
@@ -210,7 +228,7 @@ fn siddon(@builtin(global_invocation_id) gid: vec3<u32>) {
             break;
         }
     }
-    out[out_index(k, u, v)] = s.x;
+    return s.x;
 }
 
 // Trilinear μ at box coordinate p: the eight voxel centres around it, coordinates clamped to the box
@@ -245,24 +263,12 @@ fn mu_at(p: vec3<f32>) -> f32 {
 // Midpoint rule over the clipped ray: N = ⌈len / step⌉ samples of trilinear μ, h = len / N. N jumps
 // where len crosses a whole number of steps (in an AP view, on rings around the central ray): within f32's
 // rounding of such a ring a ray may take one sample more or fewer than the f64 CPU renderer's.
-@compute @workgroup_size(8, 8, 1)
-fn trilinear(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= G.window.z || gid.y >= G.window.w || gid.z >= G.dims.w {
-        return;
-    }
-    let u = gid.x + G.window.x;
-    let v = gid.y + G.window.y;
-    let k = gid.z;
-    let r = pixel_ray(k, u, v);
-    if r.len <= 0.0 {
-        out[out_index(k, u, v)] = 0.0;
-        return;
-    }
+fn trilinear_integral(r: Ray) -> f32 {
     let count = max(u32(ceil(r.len / G.h_max.x)), 1u);
     let h = r.len / f32(count);
     var s = vec2<f32>(0.0);
     for (var i = 0u; i < count; i++) {
         s = kahan(s, mu_at(r.e + (r.e_lo + r.d * ((f32(i) + 0.5) * h))));
     }
-    out[out_index(k, u, v)] = s.x * h;
+    return s.x * h;
 }
