@@ -240,10 +240,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         return super::render_ct::run_ct(&a.ct, &run, model, implants, gpu);
     }
     let mesh_backend = a.backend.unwrap_or(Backend::Raster);
-    if mesh_backend == Backend::Gpu {
-        bail!("--backend {}", spinedrr::render::GPU_MESHES);
-    }
     if let Some(model) = model {
+        if mesh_backend == Backend::Gpu {
+            bail!(
+                "--backend gpu renders thickness DRRs of meshes and CT DRRs; a spectral mesh DRR \
+                 (--spectrum, --implant, --screws) renders with raster, embree or bvh"
+            );
+        }
         let scene = super::render_spectral::SceneSpec {
             phantom: a.phantom.as_deref(),
             soft_tissue: a.soft_tissue,
@@ -412,6 +415,7 @@ fn timing_json(
     let (median, min) = median_min(times);
     json!({
         "backend": r.backend_name(),
+        "adapter": r.gpu_adapter(),
         "view": a.view,
         "repeat": a.repeat,
         "median_ms": median,

@@ -22,14 +22,12 @@ pub enum Backend {
     /// structure; the fastest for DRRs. A view with a vertex at or behind the source plane is traced
     /// with Embree instead.
     Raster,
-    /// Compute shaders through wgpu (Vulkan, Metal, DX12; Mesa's lavapipe where there is no GPU):
-    /// CT volume DRRs (`render --ct`) so far, not meshes.
+    /// Compute shaders through wgpu (Vulkan, Metal, DX12; Mesa's lavapipe where there is no GPU): CT
+    /// DRRs (`render --ct`), and mesh DRRs as the raster's signed-depth sums (closed meshes only; a
+    /// mesh that intersects itself counts twice where it overlaps), pixels whose crossings do not
+    /// balance traced on the CPU.
     Gpu,
 }
-
-/// Why the GPU backend cannot take a mesh scene.
-pub const GPU_MESHES: &str = "the gpu backend renders CT volumes (render --ct, Siddon or trilinear) \
-    so far; meshes, phantoms and implants render with raster, embree or bvh";
 
 impl Backend {
     /// The backend named `name` as `--backend` and the study's `backend` key spell it (`raster`,
@@ -64,7 +62,7 @@ impl Backend {
             Backend::Embree => Box::new(EmbreeTracer::new(&scene)?),
             Backend::Bvh => Box::new(BvhTracer::new(&scene)),
             Backend::Raster => return Ok(ThicknessRenderer::raster(scene, raster_fallback)),
-            Backend::Gpu => return Err(Error::invalid("backend", GPU_MESHES)),
+            Backend::Gpu => return gpu_renderer(scene),
         };
         Ok(ThicknessRenderer::new(scene, tracer))
     }
@@ -77,4 +75,34 @@ fn raster_fallback(scene: &RenderScene) -> Box<dyn HitTracer> {
         Ok(embree) => Box::new(embree),
         Err(_) => Box::new(BvhTracer::new(scene)),
     }
+}
+
+/// A gpu-backend renderer of `scene`: refused for open meshes, whose signed sums mean nothing.
+#[cfg(feature = "gpu")]
+fn gpu_renderer(scene: RenderScene) -> Result<ThicknessRenderer> {
+    use super::gpu::{GpuContext, GpuMeshRenderer};
+    use super::thickness::GpuRaster;
+    if let Some(open) = scene.open_meshes.first() {
+        return Err(Error::invalid(
+            "backend",
+            format!(
+                "gpu sums signed depths, which needs closed meshes, and mesh '{open}' is open (or \
+                 not consistently wound): render it with raster, embree or bvh, which pair crossings"
+            ),
+        ));
+    }
+    let gpu = GpuMeshRenderer::new(GpuContext::shared()?, &scene)?;
+    Ok(ThicknessRenderer::gpu(
+        scene,
+        GpuRaster(gpu),
+        raster_fallback,
+    ))
+}
+
+#[cfg(not(feature = "gpu"))]
+fn gpu_renderer(_: RenderScene) -> Result<ThicknessRenderer> {
+    Err(Error::invalid(
+        "backend",
+        "gpu: this spinedrr was built without the gpu feature (cargo build --features gpu)",
+    ))
 }

@@ -6,8 +6,8 @@
 //! rasteriser of primary rays, `pairing` how a ray's hits become a path length, `thickness` the image loop,
 //! `phantom_scene` the phantom's meshes with μ from HU (or materials, for `spectral`), `spectral` the
 //! polychromatic DRR of meshes (per-material path lengths, then the energy sum), `spectral_ct` that of a
-//! CT (per-material Siddon renders), `volume` the CT renderer (Siddon and trilinear), `gpu` the same CT
-//! DRRs in compute shaders (wgpu; the `gpu` feature, on by default).
+//! CT (per-material Siddon renders), `volume` the CT renderer (Siddon and trilinear), `gpu` CT DRRs
+//! and mesh signed-depth sums in compute shaders (wgpu; the `gpu` feature, on by default).
 
 mod backend;
 pub mod bvh;
@@ -24,7 +24,7 @@ mod thickness;
 mod tracer;
 pub mod volume;
 
-pub use backend::{Backend, GPU_MESHES};
+pub use backend::Backend;
 pub use phantom_scene::{
     ImplantMeshes, add_pedicle_screws, add_screws, phantom_scene, phantom_spectral_scene,
     planned_screw_implants, screw_implants,

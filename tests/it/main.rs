@@ -18,6 +18,7 @@ mod ct_structures;
 mod fuzz_regressions;
 #[cfg(feature = "gpu")]
 mod gpu_ct;
+mod gpu_mesh;
 mod landmark_formats;
 mod meshing_cli;
 mod meshing_decimate;

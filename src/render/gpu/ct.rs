@@ -14,12 +14,12 @@
 //! (WGSL has none wider); how it keeps the error near f32's resolution is written at the top of
 //! `ct.wgsl`, and the tests hold it to the CPU's f64 renderer (1e-5 relative).
 
-use std::sync::{Arc, Mutex, PoisonError, mpsc};
+use std::sync::{Arc, Mutex, PoisonError};
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 
-use super::GpuContext;
+use super::{GpuContext, buffer_binding, compute_entry};
 use crate::geometry::View;
 use crate::io::ImageF32;
 use crate::render::volume::{VolumeDetails, VolumeMethod, VolumeRenderer, footprint};
@@ -162,17 +162,7 @@ impl GpuCtRenderer {
                     label: Some("ct.wgsl"),
                     source: wgpu::ShaderSource::Wgsl(include_str!("ct.wgsl").into()),
                 });
-                let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
-                    binding,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty,
-                    count: None,
-                };
-                let buffer = |ty| wgpu::BindingType::Buffer {
-                    ty,
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                };
+                let (entry, buffer) = (compute_entry, buffer_binding);
                 let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                     label: Some("ct"),
                     entries: &[
@@ -378,7 +368,7 @@ impl GpuCtRenderer {
             encoder.copy_buffer_to_buffer(out, 0, staging, 0, out_bytes);
             self.ctx.queue.submit([encoder.finish()]);
         })?;
-        let data = self.read_back(staging);
+        let data = self.ctx.read_back::<f32>(staging, "the CT DRRs");
         if data.is_err() {
             // A buffer left mapped (or lost with the device) is not reused.
             *slot = None;
@@ -392,34 +382,6 @@ impl GpuCtRenderer {
                 data: c.to_vec(),
             })
             .collect())
-    }
-
-    /// The f32 values of `staging` once the queue's work is done (mapped, copied out, unmapped).
-    fn read_back(&self, staging: &wgpu::Buffer) -> Result<Vec<f32>> {
-        let (sender, receiver) = mpsc::channel();
-        staging.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = sender.send(r);
-        });
-        self.ctx.wait("rendering CT DRRs")?;
-        receiver
-            .recv()
-            .map_err(|_| Error::Internal("the GPU read-back never reported".into()))?
-            .map_err(|e| Error::External {
-                library: "wgpu",
-                message: format!(
-                    "reading the DRRs back from {}: {e}",
-                    self.ctx.adapter_name()
-                ),
-            })?;
-        let data: Vec<f32> = {
-            let mapped = staging.get_mapped_range(..).map_err(|e| Error::External {
-                library: "wgpu",
-                message: format!("mapping the DRRs of {}: {e}", self.ctx.adapter_name()),
-            })?;
-            bytemuck::cast_slice(&mapped).to_vec()
-        };
-        staging.unmap();
-        Ok(data)
     }
 
     /// The shader's description of `view`'s rays in the clip box's index coordinates. The ray of pixel

@@ -9,10 +9,12 @@
 //! the driver cannot compile or a lost device is an [`Error`], never a panic.
 
 mod ct;
+mod mesh;
 
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
 
 pub use ct::GpuCtRenderer;
+pub use mesh::GpuMeshRenderer;
 
 use crate::{Error, Result};
 
@@ -132,6 +134,36 @@ impl GpuContext {
             })
     }
 
+    /// The contents of `staging` (a `MAP_READ` buffer) once the queue's work is done: mapped, copied out
+    /// and unmapped; `what` names them in an error.
+    pub(crate) fn read_back<T: bytemuck::Pod>(
+        &self,
+        staging: &wgpu::Buffer,
+        what: &str,
+    ) -> Result<Vec<T>> {
+        let (sender, receiver) = mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = sender.send(r);
+        });
+        self.wait(&format!("computing {what}"))?;
+        receiver
+            .recv()
+            .map_err(|_| Error::Internal("the GPU read-back never reported".into()))?
+            .map_err(|e| Error::External {
+                library: "wgpu",
+                message: format!("reading {what} back from {}: {e}", self.adapter_name()),
+            })?;
+        let data: Vec<T> = {
+            let mapped = staging.get_mapped_range(..).map_err(|e| Error::External {
+                library: "wgpu",
+                message: format!("mapping {what} of {}: {e}", self.adapter_name()),
+            })?;
+            bytemuck::cast_slice(&mapped).to_vec()
+        };
+        staging.unmap();
+        Ok(data)
+    }
+
     /// The largest 3-D texture edge the adapter takes.
     pub(crate) fn max_texture_3d(&self) -> u32 {
         self.limits.max_texture_dimension_3d
@@ -145,6 +177,25 @@ impl GpuContext {
     /// The most workgroups one dispatch may have along an axis.
     pub(crate) fn max_workgroups(&self) -> u32 {
         self.limits.max_compute_workgroups_per_dimension
+    }
+}
+
+/// Binding `binding` of a compute shader's bind group layout.
+pub(crate) fn compute_entry(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty,
+        count: None,
+    }
+}
+
+/// A buffer binding of type `ty` (uniform, or storage read-only or read-write).
+pub(crate) fn buffer_binding(ty: wgpu::BufferBindingType) -> wgpu::BindingType {
+    wgpu::BindingType::Buffer {
+        ty,
+        has_dynamic_offset: false,
+        min_binding_size: None,
     }
 }
 

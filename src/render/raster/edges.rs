@@ -9,7 +9,7 @@ use glam::DVec3;
 /// components, so the opposite normal of a neighbour's shared edge gets exactly the opposite coefficients
 /// and, evaluated in the same order, exactly the opposite value.
 #[derive(Debug, Clone, Copy)]
-pub(super) struct PixelDirs {
+pub(crate) struct PixelDirs {
     inv_fx: f64,
     inv_fy: f64,
     /// `skew / (fx fy)`.
@@ -21,7 +21,7 @@ pub(super) struct PixelDirs {
 }
 
 impl PixelDirs {
-    pub(super) fn new(k: &crate::geometry::Intrinsics) -> Self {
+    pub(crate) fn new(k: &crate::geometry::Intrinsics) -> Self {
         let (inv_fx, inv_fy) = (1.0 / k.fx, 1.0 / k.fy);
         PixelDirs {
             inv_fx,
@@ -34,7 +34,7 @@ impl PixelDirs {
 
     /// The camera-frame direction `K⁻¹ [u, v, 1]ᵀ` of pixel (u, v) (unit depth).
     #[inline]
-    pub(super) fn camera_dir(&self, u: f64, v: f64) -> DVec3 {
+    pub(crate) fn camera_dir(&self, u: f64, v: f64) -> DVec3 {
         DVec3::new(
             self.inv_fx * u - self.k_skew * v - self.k_x,
             self.inv_fy * v - self.k_y,
@@ -55,7 +55,7 @@ impl PixelDirs {
 
 /// A triangle's three edge functions in pixel space, oriented so that the inside is positive, and its
 /// depth along the pixel rays.
-pub(super) struct Edges {
+pub(crate) struct Edges {
     e: [[f64; 3]; 3],
     /// Per edge, [`f64::MIN_POSITIVE`] when the triangle owns pixels exactly on it (the tie rule,
     /// [`owns_edge`]), else 0 (see [`RowEdges::covers`]).
@@ -75,7 +75,7 @@ impl Edges {
     /// From the camera-frame corners (source at the origin). `None` for a triangle whose plane contains
     /// the source (seen edge-on; rays slide along it).
     #[inline]
-    pub(super) fn new([a, b, c]: [DVec3; 3], dirs: &PixelDirs) -> Option<Self> {
+    pub(crate) fn new([a, b, c]: [DVec3; 3], dirs: &PixelDirs) -> Option<Self> {
         let (ab, bc, ca) = (a.cross(b), b.cross(c), c.cross(a));
         let det = ab.dot(c);
         if det == 0.0 || !det.is_finite() {
@@ -98,7 +98,7 @@ impl Edges {
 
     /// The edge functions along pixel row `v`.
     #[inline]
-    pub(super) fn row(&self, v: f64) -> RowEdges {
+    pub(crate) fn row(&self, v: f64) -> RowEdges {
         RowEdges {
             a: self.e.map(|e| e[0]),
             r: self.e.map(|e| e[1] * v + e[2]),
@@ -112,7 +112,7 @@ impl Edges {
 }
 
 /// Edge functions restricted to one row: `E_i(u) = a_i·u + r_i`; depth `det / (pa·u + pr)`.
-pub(super) struct RowEdges {
+pub(crate) struct RowEdges {
     a: [f64; 3],
     r: [f64; 3],
     /// [`f64::MIN_POSITIVE`] for an edge the triangle owns, else 0 (see [`Self::covers`]).
@@ -127,7 +127,7 @@ impl RowEdges {
     /// Depth (camera z, mm) at which the ray through covered pixel `(u, v)` crosses the triangle, kept
     /// within the corners' depths (a ray nearly in the plane meets it at an ill-conditioned depth).
     #[inline]
-    pub(super) fn depth(&self, u: f64) -> f64 {
+    pub(crate) fn depth(&self, u: f64) -> f64 {
         let z = self.det / (self.pa * u + self.pr);
         // `max` first: a NaN becomes the near end.
         z.max(self.z_range.0).min(self.z_range.1)
@@ -140,7 +140,7 @@ impl RowEdges {
     /// (`|n| / f`, far above 1e-100 for any scene in mm), so it is exactly 0 or many orders of magnitude
     /// above the bias.
     #[inline]
-    pub(super) fn covers(&self, u: f64) -> bool {
+    pub(crate) fn covers(&self, u: f64) -> bool {
         let side = |i: usize| (self.a[i] * u + self.r[i]) + self.bias[i] > 0.0;
         side(0) & side(1) & side(2)
     }

@@ -30,7 +30,7 @@ mod summed;
 use glam::{DVec2, DVec3, Vec4};
 use rayon::prelude::*;
 
-use self::edges::{Edges, PixelDirs};
+pub(crate) use self::edges::{Edges, PixelDirs};
 use super::pairing::Crossing;
 use super::scene::RenderScene;
 use crate::geometry::View;
@@ -43,7 +43,7 @@ const BOX_MARGIN_PX: f64 = 1e-2;
 
 /// Vertices closer to the source plane than this (mm, camera depth) are not projected (see
 /// [`RasterView::new`]).
-const MIN_DEPTH_MM: f64 = 1e-6;
+pub(crate) const MIN_DEPTH_MM: f64 = 1e-6;
 
 /// A band's hit on a pixel: column, row within the band, and the crossing (`t`: camera-frame depth, mm).
 #[derive(Debug, Clone, Copy)]

@@ -10,6 +10,7 @@
 //!
 //! Which tracer a renderer uses (and the raster's fallback tracer) is chosen by [`super::Backend`].
 
+mod gpu;
 mod output;
 mod rays;
 mod repair;
@@ -21,6 +22,8 @@ use std::time::Instant;
 use glam::DVec3;
 use rayon::prelude::*;
 
+pub(crate) use self::gpu::GpuRaster;
+use self::gpu::Outputs;
 use self::output::bands;
 pub use self::output::{Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions};
 use self::rays::{Scratch, integrate_lane, trace_single};
@@ -63,6 +66,9 @@ enum Gather {
     Raster {
         fallback: FallbackTracer,
         tracer: OnceLock<Box<dyn HitTracer>>,
+        /// The gpu backend: views are summed on the GPU (see [`gpu`]) instead of paired on the CPU,
+        /// except in [`ThicknessRenderer::render_line_integral_into`], which pairs.
+        gpu: Option<Box<GpuRaster>>,
     },
 }
 
@@ -132,7 +138,29 @@ impl ThicknessRenderer {
             gather: Gather::Raster {
                 fallback,
                 tracer: OnceLock::new(),
+                gpu: None,
             },
+        }
+    }
+
+    /// A renderer that sums each view on the GPU with `gpu` (built for `scene`, whose meshes are closed)
+    /// and rasterises on the CPU what it pairs; what neither can take it traces with `fallback`.
+    pub(crate) fn gpu(scene: RenderScene, gpu: GpuRaster, fallback: FallbackTracer) -> Self {
+        ThicknessRenderer {
+            scene,
+            gather: Gather::Raster {
+                fallback,
+                tracer: OnceLock::new(),
+                gpu: Some(Box::new(gpu)),
+            },
+        }
+    }
+
+    /// The GPU adapter the renders run on (the gpu backend), else `None`.
+    pub fn gpu_adapter(&self) -> Option<String> {
+        match &self.gather {
+            Gather::Raster { gpu: Some(g), .. } => Some(g.adapter_name()),
+            _ => None,
         }
     }
 
@@ -140,9 +168,9 @@ impl ThicknessRenderer {
     fn ray_tracer(&self) -> &dyn HitTracer {
         match &self.gather {
             Gather::Trace(t) => t.as_ref(),
-            Gather::Raster { fallback, tracer } => {
-                tracer.get_or_init(|| fallback(&self.scene)).as_ref()
-            }
+            Gather::Raster {
+                fallback, tracer, ..
+            } => tracer.get_or_init(|| fallback(&self.scene)).as_ref(),
         }
     }
 
@@ -153,6 +181,7 @@ impl ThicknessRenderer {
     pub fn backend_name(&self) -> &'static str {
         match &self.gather {
             Gather::Trace(t) => t.name(),
+            Gather::Raster { gpu: Some(_), .. } => "gpu",
             Gather::Raster { .. } => "raster",
         }
     }
@@ -162,6 +191,7 @@ impl ThicknessRenderer {
         ThicknessDetails {
             renderer: "thickness",
             backend: self.backend_name(),
+            gpu_adapter: self.gpu_adapter(),
             anatomy,
             stats,
         }
@@ -185,7 +215,13 @@ impl ThicknessRenderer {
         let mut depth = vec![0f32; if opts.depth { n } else { 0 }];
         let mut obj = vec![0u64; if opts.masks { n } else { 0 }];
         let mut st = vec![0u32; if opts.masks { n } else { 0 }];
-        let stats = self.render_buffers(view, opts, &mut li, &mut depth, &mut obj, &mut st)?;
+        let outs = Outputs {
+            li: &mut li,
+            depth: &mut depth,
+            obj: &mut obj,
+            st: &mut st,
+        };
+        let stats = self.render_buffers(view, opts, outs, true)?;
         let image = |data| ImageF32 {
             width: w,
             height: h,
@@ -212,14 +248,13 @@ impl ThicknessRenderer {
         out: &mut ImageF32,
     ) -> Result<RenderStats> {
         zeroed_for(view, out)?;
-        self.render_buffers(
-            view,
-            &ThicknessOptions::image_only(),
-            &mut out.data,
-            &mut [],
-            &mut [],
-            &mut [],
-        )
+        let outs = Outputs {
+            li: &mut out.data,
+            depth: &mut [],
+            obj: &mut [],
+            st: &mut [],
+        };
+        self.render_buffers(view, &ThicknessOptions::image_only(), outs, false)
     }
 
     /// [`Self::render_line_integral_into`] by signed sums of the rasterised crossings instead of paired
@@ -234,6 +269,16 @@ impl ThicknessRenderer {
         view: &View,
         out: &mut ImageF32,
     ) -> Result<RenderStats> {
+        if let Gather::Raster { gpu: Some(_), .. } = &self.gather {
+            zeroed_for(view, out)?;
+            let outs = Outputs {
+                li: &mut out.data,
+                depth: &mut [],
+                obj: &mut [],
+                st: &mut [],
+            };
+            return self.render_buffers(view, &ThicknessOptions::image_only(), outs, true);
+        }
         let start = Instant::now();
         let raster = match &self.gather {
             Gather::Raster { .. } if self.scene.open_meshes.is_empty() => {
@@ -295,16 +340,27 @@ impl ThicknessRenderer {
     }
 
     /// Renders into zeroed buffers of the view's size (`depth`, `obj`, `st` empty unless `opts` asks
-    /// for them).
+    /// for them); with `gpu`, a gpu-backend renderer sums the view on the GPU (otherwise, and for a view
+    /// the GPU cannot project, it pairs on the CPU).
     fn render_buffers(
         &self,
         view: &View,
         opts: &ThicknessOptions,
-        li: &mut [f32],
-        depth: &mut [f32],
-        obj: &mut [u64],
-        st: &mut [u32],
+        outs: Outputs,
+        gpu: bool,
     ) -> Result<RenderStats> {
+        let Outputs { li, depth, obj, st } = outs;
+        if let (true, Gather::Raster { gpu: Some(g), .. }) = (gpu, &self.gather) {
+            let outs = Outputs {
+                li: &mut *li,
+                depth: &mut *depth,
+                obj: &mut *obj,
+                st: &mut *st,
+            };
+            if let Some(stats) = g.render(self, view, opts, outs)? {
+                return Ok(stats);
+            }
+        }
         let start = Instant::now();
         let cam = Camera::new(view);
         let (w, h) = (cam.width as usize, cam.height as usize);

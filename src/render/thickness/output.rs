@@ -34,8 +34,11 @@ impl RenderStats {
 pub struct ThicknessDetails {
     /// `thickness`.
     pub renderer: &'static str,
-    /// `raster`, `embree` or `bvh`.
+    /// `raster`, `embree`, `bvh` or `gpu`.
     pub backend: &'static str,
+    /// The GPU adapter that rendered it (the gpu backend).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gpu_adapter: Option<String>,
     /// What was rendered, as its producer describes it (phantom levels, mesh files, μ).
     pub anatomy: serde_json::Value,
     pub stats: RenderStats,

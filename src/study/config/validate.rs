@@ -52,12 +52,6 @@ impl StudyConfig {
         self.validate_ct(&mut names)?;
         positive("anatomy.voxel_mm", self.anatomy.voxel_mm)?;
         positive("anatomy.marker_radius_mm", self.anatomy.marker_radius_mm)?;
-        if self.geometry.backend == crate::render::Backend::Gpu {
-            return Err(Error::invalid(
-                "geometry.backend",
-                format!("gpu: {}", crate::render::GPU_MESHES),
-            ));
-        }
         if self.geometry.binning == 0 {
             return Err(Error::invalid("geometry.binning", "must be at least 1"));
         }

@@ -1,0 +1,534 @@
+//! Mesh DRRs in a compute shader (`mesh.wgsl`): the raster's signed-depth sum
+//! (`render::raster::summed`), one invocation per triangle, fixed-point sums added with atomics.
+//!
+//! The scene's triangles, meshes and μ are uploaded once; per view the host projects the vertices in f64
+//! exactly as the CPU raster does (camera frame, then K) and uploads their pixel positions as hi + lo
+//! f32s with their depths, and the shader adds every covered pixel's `± μ · depth` together with two
+//! balance counters (`Σ s`, `Σ s · mesh`, `s = ±1`). The result, a [`GpuFrame`], is turned into a DRR by
+//! the thickness renderer, which traces on the CPU the few pixels whose crossings did not balance. How
+//! the shader's f32 arithmetic keeps the CPU's coverage and depth is written at the top of `mesh.wgsl`.
+//!
+//! The sums are integers in units of `1 / scale` (μ·mm): exact and the same whatever order the GPU adds
+//! them in. `scale` is a power of two chosen per view so that no pixel's total can overflow: a ray's
+//! depth chords through one mesh add up to at most the mesh's depth extent in that view.
+
+use std::sync::{Arc, Mutex, PoisonError};
+
+use bytemuck::{Pod, Zeroable};
+use glam::DVec3;
+use rayon::prelude::*;
+
+use super::{GpuContext, buffer_binding, compute_entry};
+use crate::geometry::View;
+use crate::render::pairing::MIN_SILHOUETTE_CHORD_MM;
+use crate::render::raster::MIN_DEPTH_MM;
+use crate::render::scene::RenderScene;
+use crate::{Error, Result};
+
+/// Invocations per workgroup (`@workgroup_size(64, 1, 1)` in mesh.wgsl).
+const WORKGROUP: u32 = 64;
+
+/// Per-mesh slots per pixel (mesh.wgsl's `SLOTS`): a pixel whose ray meets more meshes is evaluated by
+/// the host.
+const SLOTS: u32 = 6;
+
+/// Bits of a slot's first word that hold the mesh + 1 (mesh.wgsl's `ID_BITS`); structure bits above.
+const ID_BITS: u32 = 17;
+
+/// Words per pixel of the accumulator: the sum, the two balance counters and the number of crossings;
+/// with depth and masks also the per-mesh slots (mesh and structure bits, chord, nearest depth).
+const WORDS_SUM: u32 = 4;
+const WORDS_ALL: u32 = 4 + 3 * SLOTS;
+
+/// The flag mesh.wgsl sets in a pixel's count word when the host must evaluate the pixel.
+const HOST: u32 = 0x8000_0000;
+
+/// How far from the silhouette threshold (mm) a chord summed on the GPU can be from the CPU's: the
+/// pixel is then evaluated by the host (the GPU's depths are within ~1e-5 mm of the CPU's).
+const CHORD_MARGIN_MM: f64 = 1e-4;
+
+/// Entries of `collect`'s list of (pixel, triangle) pairs the host evaluates (8 bytes each): a view
+/// with more falls back to the CPU raster.
+const LIST_CAPACITY: u32 = 1 << 17;
+
+/// `Globals` in mesh.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Globals {
+    /// Width, height, triangles, words per pixel.
+    image: [u32; 4],
+    /// The fixed-point scales of the sum (x) and of the chords (y).
+    scale: [f32; 4],
+    /// The list's capacity (x), and the chords (y..=z, i32 in units of `scale[1]`) whose pixels the host
+    /// evaluates.
+    list: [u32; 4],
+}
+
+/// One view's accumulated sums as the shader left them, per pixel `stride` words (see mesh.wgsl's
+/// `acc`), the scale of the fixed-point sum, and what the host needs to evaluate the pixels the sums
+/// cannot give: their candidate triangles and the camera-frame vertices.
+pub(crate) struct GpuFrame {
+    pub stride: usize,
+    pub words: Vec<u32>,
+    pub scale: f64,
+    /// Units per mm of a slot's chord (camera depth).
+    pub chord_scale: f64,
+    /// (pixel, global triangle) for every pixel that is not [`Self::balanced`], sorted.
+    pub pairs: Vec<[u32; 2]>,
+    /// Camera-frame vertices (source at the origin), by global vertex index.
+    pub cam: Vec<DVec3>,
+}
+
+impl GpuFrame {
+    /// Whether pixel `i`'s sum can be used: its crossings balance (per mesh as many entries as exits,
+    /// as far as the two counters tell: see `raster::summed`) and the shader did not flag it (mesh.wgsl's
+    /// `HOST`). Otherwise the host evaluates it. (The shader's `clean` also sends the host a pixel whose
+    /// chord through a mesh is within rounding of the silhouette threshold; such a pixel is listed in
+    /// [`Self::pairs`].)
+    #[inline]
+    pub fn balanced(&self, i: usize) -> bool {
+        let w = &self.words[i * self.stride..];
+        w[1] == 0 && w[2] == 0 && w[3] & HOST == 0
+    }
+
+    /// Pixel `i`'s `Σ ± μ · depth` (camera depth, μ·mm).
+    #[inline]
+    pub fn sum(&self, i: usize) -> f64 {
+        f64::from(self.words[i * self.stride] as i32) / self.scale
+    }
+
+    /// How many triangles covered pixel `i`.
+    #[inline]
+    pub fn crossings(&self, i: usize) -> u32 {
+        self.words[i * self.stride + 3] & !HOST
+    }
+
+    /// Whether pixel `i`'s ray can meet a mesh: a triangle covered it, or its centre is near an edge.
+    #[inline]
+    pub fn touched(&self, i: usize) -> bool {
+        self.words[i * self.stride + 3] != 0
+    }
+
+    /// Pixel `i`'s per-mesh slots (with depth and masks): per mesh its ray meets, the mesh, its chord
+    /// (camera depth, mm), the depth of its nearest crossing, and its crossed triangles' structure bits.
+    pub fn slots(&self, i: usize) -> impl Iterator<Item = (usize, f64, f32, u32)> + '_ {
+        let w = &self.words[i * self.stride..(i + 1) * self.stride];
+        w[4..].chunks_exact(3).filter(|s| s[0] != 0).map(|s| {
+            (
+                (s[0] & ((1 << ID_BITS) - 1)) as usize - 1,
+                f64::from(s[1] as i32) / self.chord_scale,
+                f32::from_bits(!s[2]),
+                s[0] >> ID_BITS,
+            )
+        })
+    }
+}
+
+/// A scene's triangles on the GPU and the compute pipeline that sums them.
+pub struct GpuMeshRenderer {
+    ctx: Arc<GpuContext>,
+    triangles: u32,
+    /// First global vertex and first global triangle of each mesh, and the total vertices.
+    vertex_start: Vec<usize>,
+    triangle_start: Vec<usize>,
+    vertices: usize,
+    tris: wgpu::Buffer,
+    meshes: wgpu::Buffer,
+    layout: wgpu::BindGroupLayout,
+    pipeline: wgpu::ComputePipeline,
+    collect: wgpu::ComputePipeline,
+    /// The vertex, accumulator and read-back buffers, reused by the next render of the same size; held
+    /// for a whole render, so renders from several threads take turns.
+    buffers: Mutex<Option<FrameBuffers>>,
+}
+
+struct FrameBuffers {
+    acc_bytes: u64,
+    verts: wgpu::Buffer,
+    acc: wgpu::Buffer,
+    staging: wgpu::Buffer,
+    list: wgpu::Buffer,
+    list_staging: wgpu::Buffer,
+}
+
+impl std::fmt::Debug for GpuMeshRenderer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuMeshRenderer")
+            .field("triangles", &self.triangles)
+            .field("adapter", &self.ctx.adapter_name())
+            .finish()
+    }
+}
+
+impl GpuMeshRenderer {
+    /// Uploads `scene`'s triangles and μ and compiles the shader.
+    pub fn new(ctx: Arc<GpuContext>, scene: &RenderScene) -> Result<GpuMeshRenderer> {
+        let mut vertex_start = Vec::with_capacity(scene.meshes.len());
+        let mut triangle_start = Vec::with_capacity(scene.meshes.len());
+        let mut vertices = 0usize;
+        let mut tris: Vec<[u32; 4]> = Vec::with_capacity(scene.triangle_count());
+        for (g, m) in scene.meshes.iter().enumerate() {
+            vertex_start.push(vertices);
+            triangle_start.push(tris.len());
+            let first = vertices as u32;
+            for (k, t) in m.mesh.triangles.iter().enumerate() {
+                let label = u32::from(m.mesh.label(k) as u8);
+                tris.push([
+                    first + t[0],
+                    first + t[1],
+                    first + t[2],
+                    g as u32 | label << 16,
+                ]);
+            }
+            vertices += m.mesh.vertices.len();
+        }
+        // Two vec4s per vertex; indices are u32 in the shader.
+        if vertices > (u32::MAX / 2) as usize || tris.len() > u32::MAX as usize {
+            return Err(Error::invalid(
+                "scene",
+                format!(
+                    "{vertices} vertices and {} triangles are more than the gpu backend indexes",
+                    tris.len()
+                ),
+            ));
+        }
+        let meshes: Vec<[u32; 2]> = scene
+            .meshes
+            .iter()
+            .enumerate()
+            .map(|(g, m)| {
+                [
+                    (m.mu_per_mm as f32).to_bits(),
+                    scene.object_of_mesh[g] as u32,
+                ]
+            })
+            .collect();
+        let too_big = [
+            32 * vertices as u64,
+            16 * tris.len() as u64,
+            8 * meshes.len() as u64,
+        ]
+        .into_iter()
+        .any(|b| b > ctx.max_storage_binding());
+        if too_big {
+            return Err(Error::invalid(
+                "scene",
+                format!(
+                    "{vertices} vertices are more than one buffer of GPU adapter {} holds ({} bytes): \
+                     render with the raster backend",
+                    ctx.adapter_name(),
+                    ctx.max_storage_binding()
+                ),
+            ));
+        }
+        let device = &ctx.device;
+        let (tris_buf, meshes_buf, layout, pipeline) =
+            ctx.checked("uploading the meshes and compiling their shader", || {
+                use wgpu::util::DeviceExt;
+                // An empty binding is not allowed: a scene of empty meshes uploads one unused entry.
+                let init = |label, bytes: &[u8]| {
+                    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some(label),
+                        contents: if bytes.is_empty() { &[0; 16] } else { bytes },
+                        usage: wgpu::BufferUsages::STORAGE,
+                    })
+                };
+                let tris_buf = init("mesh triangles", bytemuck::cast_slice(&tris));
+                let meshes_buf = init("meshes", bytemuck::cast_slice(&meshes));
+                let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some("mesh.wgsl"),
+                    source: wgpu::ShaderSource::Wgsl(include_str!("mesh.wgsl").into()),
+                });
+                let read = || buffer_binding(wgpu::BufferBindingType::Storage { read_only: true });
+                let write =
+                    || buffer_binding(wgpu::BufferBindingType::Storage { read_only: false });
+                let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                    label: Some("mesh"),
+                    entries: &[
+                        compute_entry(0, buffer_binding(wgpu::BufferBindingType::Uniform)),
+                        compute_entry(1, read()),
+                        compute_entry(2, read()),
+                        compute_entry(3, read()),
+                        compute_entry(4, write()),
+                        compute_entry(5, write()),
+                    ],
+                });
+                let pipeline_layout =
+                    device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                        label: Some("mesh"),
+                        bind_group_layouts: &[Some(&layout)],
+                        immediate_size: 0,
+                    });
+                let pipeline = |entry| {
+                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(entry),
+                        layout: Some(&pipeline_layout),
+                        module: &module,
+                        entry_point: Some(entry),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    })
+                };
+                let pipelines = (pipeline("rasterise"), pipeline("collect"));
+                (tris_buf, meshes_buf, layout, pipelines)
+            })?;
+        let (pipeline, collect) = pipeline;
+        Ok(GpuMeshRenderer {
+            ctx,
+            triangles: tris.len() as u32,
+            vertex_start,
+            triangle_start,
+            vertices,
+            tris: tris_buf,
+            meshes: meshes_buf,
+            layout,
+            pipeline,
+            collect,
+            buffers: Mutex::new(None),
+        })
+    }
+
+    /// Global triangle `t`'s mesh and its index in the mesh.
+    pub(crate) fn locate(&self, t: u32) -> (usize, usize) {
+        let t = t as usize;
+        let g = self.triangle_start.partition_point(|&s| s <= t) - 1;
+        (g, t - self.triangle_start[g])
+    }
+
+    /// The first global vertex of mesh `g`.
+    pub(crate) fn vertex_start(&self, g: usize) -> usize {
+        self.vertex_start[g]
+    }
+
+    /// The adapter the renders run on.
+    pub fn adapter_name(&self) -> String {
+        self.ctx.adapter_name()
+    }
+
+    /// Sums `scene` (the scene this renderer was built from) as seen from `view`; with `full`, also the
+    /// first entry's depth and the silhouette bits. `None` when a vertex lies at or behind the source
+    /// plane (no finite projection: the CPU raster traces such a view, and so does the caller) or when
+    /// more pixels than [`LIST_CAPACITY`] entries can hold need the host: the caller renders the view on
+    /// the CPU.
+    pub(crate) fn rasterise(
+        &self,
+        scene: &RenderScene,
+        view: &View,
+        full: bool,
+    ) -> Result<Option<GpuFrame>> {
+        let intr = &view.intrinsics;
+        let (w, h) = (intr.width, intr.height);
+        // Per vertex: (u_hi, v_hi, u_lo, v_lo), (z, z − z_ref, 0, 0); per mesh its depth extent.
+        let mut verts = vec![[0f32; 4]; 2 * self.vertices];
+        let mut cam = vec![DVec3::ZERO; self.vertices];
+        let mut extent = Vec::with_capacity(scene.meshes.len());
+        for (g, m) in scene.meshes.iter().enumerate() {
+            let start = self.vertex_start[g];
+            let n = m.mesh.vertices.len();
+            let out = &mut verts[2 * start..2 * (start + n)];
+            let z_ref = m
+                .mesh
+                .bounds()
+                .map_or(0.0, |(a, b)| view.depth(0.5 * (a + b)));
+            let (lo, hi, ok) = out
+                .par_chunks_mut(2)
+                .zip(cam[start..start + n].par_iter_mut())
+                .zip(m.mesh.vertices.par_iter())
+                .with_min_len(4096)
+                .map(|((o, cam), &p)| {
+                    let c = view.world_to_camera.apply(p);
+                    *cam = c;
+                    let px = intr.project_camera(c);
+                    let (u_hi, u_lo) = split(px.x);
+                    let (v_hi, v_lo) = split(px.y);
+                    let dz = c.z - z_ref;
+                    o[0] = [u_hi, v_hi, u_lo, v_lo];
+                    o[1] = [c.z as f32, dz as f32, 0.0, 0.0];
+                    (dz, dz, c.z > MIN_DEPTH_MM && px.is_finite())
+                })
+                .reduce(
+                    || (f64::INFINITY, f64::NEG_INFINITY, true),
+                    |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2),
+                );
+            if !ok {
+                return Ok(None);
+            }
+            extent.push(if hi >= lo { hi - lo } else { 0.0 });
+        }
+        // A power of two that keeps `bound` below 2³⁰ units.
+        let scale_for = |bound: f64| {
+            (f64::from(1u32 << 30) / (bound * (1.0 + 1e-6) + 1e-30))
+                .log2()
+                .floor()
+                .exp2()
+                .clamp(2f64.powi(-100), 2f64.powi(100))
+        };
+        // Every pixel's total |Σ ± μ·depth| is at most Σ μ·extent, a mesh's chord at most its extent.
+        let scale = scale_for(
+            scene
+                .meshes
+                .iter()
+                .zip(&extent)
+                .map(|(m, e)| m.mu_per_mm.abs() * e)
+                .sum(),
+        );
+        let chord_scale = scale_for(extent.iter().fold(0.0, |a: f64, &b| a.max(b)));
+        // The chords (depth, mm) within rounding of the silhouette threshold (ray length, mm): a ray's
+        // length per mm of depth is |K⁻¹ (u, v, 1)| ≥ 1, at most its value at the farthest corner.
+        let path_max = [
+            (0.0, 0.0),
+            (f64::from(w), 0.0),
+            (0.0, f64::from(h)),
+            (f64::from(w), f64::from(h)),
+        ]
+        .map(|(u, v)| intr.back_project(u, v).length())
+        .into_iter()
+        .fold(1.0, f64::max);
+        let chord_band = [
+            (MIN_SILHOUETTE_CHORD_MM / path_max - CHORD_MARGIN_MM) * chord_scale,
+            (MIN_SILHOUETTE_CHORD_MM + CHORD_MARGIN_MM) * chord_scale,
+        ]
+        .map(|c| (c.round() as i32).cast_unsigned());
+        let stride = if full { WORDS_ALL } else { WORDS_SUM };
+        let acc_bytes = 4 * u64::from(w) * u64::from(h) * u64::from(stride);
+        let groups = self.triangles.div_ceil(WORKGROUP).max(1);
+        let max_groups = self.ctx.max_workgroups();
+        let grid = [groups.min(max_groups), groups.div_ceil(max_groups)];
+        if acc_bytes > self.ctx.max_storage_binding() || grid[1] > max_groups {
+            return Err(Error::invalid(
+                "view",
+                format!(
+                    "a {w}×{h} px mesh DRR of {} triangles is more than one dispatch of GPU adapter {} \
+                     takes ({} bytes of output at most): render it with the raster backend",
+                    self.triangles,
+                    self.ctx.adapter_name(),
+                    self.ctx.max_storage_binding()
+                ),
+            ));
+        }
+        let globals = Globals {
+            image: [w, h, self.triangles, stride],
+            scale: [scale as f32, chord_scale as f32, 0.0, 0.0],
+            list: [LIST_CAPACITY, chord_band[0], chord_band[1], 0],
+        };
+        let list_bytes = 4 * (1 + 2 * u64::from(LIST_CAPACITY));
+        let device = &self.ctx.device;
+        let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
+        if slot.as_ref().is_some_and(|b| b.acc_bytes != acc_bytes) {
+            *slot = None;
+        }
+        let verts_bytes = (32 * self.vertices as u64).max(32);
+        let bufs = match &mut *slot {
+            Some(b) => b,
+            empty => empty.insert(self.ctx.checked("allocating the mesh DRR's buffers", || {
+                let buffer = |label, size, usage| {
+                    device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some(label),
+                        size,
+                        usage,
+                        mapped_at_creation: false,
+                    })
+                };
+                use wgpu::BufferUsages as U;
+                FrameBuffers {
+                    acc_bytes,
+                    verts: buffer("mesh vertices", verts_bytes, U::STORAGE | U::COPY_DST),
+                    acc: buffer(
+                        "mesh sums",
+                        acc_bytes,
+                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
+                    ),
+                    staging: buffer("mesh sums read back", acc_bytes, U::MAP_READ | U::COPY_DST),
+                    list: buffer(
+                        "mesh pixels for the host",
+                        list_bytes,
+                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
+                    ),
+                    list_staging: buffer(
+                        "mesh pixels read back",
+                        list_bytes,
+                        U::MAP_READ | U::COPY_DST,
+                    ),
+                }
+            })?),
+        };
+        self.ctx.checked("rendering a mesh DRR", || {
+            use wgpu::util::DeviceExt;
+            if !verts.is_empty() {
+                self.ctx
+                    .queue
+                    .write_buffer(&bufs.verts, 0, bytemuck::cast_slice(&verts));
+            }
+            let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("mesh globals"),
+                contents: bytemuck::bytes_of(&globals),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
+            let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("mesh"),
+                layout: &self.layout,
+                entries: &[
+                    (0, &uniform),
+                    (1, &bufs.verts),
+                    (2, &self.tris),
+                    (3, &self.meshes),
+                    (4, &bufs.acc),
+                    (5, &bufs.list),
+                ]
+                .map(|(binding, b)| wgpu::BindGroupEntry {
+                    binding,
+                    resource: b.as_entire_binding(),
+                }),
+            });
+            let mut encoder = device.create_command_encoder(&Default::default());
+            // The sums start at 0 (a reused buffer holds the last render).
+            encoder.clear_buffer(&bufs.acc, 0, None);
+            encoder.clear_buffer(&bufs.list, 0, Some(4));
+            // Two passes: `collect` reads what every invocation of `rasterise` added.
+            for pipeline in [&self.pipeline, &self.collect] {
+                let mut pass = encoder.begin_compute_pass(&Default::default());
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, &bind, &[]);
+                pass.dispatch_workgroups(grid[0], grid[1], 1);
+            }
+            encoder.copy_buffer_to_buffer(&bufs.acc, 0, &bufs.staging, 0, acc_bytes);
+            encoder.copy_buffer_to_buffer(&bufs.list, 0, &bufs.list_staging, 0, list_bytes);
+            self.ctx.queue.submit([encoder.finish()]);
+        })?;
+        let words = self.ctx.read_back::<u32>(&bufs.staging, "the mesh DRR");
+        let list = self
+            .ctx
+            .read_back::<u32>(&bufs.list_staging, "the mesh DRR's pixels");
+        let (words, list) = match (words, list) {
+            (Ok(w), Ok(l)) => (w, l),
+            (Err(e), _) | (_, Err(e)) => {
+                // A buffer left mapped (or lost with the device) is not reused.
+                *slot = None;
+                return Err(e);
+            }
+        };
+        if list[0] > LIST_CAPACITY {
+            // More pixels than the list holds: the CPU raster renders the view.
+            return Ok(None);
+        }
+        let mut pairs: Vec<[u32; 2]> = list[1..1 + 2 * list[0] as usize]
+            .chunks_exact(2)
+            .map(|p| [p[0], p[1]])
+            .collect();
+        pairs.sort_unstable();
+        Ok(Some(GpuFrame {
+            stride: stride as usize,
+            words,
+            scale,
+            chord_scale,
+            pairs,
+            cam,
+        }))
+    }
+}
+
+/// `v` as `hi + lo` in f32 (hi the nearest f32, lo the rest rounded).
+fn split(v: f64) -> (f32, f32) {
+    let hi = v as f32;
+    (hi, (v - f64::from(hi)) as f32)
+}
