@@ -72,11 +72,14 @@ pub struct Args {
     #[arg(long, default_value = "none", value_name = "SPEC")]
     perturb: String,
     /// What renders. Meshes and phantoms: `raster` (the default; exact edge functions per pixel, the
-    /// fastest; a view with a vertex at or behind the source plane is traced with Embree), `embree` (all
-    /// hits in one Embree traversal) or `bvh` (the pure-Rust reference); all give the same path lengths
-    /// (to ~1e-7 mm). A CT (`--ct`) renders on the CPU unless `gpu` is given: compute shaders through
-    /// wgpu on the machine's GPU (Vulkan, Metal or DX12; Mesa's software Vulkan, lavapipe, where there is
-    /// none), the same Siddon or trilinear integral to ~1e-5; the sidecar names the adapter.
+    /// fastest on a CPU; a view with a vertex at or behind the source plane is traced with Embree),
+    /// `embree` (all hits in one Embree traversal) or `bvh` (the pure-Rust reference); all give the same
+    /// path lengths (to ~1e-7 mm). `gpu`: compute shaders through wgpu on the machine's GPU (Vulkan, Metal
+    /// or DX12; Mesa's software Vulkan, lavapipe, where there is none); the sidecar names the adapter.
+    /// Meshes on the GPU are the raster's signed-depth sums (exit − entry depths per pixel; closed meshes
+    /// only, and a mesh that intersects itself counts twice where it overlaps), within ~1e-4 mm of the
+    /// raster, with the same masks; spectral mesh DRRs render on the CPU. A CT (`--ct`) renders on the
+    /// CPU unless `gpu` is given, the same Siddon or trilinear integral to ~1e-5.
     #[arg(long, value_enum, value_name = "BACKEND")]
     backend: Option<Backend>,
     /// Write silhouette masks per object and per structure (meshes and phantom only).

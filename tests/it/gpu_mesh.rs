@@ -251,3 +251,152 @@ fn gpu_mesh_drrs_of_nested_meshes_match_the_cpu() {
     assert!(d <= 1e-4, "depths differ by {d} mm");
     assert!(c.line_integral.data.iter().fold(0f32, |m, &x| m.max(x)) > 1.0);
 }
+
+/// `render --phantom … --backend gpu` end to end: the DRR, depth map and every silhouette file equal
+/// the raster's, the sidecar names the backend and the adapter; a spectral mesh DRR and an open mesh are
+/// refused by name with nothing written.
+#[test]
+fn cli_backend_gpu_renders_meshes_like_the_raster() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |n: &str| dir.path().join(n).display().to_string();
+    let geometry = dir.path().join("small.toml");
+    std::fs::write(
+        &geometry,
+        "[detector]\nwidth = 120\nheight = 100\npixel_spacing_mm = [1.2, 1.2]\nsdd_mm = 1000.0\n\n\
+         [[view]]\nname = \"ap\"\nsource_mm = [-600.0, 25.0, 10.0]\ntarget_mm = [0.0, 0.0, 0.0]\n",
+    )
+    .unwrap();
+    let render = |backend: &str, sub: &str| {
+        std::fs::create_dir_all(dir.path().join(sub)).unwrap();
+        crate::common::Spinedrr::new()
+            .args([
+                "render",
+                "--phantom",
+                "L2-L4",
+                "--geometry",
+                &d("small.toml"),
+            ])
+            .args(["--masks", "--depth", "--backend", backend])
+            .args(["--out", &d(&format!("{sub}/drr.tiff"))])
+            .outcome()
+    };
+    let (ok, err) = render("raster", "cpu");
+    assert!(ok, "{err}");
+    let (ok, err) = render("gpu", "gpu");
+    assert!(ok, "{err}");
+    let mut names: Vec<String> = std::fs::read_dir(dir.path().join("cpu"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert!(names.len() > 4, "{names:?}");
+    for name in &names {
+        let (c, g) = (
+            dir.path().join("cpu").join(name),
+            dir.path().join("gpu").join(name),
+        );
+        if name.ends_with(".json") {
+            if name != "drr.json" {
+                continue;
+            }
+            let side: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&g).unwrap()).unwrap();
+            assert_eq!(side["details"]["backend"], "gpu", "{side}");
+            let adapter = side["details"]["gpu_adapter"].as_str().unwrap_or_default();
+            assert_eq!(adapter, crate::gpu_ct::gpu().adapter_name(), "{side}");
+        } else if name.ends_with(".tiff") {
+            let (c, g) = (
+                spinedrr::io::read_tiff_f32(&c).unwrap(),
+                spinedrr::io::read_tiff_f32(&g).unwrap(),
+            );
+            let max = c.max();
+            assert!(max > 0.0, "{name}");
+            let d = worst(&c, &g);
+            // Line integrals (μ ≤ 0.06 mm⁻¹: 1e-4 mm of path is < 1e-5) and depths (~1000 mm in f32).
+            assert!(d <= 1e-5 * max.max(1.0) + 1e-5, "{name}: {d}");
+        } else {
+            assert_eq!(
+                std::fs::read(&c).unwrap(),
+                std::fs::read(&g).unwrap(),
+                "{name} differs"
+            );
+        }
+    }
+    let mut open = TriMesh::cuboid("lid-less", DVec3::splat(-10.0), DVec3::splat(10.0));
+    open.triangles.truncate(10);
+    spinedrr::anatomy::meshio::write_mesh(&dir.path().join("open.stl"), &open).unwrap();
+    let open_stl = d("open.stl");
+    for (extra, want) in [
+        (["--phantom", "L3", "--spectrum", "80"], "spectral"),
+        (["--mesh", &open_stl, "--mu-default", "0.02"], "closed"),
+    ] {
+        let (ok, err) = crate::common::Spinedrr::new()
+            .args(["render", "--geometry", &d("small.toml"), "--backend", "gpu"])
+            .args(extra)
+            .args(["--out", &d("refused.tiff")])
+            .outcome();
+        assert!(!ok && err.contains(want), "{extra:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(!dir.path().join("refused.tiff").exists());
+    }
+}
+
+/// A study with `geometry.backend = "gpu"`: the same tables as the raster's (silhouette metrics
+/// identical, intensity metrics within 1e-6), the report names the backend and the reference DRRs'
+/// sidecars the adapter.
+#[test]
+fn a_study_on_the_gpu_backend_matches_the_raster() {
+    use crate::study_hardening::{SMALL, study, write};
+    let dir = tempfile::tempdir().unwrap();
+    let run = |backend: &str| {
+        let cfg = write(
+            dir.path(),
+            &format!("{backend}.toml"),
+            &SMALL.replace(
+                "[geometry]\n",
+                &format!("[geometry]\nbackend = \"{backend}\"\n"),
+            ),
+        );
+        let out = dir.path().join(backend);
+        let (ok, err) = crate::common::outcome(&study(&cfg, &out, &[]));
+        assert!(ok, "{backend}: {err}");
+        out
+    };
+    let (cpu, gpu) = (run("raster"), run("gpu"));
+    let read = |dir: &std::path::Path, name: &str| {
+        std::fs::read_to_string(dir.join("tables").join(name)).unwrap()
+    };
+    assert_eq!(read(&cpu, "structures.csv"), read(&gpu, "structures.csv"));
+    let (c, g) = (read(&cpu, "projection.csv"), read(&gpu, "projection.csv"));
+    let header: Vec<&str> = c.lines().next().unwrap().split(',').collect();
+    assert_eq!(c.lines().count(), g.lines().count());
+    for (lc, lg) in c.lines().zip(g.lines()).skip(1) {
+        for ((name, a), b) in header.iter().zip(lc.split(',')).zip(lg.split(',')) {
+            let intensity = ["ncc", "ssim", "mutual_information", "gradient", "mean_abs"]
+                .iter()
+                .any(|p| name.starts_with(p));
+            match (a.parse::<f64>(), b.parse::<f64>()) {
+                (Ok(x), Ok(y)) if intensity => {
+                    assert!(
+                        (x - y).abs() <= 1e-6 * x.abs().max(1e-3),
+                        "{name}: {a} vs {b}"
+                    )
+                }
+                _ => assert_eq!(a, b, "{name}"),
+            }
+        }
+    }
+    let report = std::fs::read_to_string(gpu.join("report.md")).unwrap();
+    assert!(
+        report.contains("gpu backend") && report.contains("GPU backend"),
+        "{report}"
+    );
+    let side: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(gpu.join("references").join("L1_ap.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        side["details"]["gpu_adapter"].as_str().unwrap_or_default(),
+        crate::gpu_ct::gpu().adapter_name()
+    );
+}

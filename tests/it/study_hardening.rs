@@ -166,11 +166,6 @@ fn meaningless_lists_are_refused_naming_the_repeat() {
         "[geometry]\nviews = [\"ap\", \"lat\", \"ap\"]\n",
         &["geometry.views", "ap is listed twice"],
     );
-    // The GPU renders CT DRRs only so far; a study's targets are meshes (and a CT's surfaces).
-    bad_config(
-        "[geometry]\nbackend = \"gpu\"\n",
-        &["geometry.backend", "gpu", "CT volumes"],
-    );
     bad_config(
         "[registration]\nmethods = [\"kabsch\", \"kabsch\"]\n",
         &["registration.methods", "kabsch is listed twice"],

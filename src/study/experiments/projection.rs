@@ -168,6 +168,9 @@ fn write_reference_image(
     side.details.insert("renderer".into(), renderer.into());
     side.details
         .insert("backend".into(), ctx.cfg.geometry.backend_name().into());
+    if let (Some(adapter), "thickness") = (t.renderer.gpu_adapter(), renderer) {
+        side.details.insert("gpu_adapter".into(), adapter.into());
+    }
     side.details.insert("target".into(), t.name.clone().into());
     // The target seen from beside the beam (depth along the central ray, offset along v; mm): the
     // report's to-scale drawing of each view.

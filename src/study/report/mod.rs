@@ -232,8 +232,12 @@ vertex at or behind the source plane is traced with Embree instead)"
             "the Embree backend: Intel Embree ray tracing, all hits in one traversal"
         }
         Backend::Bvh => "the BVH backend: the pure-Rust f64 BVH with a watertight triangle test",
-        // Refused by StudyConfig::validate until the GPU renders meshes.
-        Backend::Gpu => "the GPU backend: compute shaders through wgpu",
+        Backend::Gpu => {
+            "the GPU backend: compute shaders through wgpu summing each covered pixel's signed \
+plane depths (exit − entry), with the pixels near an edge or whose crossings do not balance evaluated \
+by the raster's edge functions on the CPU (path lengths within ~1e-4 mm of the raster's, the same \
+silhouettes); the adapter each render ran on is in its DRR sidecar"
+        }
     }
 }
 
