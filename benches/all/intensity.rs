@@ -17,6 +17,7 @@ use spinedrr::registration::intensity::{
     phantom_moving, phantom_renderer, register_intensity, start_at_mtre, subsample,
     subsampled_image, subsampled_view,
 };
+use spinedrr::render::Backend;
 use spinedrr::render::volume::{VolumeRenderOptions, VolumeRenderer};
 
 /// The phantom's L3 alone as a synthetic CT (1 mm voxels), its volume DRR masked to the level, the
@@ -113,7 +114,7 @@ pub fn run(c: &mut Criterion) {
         })
         .collect();
     let problem = IntensityProblem {
-        moving: phantom_moving(&phantom, Level::L3, MovingScope::Level).unwrap(),
+        moving: phantom_moving(&phantom, Level::L3, MovingScope::Level, Backend::Raster).unwrap(),
         views,
         targets: level_targets(&phantom, Level::L3).unwrap(),
     };

@@ -227,7 +227,7 @@ pub fn intensity_problem(data: &[u8]) {
     });
     let path = dir.join("P.json");
     if std::fs::write(&path, data).is_ok() {
-        let _ = LoadedIntensityProblem::read(&path);
+        let _ = LoadedIntensityProblem::read(&path, spinedrr::render::Backend::Raster);
     }
 }
 

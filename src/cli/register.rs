@@ -52,6 +52,12 @@ pub struct Args {
     /// non-converged solve writes --out (with "converged": false) and exits non-zero.
     #[arg(long)]
     allow_unconverged: bool,
+    /// With --intensity: what renders a mesh or phantom anatomy's DRRs in the loop: `raster` (the
+    /// default), `embree`, `bvh` or `gpu` (signed-depth sums in compute shaders through wgpu, checked
+    /// against the raster's paired render before the loop relies on them; R.json then names the
+    /// adapter). A CT anatomy renders on the CPU.
+    #[arg(long, value_enum, value_name = "BACKEND", requires = "intensity")]
+    backend: Option<spinedrr::render::Backend>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -137,7 +143,8 @@ fn unconverged_summary(
 /// registers, writes R.json.
 fn run_intensity(a: &Args) -> anyhow::Result<()> {
     use spinedrr::registration::intensity::{LoadedIntensityProblem, run_intensity_problem};
-    let loaded = LoadedIntensityProblem::read(&a.problem)
+    let backend = a.backend.unwrap_or(spinedrr::render::Backend::Raster);
+    let loaded = LoadedIntensityProblem::read(&a.problem, backend)
         .with_context(|| format!("reading intensity problem {}", a.problem.display()))?;
     eprintln!(
         "registering {} view(s) by {} over levels {:?}…",
@@ -145,8 +152,14 @@ fn run_intensity(a: &Args) -> anyhow::Result<()> {
         loaded.options.similarity.name(),
         loaded.options.levels
     );
-    let out = run_intensity_problem(&loaded)
+    let mut out = run_intensity_problem(&loaded)
         .with_context(|| format!("registering {}", a.problem.display()))?;
+    if let Some(b) = loaded.problem.moving.backend() {
+        out["backend"] = b.name().into();
+    }
+    if let Some(adapter) = loaded.problem.moving.gpu_adapter() {
+        out["gpu_adapter"] = adapter.into();
+    }
     let text = serde_json::to_string_pretty(&out)?;
     spinedrr::io::write_atomic_bytes(&a.out, text.as_bytes())
         .with_context(|| format!("writing {}", a.out.display()))?;

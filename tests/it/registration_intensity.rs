@@ -17,6 +17,7 @@ use spinedrr::registration::intensity::{
 use spinedrr::registration::{
     RegistrationOptions, RegistrationProblem, SplitMix64, register_direct,
 };
+use spinedrr::render::Backend;
 
 const BIN: u32 = 4;
 const TRUTH: RigidTransform = RigidTransform::IDENTITY;
@@ -72,7 +73,7 @@ fn problem(
         })
         .collect();
     IntensityProblem {
-        moving: phantom_moving(ph, Level::L3, MovingScope::Level).unwrap(),
+        moving: phantom_moving(ph, Level::L3, MovingScope::Level, Backend::Raster).unwrap(),
         views,
         targets: level_targets(ph, Level::L3).unwrap(),
     }

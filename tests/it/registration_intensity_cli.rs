@@ -122,7 +122,7 @@ fn ap() -> View {
 }
 
 /// Writes meshes, the fixed image of `truth` and a problem file; returns the problem's JSON.
-fn write_problem(dir: &Path, truth: &RigidTransform) -> Value {
+pub(crate) fn write_problem(dir: &Path, truth: &RigidTransform) -> Value {
     let mut meshes = Vec::new();
     let mut spec = Vec::new();
     for (i, m) in body().into_iter().enumerate() {

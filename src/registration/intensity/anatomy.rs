@@ -60,11 +60,17 @@ pub fn phantom_renderer(phantom: &Phantom) -> Result<ThicknessRenderer> {
     Backend::Raster.renderer(phantom_scene(phantom)?)
 }
 
-/// The moving DRR of `level` of `phantom`: the level alone or the whole phantom.
-pub fn phantom_moving(phantom: &Phantom, level: Level, scope: MovingScope) -> Result<MovingDrr> {
+/// The moving DRR of `level` of `phantom` rendered with `backend`: the level alone or the whole
+/// phantom.
+pub fn phantom_moving(
+    phantom: &Phantom,
+    level: Level,
+    scope: MovingScope,
+    backend: Backend,
+) -> Result<MovingDrr> {
     let renderer = match scope {
-        MovingScope::Level => phantom_renderer(&level_alone(phantom, level)?)?,
-        MovingScope::Anatomy => phantom_renderer(phantom)?,
+        MovingScope::Level => backend.renderer(phantom_scene(&level_alone(phantom, level)?)?)?,
+        MovingScope::Anatomy => backend.renderer(phantom_scene(phantom)?)?,
     };
     Ok(MovingDrr::Mesh(MeshDrr::new(renderer)))
 }

@@ -33,6 +33,24 @@ pub enum MovingDrr {
     Volume(Box<VolumeRenderer>),
 }
 
+impl MovingDrr {
+    /// The GPU adapter the moving DRR renders on (meshes on the gpu backend), else `None`.
+    pub fn gpu_adapter(&self) -> Option<String> {
+        match self {
+            MovingDrr::Mesh(m) => m.full.gpu_adapter(),
+            MovingDrr::Volume(_) => None,
+        }
+    }
+
+    /// The backend the moving DRR renders with (`None` for a CT, which the volume renderer renders).
+    pub fn backend(&self) -> Option<Backend> {
+        match self {
+            MovingDrr::Mesh(m) => Some(m.full.backend()),
+            MovingDrr::Volume(_) => None,
+        }
+    }
+}
+
 /// Fewest triangles a decimated mesh of a coarse level keeps.
 const MIN_LOD_TRIANGLES: usize = 500;
 
@@ -97,7 +115,7 @@ impl MeshDrr {
                 Ok(SceneMesh { mesh, ..m.clone() })
             })
             .collect::<Result<Vec<_>>>()?;
-        let r = Arc::new(Backend::Raster.renderer(RenderScene::new(meshes)?)?);
+        let r = Arc::new(self.full.backend().renderer(RenderScene::new(meshes)?)?);
         lods.push((factor, r.clone()));
         Ok(r)
     }

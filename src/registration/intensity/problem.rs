@@ -96,8 +96,10 @@ pub struct LoadedIntensityProblem {
 }
 
 impl LoadedIntensityProblem {
-    /// Reads and builds `path` (anatomy, fixed images, views); every error names its field.
-    pub fn read(path: &Path) -> Result<Self> {
+    /// Reads and builds `path` (anatomy, fixed images, views); every error names its field. A mesh or
+    /// phantom anatomy renders with `backend`; a CT anatomy renders on the CPU (a `backend` other than
+    /// the raster is refused for it).
+    pub fn read(path: &Path, backend: Backend) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let pj: ProblemJson =
             serde_json::from_str(&text).map_err(|e| Error::format(path, e.to_string()))?;
@@ -122,7 +124,7 @@ impl LoadedIntensityProblem {
         for (i, v) in pj.views.iter().enumerate() {
             views.push(read_view(v, i, dir)?);
         }
-        let (moving, targets) = build_anatomy(&pj.anatomy, scope, dir)?;
+        let (moving, targets) = build_anatomy(&pj.anatomy, scope, dir, backend)?;
         let init = RigidTransform::from_rt(pj.init.r, pj.init.t, "init")?;
         let truth = pj
             .truth
@@ -226,6 +228,7 @@ fn build_anatomy(
     a: &AnatomyJson,
     scope: MovingScope,
     dir: &Path,
+    backend: Backend,
 ) -> Result<(MovingDrr, Vec<glam::DVec3>)> {
     match anatomy_kind(a)? {
         "phantom" => {
@@ -237,7 +240,7 @@ fn build_anatomy(
                 ..PhantomOptions::default()
             })?;
             Ok((
-                phantom_moving(&phantom, level, scope)?,
+                phantom_moving(&phantom, level, scope, backend)?,
                 level_targets(&phantom, level)?,
             ))
         }
@@ -263,9 +266,17 @@ fn build_anatomy(
                 });
             }
             let targets = subsample(&meshes[0].mesh.vertices, super::MAX_TARGET_POINTS);
-            let renderer = Backend::Raster.renderer(RenderScene::new(meshes)?)?;
+            let renderer = backend.renderer(RenderScene::new(meshes)?)?;
             Ok((MovingDrr::Mesh(MeshDrr::new(renderer)), targets))
         }
+        _ if backend != Backend::Raster => Err(Error::invalid(
+            "backend",
+            format!(
+                "{}: a CT anatomy registers with the CPU's volume renderer; --backend applies to \
+                 mesh and phantom anatomies",
+                backend.name()
+            ),
+        )),
         _ => {
             let ct_path = dir.join(a.ct.as_deref().unwrap_or(Path::new("")));
             let seg_path = dir.join(a.seg.as_deref().ok_or_else(|| {

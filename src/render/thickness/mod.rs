@@ -178,6 +178,17 @@ impl ThicknessRenderer {
         &self.scene
     }
 
+    /// The backend this renderer was built with.
+    pub fn backend(&self) -> super::Backend {
+        use super::Backend;
+        match &self.gather {
+            Gather::Trace(t) if t.name() == "embree" => Backend::Embree,
+            Gather::Trace(_) => Backend::Bvh,
+            Gather::Raster { gpu: Some(_), .. } => Backend::Gpu,
+            Gather::Raster { .. } => Backend::Raster,
+        }
+    }
+
     pub fn backend_name(&self) -> &'static str {
         match &self.gather {
             Gather::Trace(t) => t.name(),

@@ -20,7 +20,6 @@ use crate::registration::intensity::{
     binned_view, mtre_mm, register_intensity, subsample,
 };
 use crate::registration::pose_errors;
-use crate::render::Backend;
 
 /// The finest pyramid level is about this many pixels wide.
 const FINEST_WIDTH_PX: u32 = 512;
@@ -66,8 +65,9 @@ impl IntensityBench {
         let bin = finest_bin(carm.views.first().map_or(1, |v| v.intrinsics.width));
         let moving = match &t.volume {
             Some(v) => MovingDrr::Volume(Box::new(v.clone())),
+            // The target's renderer's backend (the study's).
             None => MovingDrr::Mesh(MeshDrr::new(
-                Backend::Raster.renderer(t.renderer.scene().clone())?,
+                t.renderer.backend().renderer(t.renderer.scene().clone())?,
             )),
         };
         let views = carm

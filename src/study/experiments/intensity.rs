@@ -84,7 +84,12 @@ pub fn prepare(cfg: &StudyConfig, timings: &Timings) -> Result<Vec<IntensityTarg
         };
         let alone = level_alone(phantom, level)?;
         let moving = timings.time(Phase::Scene, 1, || -> Result<MeshDrr> {
-            let m = MeshDrr::new(phantom_renderer(&alone)?);
+            // The moving DRR renders with the study's backend (the fixed images with the raster).
+            let m = MeshDrr::new(
+                cfg.geometry
+                    .backend
+                    .renderer(crate::render::phantom_scene(&alone)?)?,
+            );
             for &b in &s.levels {
                 m.at_detail(b / finest)?;
             }
