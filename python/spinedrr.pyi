@@ -17,7 +17,7 @@ import numpy.typing as npt
 __version__: str
 MU_WATER_PER_MM: float
 
-Backend = Literal["raster", "embree", "bvh"]
+Backend = Literal["raster", "embree", "bvh", "gpu"]
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]
 Bool = npt.NDArray[np.bool_]
@@ -96,6 +96,8 @@ class Renderer:
 
     def __init__(self, meshes_with_mu: Sequence[MeshWithMu], backend: Backend = "raster") -> None: ...
     backend: str
+    adapter: str | None
+    """The GPU adapter the renders run on (``backend="gpu"``), else ``None``."""
     objects: list[str]
     open_meshes: list[str]
     @overload

@@ -154,6 +154,10 @@ impl Renderer {
         self.0.backend_name()
     }
 
+    pub fn gpu_adapter(&self) -> Option<String> {
+        self.0.gpu_adapter()
+    }
+
     pub fn objects(&self) -> Vec<String> {
         self.0.scene().objects.clone()
     }
