@@ -14,9 +14,10 @@
 #
 # What each row is (all 1024 × 1024, the built-in geometry: 0.30 mm pixels, SDD 1350 mm, AP source 1000 mm
 # from the CT's centre, which the render moves to the origin):
-# * spinedrr rows are `spinedrr render --ct … --repeat N` medians: one view per call, the rays, the
-#   read-back of the image to the host and, on the GPU, the dispatch's buffers; the first render (the
-#   upload, the shader's compile, the CPU's running sums) is left out of the median. The trilinear step is
+# * spinedrr rows are `spinedrr render --ct|--phantom … --repeat N` medians: one view per call, the rays,
+#   the read-back of the image to the host and, on the GPU, the dispatch's buffers (for meshes also the
+#   host's f64 projection of the vertices and its exact evaluation of the few pixels near an edge); the
+#   first render (the upload, the shader's compile, the CPU's running sums) is left out of the median. The trilinear step is
 #   spinedrr's finest default, half the smallest voxel spacing (0.35 mm: ~1000 samples across the CT).
 # * nanodrr rows time `DRR(subject, pose, n_samples)` with CUDA events after 5 warm-up calls: its samples
 #   are spread over the whole source–detector line (500 samples of 1350 mm: a 2.7 mm step), trilinear
@@ -86,7 +87,8 @@ IFS=$'\t' read -r ms adapter < <(median_ms --ct "$CT" --view lat --seg "$DATA/ma
 row "spinedrr Siddon masked to L1 (LAT), --backend gpu" "$ms" "${adapter:-no adapter}"
 IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat)
 row "spinedrr L1–L5 mesh DRR (LAT), raster, CPU" "$ms" "$(uname -n)"
-row "spinedrr L1–L5 mesh DRR, --backend gpu" "not built yet (issue #33)" ""
+IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --backend gpu)
+row "spinedrr L1–L5 mesh DRR (LAT), --backend gpu" "$ms" "${adapter:-no adapter}"
 
 PYTHON="${PYTHON:-python3}"
 if "$PYTHON" -c "import nanodrr, torch; assert torch.cuda.is_available()" 2>/dev/null; then

@@ -81,6 +81,8 @@ pub struct GeometrySection {
     pub views: Vec<String>,
     /// Detector binning: `b` merges b×b pixels (width/b, spacing×b, so K scales by 1/b).
     pub binning: u32,
+    /// What renders the targets' thickness DRRs and the intensity registration's moving DRRs: `raster`
+    /// (the default), `embree`, `bvh` or `gpu` (see the README's *DRRs on a GPU*).
     pub backend: Backend,
 }
 
@@ -200,7 +202,8 @@ impl Default for StudyConfig {
 }
 
 impl GeometrySection {
-    /// The backend's user spelling (`raster`, `embree`, `bvh`), as `--backend` and the config take it.
+    /// The backend's user spelling (`raster`, `embree`, `bvh`, `gpu`), as `--backend` and the config take
+    /// it.
     pub fn backend_name(&self) -> String {
         self.backend.name()
     }
