@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Issue #33's GPU table, measured on this machine: spinedrr's CT DRRs on the CPU and with --backend gpu,
-# the L1–L5 mesh DRR, and nanodrr on the same CT and GPU when it is installed. Prints one Markdown table.
+# the L1–L5 mesh DRR, an AP+LAT intensity registration, and nanodrr on the same CT and GPU when it is
+# installed. Prints one Markdown table.
 #
 # Usage: scripts/gpu-bench.sh [--bin PATH] [--repeat N] [--threads N]
 #   --bin      the spinedrr release binary (default: target/release/spinedrr, built when missing)
@@ -89,6 +90,42 @@ IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat)
 row "spinedrr L1–L5 mesh DRR (LAT), raster, CPU" "$ms" "$(uname -n)"
 IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --backend gpu)
 row "spinedrr L1–L5 mesh DRR (LAT), --backend gpu" "$ms" "${adapter:-no adapter}"
+
+# One AP+LAT intensity registration of the phantom's L3 (its fixed images rendered at the true pose; NCC,
+# the default levels, from 2 mm and 2° off): `register --intensity`'s own "seconds" (after the problem is
+# built), and its mTRE.
+for n in ap lat; do
+  "$BIN" render --phantom L3 --view "$n" --out "$OUT/$n.tiff" 2>/dev/null
+done
+python3 - "$OUT" <<'PY'
+import json, math, sys
+out = sys.argv[1]
+views = []
+for n in ("ap", "lat"):
+    s = json.load(open(f"{out}/{n}.json"))
+    views.append({"name": n, "fixed": f"{n}.tiff", "K": s["K"], "world_to_camera": s["world_to_camera"],
+                  "width": s["width"], "height": s["height"]})
+a = math.radians(2.0)
+rot = [[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]]
+eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+json.dump({"anatomy": {"phantom": "L3"}, "views": views, "init": {"R": rot, "t": [2.0, -1.0, 1.5]},
+           "truth": {"R": eye, "t": [0.0, 0.0, 0.0]}, "similarity": "ncc", "global": False},
+          open(f"{out}/problem.json", "w"))
+PY
+# registration_ms BACKEND: prints its seconds (as ms), the adapter and the mTRE, tab-separated.
+registration_ms() {
+  "$BIN" register --intensity --problem "$OUT/problem.json" --backend "$1" --out "$OUT/r.json" \
+    2> "$OUT/err" >/dev/null || { cat "$OUT/err" >&2; printf 'n/a\t-\tn/a\n'; return; }
+  python3 - "$OUT/r.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+print(f"{1e3 * r['seconds']:.0f}\t{r.get('gpu_adapter') or '-'}\t{r['mtre_mm']:.3f}")
+PY
+}
+IFS=$'\t' read -r ms _ mtre < <(registration_ms raster)
+row "spinedrr AP+LAT intensity registration (L3, NCC), raster, CPU" "$ms (mTRE $mtre mm)" "$(uname -n)"
+IFS=$'\t' read -r ms adapter mtre < <(registration_ms gpu)
+row "spinedrr AP+LAT intensity registration, --backend gpu" "$ms (mTRE $mtre mm)" "${adapter:-no adapter}"
 
 PYTHON="${PYTHON:-python3}"
 if "$PYTHON" -c "import nanodrr, torch; assert torch.cuda.is_available()" 2>/dev/null; then
