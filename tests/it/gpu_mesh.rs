@@ -215,6 +215,24 @@ fn an_open_mesh_is_refused_by_the_gpu_backend() {
     };
     let err = err.to_string();
     assert!(err.contains("lid-less") && err.contains("closed"), "{err}");
+    // An implant is cut out of what it displaces (paired crossings): refused too.
+    let scene = RenderScene::new(
+        [("bone", 12.0), ("screw", 3.0)]
+            .into_iter()
+            .map(|(name, r)| SceneMesh {
+                mesh: std::sync::Arc::new(TriMesh::icosphere(name, DVec3::ZERO, r, 2)),
+                mu_per_mm: 0.05,
+                object: name.into(),
+            })
+            .collect(),
+    )
+    .unwrap()
+    .with_implants(vec![false, true])
+    .unwrap();
+    let Err(err) = Backend::Gpu.renderer(scene) else {
+        panic!("implants must be refused");
+    };
+    assert!(err.to_string().contains("implant"), "{err}");
 }
 
 /// Eight nested spheres (more meshes along a central ray than a pixel has slots for its silhouettes:
