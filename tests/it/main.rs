@@ -18,7 +18,10 @@ mod ct_structures;
 mod fuzz_regressions;
 #[cfg(feature = "gpu")]
 mod gpu_ct;
+#[cfg(feature = "gpu")]
 mod gpu_mesh;
+#[cfg(feature = "gpu")]
+mod gpu_mesh_cli;
 mod landmark_formats;
 mod meshing_cli;
 mod meshing_decimate;

@@ -10,6 +10,7 @@
 
 mod ct;
 mod mesh;
+mod mesh_frame;
 
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 

@@ -145,6 +145,7 @@ impl ThicknessRenderer {
 
     /// A renderer that sums each view on the GPU with `gpu` (built for `scene`, whose meshes are closed)
     /// and rasterises on the CPU what it pairs; what neither can take it traces with `fallback`.
+    #[cfg_attr(not(feature = "gpu"), allow(dead_code))]
     pub(crate) fn gpu(scene: RenderScene, gpu: GpuRaster, fallback: FallbackTracer) -> Self {
         ThicknessRenderer {
             scene,
