@@ -23,9 +23,9 @@ pub enum Backend {
     /// with Embree instead.
     Raster,
     /// Compute shaders through wgpu (Vulkan, Metal, DX12; Mesa's lavapipe where there is no GPU): CT
-    /// DRRs (`render --ct`), and mesh DRRs as the raster's signed-depth sums (closed meshes only; a
-    /// mesh that intersects itself counts twice where it overlaps), pixels whose crossings do not
-    /// balance traced on the CPU.
+    /// DRRs (`render --ct`), and mesh DRRs as the raster's signed-depth sums (closed meshes only, no
+    /// implants; a mesh that intersects itself counts twice where it overlaps), the few pixels a sum
+    /// cannot give (unbalanced, near an edge) evaluated with the raster's edge functions on the CPU.
     Gpu,
 }
 
