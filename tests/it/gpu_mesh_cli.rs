@@ -8,7 +8,7 @@ use crate::gpu_mesh::worst;
 
 /// `render --phantom … --backend gpu` end to end: the DRR, depth map and every silhouette file equal
 /// the raster's, the sidecar names the backend and the adapter; a spectral mesh DRR and an open mesh are
-/// refused by name with nothing written.
+/// refused by name with nothing written, and so is a render on a machine without a Vulkan driver.
 #[test]
 fn cli_backend_gpu_renders_meshes_like_the_raster() {
     let dir = tempfile::tempdir().unwrap();
@@ -93,6 +93,26 @@ fn cli_backend_gpu_renders_meshes_like_the_raster() {
         assert!(!err.contains("panicked"), "{err}");
         assert!(!dir.path().join("refused.tiff").exists());
     }
+    // No Vulkan driver at all: the error says what to install, nothing is written.
+    let (ok, err) = crate::common::Spinedrr::new()
+        .args([
+            "render",
+            "--phantom",
+            "L3",
+            "--geometry",
+            &d("small.toml"),
+            "--backend",
+            "gpu",
+        ])
+        .args(["--out", &d("none.tiff")])
+        .env("VK_ICD_FILENAMES", dir.path().join("no-such-icd.json"))
+        .env("VK_DRIVER_FILES", dir.path().join("no-such-icd.json"))
+        .outcome();
+    assert!(!ok && err.contains("mesa-vulkan-drivers"), "{err}");
+    assert!(
+        !err.contains("panicked") && !dir.path().join("none.tiff").exists(),
+        "{err}"
+    );
 }
 
 /// A study with `geometry.backend = "gpu"`: the same tables as the raster's (silhouette metrics
