@@ -236,7 +236,8 @@ vertex at or behind the source plane is traced with Embree instead)"
             "the GPU backend: compute shaders through wgpu summing each covered pixel's signed \
 plane depths (exit − entry), with the pixels near an edge or whose crossings do not balance evaluated \
 by the raster's edge functions on the CPU (path lengths within ~1e-4 mm of the raster's, the same \
-silhouettes); the adapter each render ran on is in its DRR sidecar"
+silhouettes); the adapter is named in the reference DRRs' sidecars (`references/*.json`, \
+`details.gpu_adapter`)"
         }
     }
 }
