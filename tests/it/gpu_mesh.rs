@@ -11,6 +11,7 @@ use spinedrr::render::{
 };
 
 use crate::common::view_from;
+use crate::render_models::worst_difference;
 
 /// The L1–L5 phantom with μ = 1 mm⁻¹ on every mesh: pixel values are path lengths in mm.
 fn phantom_mm() -> RenderScene {
@@ -63,15 +64,6 @@ fn mask_differences(c: &ThicknessDrr, g: &ThicknessDrr) -> Vec<(u32, u32)> {
         .collect()
 }
 
-pub(crate) fn worst(a: &ImageF32, b: &ImageF32) -> f32 {
-    assert_eq!((a.width, a.height), (b.width, b.height));
-    a.data
-        .iter()
-        .zip(&b.data)
-        .map(|(p, q)| (p - q).abs())
-        .fold(0f32, f32::max)
-}
-
 #[test]
 fn gpu_mesh_drrs_equal_the_cpu_raster_on_the_phantom() {
     let scene = phantom_mm();
@@ -90,10 +82,10 @@ fn gpu_mesh_drrs_equal_the_cpu_raster_on_the_phantom() {
             view.name
         );
         // Path lengths to 1e-4 mm, beyond f32's rounding of the values (~1e-5 mm at 100 mm).
-        let d = worst(&c.line_integral, &g.line_integral);
+        let d = worst_difference(&c.line_integral, &g.line_integral);
         assert!(d <= 1e-4, "{}: path lengths differ by {d} mm", view.name);
         // The first surface's depth (~1000 mm, f32 output: 6e-5 mm a step).
-        let d = worst(c.depth.as_ref().unwrap(), g.depth.as_ref().unwrap());
+        let d = worst_difference(c.depth.as_ref().unwrap(), g.depth.as_ref().unwrap());
         assert!(d <= 2e-4, "{}: depths differ by {d} mm", view.name);
         // Silhouettes of every object and every labelled structure.
         let bad = mask_differences(&c, &g);
@@ -122,9 +114,9 @@ fn gpu_summed_line_integrals_equal_the_cpu_summed_and_paired_renders() {
     gpu.render_line_integral_summed_into(view, &mut b).unwrap();
     // A gpu renderer's paired render is the CPU raster's (the registration compares the two).
     gpu.render_line_integral_into(view, &mut c).unwrap();
-    let d = worst(&a, &b);
+    let d = worst_difference(&a, &b);
     assert!(d <= 1e-4, "summed: {d} mm");
-    let d = worst(&c, &b);
+    let d = worst_difference(&c, &b);
     assert!(d <= 1e-4, "paired: {d} mm");
     assert!(a.data.iter().any(|&x| x > 20.0));
 }
@@ -162,7 +154,7 @@ fn gpu_mesh_ties_and_objects_match_the_cpu() {
         let view = view_from(DVec3::ZERO, offset, 65);
         let c = cpu.render(&view, &opts).unwrap();
         let g = gpu.render(&view, &opts).unwrap();
-        let d = worst(&c.line_integral, &g.line_integral);
+        let d = worst_difference(&c.line_integral, &g.line_integral);
         assert!(d <= 1e-4, "{offset}: {d}");
         let bad = mask_differences(&c, &g);
         assert!(bad.is_empty(), "{offset}: silhouettes differ at {bad:?}");
@@ -260,12 +252,12 @@ fn gpu_mesh_drrs_of_nested_meshes_match_the_cpu() {
     let opts = ThicknessOptions::default();
     let c = cpu.render(&view, &opts).unwrap();
     let g = gpu.render(&view, &opts).unwrap();
-    let d = worst(&c.line_integral, &g.line_integral);
+    let d = worst_difference(&c.line_integral, &g.line_integral);
     // μ ≤ 0.09 mm⁻¹: 1e-4 mm of path is 9e-6 of line integral.
     assert!(d <= 9e-6, "{d}");
     let bad = mask_differences(&c, &g);
     assert!(bad.is_empty(), "silhouettes differ at {bad:?}");
-    let d = worst(c.depth.as_ref().unwrap(), g.depth.as_ref().unwrap());
+    let d = worst_difference(c.depth.as_ref().unwrap(), g.depth.as_ref().unwrap());
     assert!(d <= 1e-4, "depths differ by {d} mm");
     assert!(c.line_integral.data.iter().fold(0f32, |m, &x| m.max(x)) > 1.0);
 }

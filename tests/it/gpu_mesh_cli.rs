@@ -4,7 +4,7 @@
 use glam::DVec3;
 use spinedrr::anatomy::TriMesh;
 
-use crate::gpu_mesh::worst;
+use crate::render_models::worst_difference;
 
 /// `render --phantom … --backend gpu` end to end: the DRR, depth map and every silhouette file equal
 /// the raster's, the sidecar names the backend and the adapter; a spectral mesh DRR and an open mesh are
@@ -65,7 +65,7 @@ fn cli_backend_gpu_renders_meshes_like_the_raster() {
             );
             let max = c.max();
             assert!(max > 0.0, "{name}");
-            let d = worst(&c, &g);
+            let d = worst_difference(&c, &g);
             // Line integrals (μ ≤ 0.06 mm⁻¹: 1e-4 mm of path is < 1e-5) and depths (~1000 mm in f32).
             assert!(d <= 1e-5 * max.max(1.0) + 1e-5, "{name}: {d}");
         } else {

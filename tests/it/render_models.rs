@@ -87,7 +87,8 @@ fn volume_drr_of_the_synthetic_ct_matches_the_thickness_drr() {
 }
 
 /// Largest per-pixel absolute difference of two images of one size.
-fn worst_difference(a: &ImageF32, b: &ImageF32) -> f32 {
+pub(crate) fn worst_difference(a: &ImageF32, b: &ImageF32) -> f32 {
+    assert_eq!((a.width, a.height), (b.width, b.height));
     a.data
         .iter()
         .zip(&b.data)

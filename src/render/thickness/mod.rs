@@ -259,6 +259,17 @@ impl ThicknessRenderer {
         view: &View,
         out: &mut ImageF32,
     ) -> Result<RenderStats> {
+        self.line_integral_into(view, out, false)
+    }
+
+    /// The line integral alone into `out` (resized and zeroed); with `gpu`, a gpu-backend renderer sums
+    /// it on the GPU (see [`Self::render_buffers`]).
+    fn line_integral_into(
+        &self,
+        view: &View,
+        out: &mut ImageF32,
+        gpu: bool,
+    ) -> Result<RenderStats> {
         zeroed_for(view, out)?;
         let outs = Outputs {
             li: &mut out.data,
@@ -266,7 +277,7 @@ impl ThicknessRenderer {
             obj: &mut [],
             st: &mut [],
         };
-        self.render_buffers(view, &ThicknessOptions::image_only(), outs, false)
+        self.render_buffers(view, &ThicknessOptions::image_only(), outs, gpu)
     }
 
     /// [`Self::render_line_integral_into`] by signed sums of the rasterised crossings instead of paired
@@ -282,14 +293,7 @@ impl ThicknessRenderer {
         out: &mut ImageF32,
     ) -> Result<RenderStats> {
         if let Gather::Raster { gpu: Some(_), .. } = &self.gather {
-            zeroed_for(view, out)?;
-            let outs = Outputs {
-                li: &mut out.data,
-                depth: &mut [],
-                obj: &mut [],
-                st: &mut [],
-            };
-            return self.render_buffers(view, &ThicknessOptions::image_only(), outs, true);
+            return self.line_integral_into(view, out, true);
         }
         let start = Instant::now();
         let raster = match &self.gather {
