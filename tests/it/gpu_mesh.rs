@@ -96,6 +96,18 @@ fn gpu_mesh_drrs_equal_the_cpu_raster_on_the_phantom() {
         );
         assert_eq!(g.stats.rays_unrepaired, 0);
         assert_eq!(c.stats.rays_traced, g.stats.rays_traced, "{}", view.name);
+        // The line integral alone is finished on the GPU (mesh.wgsl's `finish`) and only the pixels
+        // the sums cannot give come back to the host: the same image and counts.
+        let gi = gpu.render(&view, &ThicknessOptions::image_only()).unwrap();
+        let d = worst_difference(&c.line_integral, &gi.line_integral);
+        assert!(d <= 1e-4, "{}: image alone, {d} mm", view.name);
+        assert!(gi.depth.is_none() && gi.masks.is_none());
+        assert_eq!(
+            (gi.stats.rays_traced, gi.stats.rays_culled, gi.stats.hits),
+            (c.stats.rays_traced, c.stats.rays_culled, c.stats.hits),
+            "{}",
+            view.name
+        );
     }
 }
 
@@ -159,6 +171,15 @@ fn gpu_mesh_ties_and_objects_match_the_cpu() {
         let bad = mask_differences(&c, &g);
         assert!(bad.is_empty(), "{offset}: silhouettes differ at {bad:?}");
         assert!(c.line_integral.data.iter().filter(|&&x| x > 0.0).count() > 500);
+        // The ties' pixels go to the host when the GPU finishes the line integral alone, too.
+        let gi = gpu.render(&view, &ThicknessOptions::image_only()).unwrap();
+        let d = worst_difference(&c.line_integral, &gi.line_integral);
+        assert!(d <= 1e-4, "{offset}: image alone, {d}");
+        assert_eq!(
+            (gi.stats.rays_traced, gi.stats.hits),
+            (c.stats.rays_traced, c.stats.hits),
+            "{offset}"
+        );
     }
 }
 

@@ -5,8 +5,12 @@
 //! exactly as the CPU raster does (camera frame, then K) and uploads their pixel positions as hi + lo
 //! f32s with their depths, and the shader adds every covered pixel's `± μ · depth` together with two
 //! balance counters (`Σ s`, `Σ s · mesh`, `s = ±1`). The result, a [`GpuFrame`], is turned into a DRR by
-//! the thickness renderer, which traces on the CPU the few pixels whose crossings did not balance. How
-//! the shader's f32 arithmetic keeps the CPU's coverage and depth is written at the top of `mesh.wgsl`.
+//! the thickness renderer, which evaluates on the CPU the few pixels the sums cannot give (crossings
+//! that did not balance, centres near an edge). For the line integral alone a third pass finishes every
+//! other pixel on the GPU (sum × the ray's length per unit depth), so one f32 per pixel and the list of
+//! the host's pixels come back instead of every pixel's sums (measured at 1024², L1–L5 in LAT on
+//! lavapipe: the host's share of a render 16–32 ms → ~1 ms). How the shader's f32 arithmetic keeps the
+//! CPU's coverage and depth is written at the top of `mesh.wgsl`.
 //!
 //! The sums are integers in units of `1 / scale` (μ·mm): exact and the same whatever order the GPU adds
 //! them in. `scale` is a power of two chosen per view so that no pixel's total can overflow: a ray's
@@ -19,11 +23,12 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 pub(crate) use super::mesh_frame::GpuFrame;
+use super::mesh_frame::{Finished, FrameBuffers, FrameSizes};
 use super::mesh_frame::{WORDS_ALL, WORDS_SUM};
 use super::{GpuContext, buffer_binding, compute_entry};
 use crate::geometry::View;
 use crate::render::pairing::MIN_SILHOUETTE_CHORD_MM;
-use crate::render::raster::MIN_DEPTH_MM;
+use crate::render::raster::{MIN_DEPTH_MM, PixelDirs};
 use crate::render::scene::RenderScene;
 use crate::{Error, Result};
 
@@ -34,8 +39,8 @@ const WORKGROUP: u32 = 64;
 /// pixel is then evaluated by the host (the GPU's depths are within ~1e-5 mm of the CPU's).
 const CHORD_MARGIN_MM: f64 = 1e-4;
 
-/// Entries of `collect`'s list of (pixel, triangle) pairs the host evaluates (8 bytes each): a view
-/// with more falls back to the CPU raster.
+/// Entries of `collect`'s list of (pixel, triangle) pairs the host evaluates (8 bytes each), and of
+/// `finish`'s list of the host's pixels: a view with more falls back to the CPU raster.
 const LIST_CAPACITY: u32 = 1 << 17;
 
 /// `Globals` in mesh.wgsl.
@@ -46,9 +51,12 @@ struct Globals {
     image: [u32; 4],
     /// The fixed-point scales of the sum (x) and of the chords (y).
     scale: [f32; 4],
-    /// The list's capacity (x), and the chords (y..=z, i32 in units of `scale[1]`) whose pixels the host
-    /// evaluates.
+    /// The capacity of the lists (x), and the chords (y..=z, i32 in units of `scale[1]`) whose pixels the
+    /// host evaluates.
     list: [u32; 4],
+    /// The rows of `K⁻¹` giving a pixel's ray direction (`finish`).
+    ray_x: [f32; 4],
+    ray_y: [f32; 4],
 }
 
 /// A scene's triangles on the GPU and the compute pipeline that sums them.
@@ -64,18 +72,10 @@ pub struct GpuMeshRenderer {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
     collect: wgpu::ComputePipeline,
+    finish: wgpu::ComputePipeline,
     /// The vertex, accumulator and read-back buffers, reused by the next render of the same size; held
     /// for a whole render, so renders from several threads take turns.
     buffers: Mutex<Option<FrameBuffers>>,
-}
-
-struct FrameBuffers {
-    acc_bytes: u64,
-    verts: wgpu::Buffer,
-    acc: wgpu::Buffer,
-    staging: wgpu::Buffer,
-    list: wgpu::Buffer,
-    list_staging: wgpu::Buffer,
 }
 
 impl std::fmt::Debug for GpuMeshRenderer {
@@ -178,6 +178,8 @@ impl GpuMeshRenderer {
                         compute_entry(3, read()),
                         compute_entry(4, write()),
                         compute_entry(5, write()),
+                        compute_entry(6, write()),
+                        compute_entry(7, write()),
                     ],
                 });
                 let pipeline_layout =
@@ -196,10 +198,14 @@ impl GpuMeshRenderer {
                         cache: None,
                     })
                 };
-                let pipelines = (pipeline("rasterise"), pipeline("collect"));
+                let pipelines = (
+                    pipeline("rasterise"),
+                    pipeline("collect"),
+                    pipeline("finish"),
+                );
                 (tris_buf, meshes_buf, layout, pipelines)
             })?;
-        let (pipeline, collect) = pipeline;
+        let (pipeline, collect, finish) = pipeline;
         Ok(GpuMeshRenderer {
             ctx,
             triangles: tris.len() as u32,
@@ -211,6 +217,7 @@ impl GpuMeshRenderer {
             layout,
             pipeline,
             collect,
+            finish,
             buffers: Mutex::new(None),
         })
     }
@@ -233,10 +240,12 @@ impl GpuMeshRenderer {
     }
 
     /// Sums `scene` (the scene this renderer was built from) as seen from `view`; with `full`, also the
-    /// first entry's depth and the silhouette bits. `None` when a vertex lies at or behind the source
-    /// plane (no finite projection: the CPU raster traces such a view, and so does the caller) or when
-    /// more pixels than [`LIST_CAPACITY`] entries can hold need the host: the caller renders the view on
-    /// the CPU.
+    /// first entry's depth and the silhouette bits, read back per pixel for the host to finish; without,
+    /// the GPU finishes every pixel it can into a line integral (`finish` in mesh.wgsl) and only the
+    /// image and the pixels left to the host come back ([`GpuFrame::finished`]). `None` when a vertex
+    /// lies at or behind the source plane (no finite projection: the CPU raster traces such a view, and
+    /// so does the caller) or when more pixels than [`LIST_CAPACITY`] entries can hold need the host: the
+    /// caller renders the view on the CPU.
     pub(crate) fn rasterise(
         &self,
         scene: &RenderScene,
@@ -318,10 +327,17 @@ impl GpuMeshRenderer {
         .map(|c| (c.round() as i32).cast_unsigned());
         let stride = if full { WORDS_ALL } else { WORDS_SUM };
         let acc_bytes = 4 * u64::from(w) * u64::from(h) * u64::from(stride);
-        let groups = self.triangles.div_ceil(WORKGROUP).max(1);
         let max_groups = self.ctx.max_workgroups();
-        let grid = [groups.min(max_groups), groups.div_ceil(max_groups)];
-        if acc_bytes > self.ctx.max_storage_binding() || grid[1] > max_groups {
+        let grid_of = |n: u32| {
+            let groups = n.div_ceil(WORKGROUP).max(1);
+            [groups.min(max_groups), groups.div_ceil(max_groups)]
+        };
+        let grid = grid_of(self.triangles);
+        let pixel_grid = grid_of(w * h);
+        if acc_bytes > self.ctx.max_storage_binding()
+            || grid[1] > max_groups
+            || pixel_grid[1] > max_groups
+        {
             return Err(Error::invalid(
                 "view",
                 format!(
@@ -333,50 +349,31 @@ impl GpuMeshRenderer {
                 ),
             ));
         }
+        let (rx, ry) = PixelDirs::new(intr).rows();
+        let row = |r: [f64; 3]| [r[0] as f32, r[1] as f32, r[2] as f32, 0.0];
         let globals = Globals {
             image: [w, h, self.triangles, stride],
             scale: [scale as f32, chord_scale as f32, 0.0, 0.0],
             list: [LIST_CAPACITY, chord_band[0], chord_band[1], 0],
+            ray_x: row(rx),
+            ray_y: row(ry),
         };
-        let list_bytes = 4 * (1 + 2 * u64::from(LIST_CAPACITY));
+        let sizes = FrameSizes {
+            verts: (32 * self.vertices as u64).max(32),
+            acc: acc_bytes,
+            list: 4 * (1 + 2 * u64::from(LIST_CAPACITY)),
+            host: 4 * (4 + u64::from(LIST_CAPACITY)),
+            image: 4 * u64::from(w) * u64::from(h),
+        };
         let device = &self.ctx.device;
         let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
-        if slot.as_ref().is_some_and(|b| b.acc_bytes != acc_bytes) {
+        if slot.as_ref().is_some_and(|b| b.sizes != sizes) {
             *slot = None;
         }
-        let verts_bytes = (32 * self.vertices as u64).max(32);
         let bufs = match &mut *slot {
             Some(b) => b,
             empty => empty.insert(self.ctx.checked("allocating the mesh DRR's buffers", || {
-                let buffer = |label, size, usage| {
-                    device.create_buffer(&wgpu::BufferDescriptor {
-                        label: Some(label),
-                        size,
-                        usage,
-                        mapped_at_creation: false,
-                    })
-                };
-                use wgpu::BufferUsages as U;
-                FrameBuffers {
-                    acc_bytes,
-                    verts: buffer("mesh vertices", verts_bytes, U::STORAGE | U::COPY_DST),
-                    acc: buffer(
-                        "mesh sums",
-                        acc_bytes,
-                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
-                    ),
-                    staging: buffer("mesh sums read back", acc_bytes, U::MAP_READ | U::COPY_DST),
-                    list: buffer(
-                        "mesh pixels for the host",
-                        list_bytes,
-                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
-                    ),
-                    list_staging: buffer(
-                        "mesh pixels read back",
-                        list_bytes,
-                        U::MAP_READ | U::COPY_DST,
-                    ),
-                }
+                FrameBuffers::new(device, sizes)
             })?),
         };
         self.ctx.checked("rendering a mesh DRR", || {
@@ -401,6 +398,8 @@ impl GpuMeshRenderer {
                     (3, &self.meshes),
                     (4, &bufs.acc),
                     (5, &bufs.list),
+                    (6, &bufs.host),
+                    (7, &bufs.image),
                 ]
                 .map(|(binding, b)| wgpu::BindGroupEntry {
                     binding,
@@ -411,31 +410,40 @@ impl GpuMeshRenderer {
             // The sums start at 0 (a reused buffer holds the last render).
             encoder.clear_buffer(&bufs.acc, 0, None);
             encoder.clear_buffer(&bufs.list, 0, Some(4));
-            // Two passes: `collect` reads what every invocation of `rasterise` added.
-            for pipeline in [&self.pipeline, &self.collect] {
+            encoder.clear_buffer(&bufs.host, 0, Some(16));
+            // `collect` reads what every invocation of `rasterise` added, and `finish` (without `full`)
+            // each pixel's total.
+            let passes = [
+                (&self.pipeline, grid),
+                (&self.collect, grid),
+                (&self.finish, pixel_grid),
+            ];
+            for (pipeline, grid) in &passes[..if full { 2 } else { 3 }] {
                 let mut pass = encoder.begin_compute_pass(&Default::default());
                 pass.set_pipeline(pipeline);
                 pass.set_bind_group(0, &bind, &[]);
                 pass.dispatch_workgroups(grid[0], grid[1], 1);
             }
-            encoder.copy_buffer_to_buffer(&bufs.acc, 0, &bufs.staging, 0, acc_bytes);
-            encoder.copy_buffer_to_buffer(&bufs.list, 0, &bufs.list_staging, 0, list_bytes);
+            if full {
+                encoder.copy_buffer_to_buffer(&bufs.acc, 0, &bufs.staging, 0, sizes.acc);
+            } else {
+                encoder.copy_buffer_to_buffer(&bufs.image, 0, &bufs.image_staging, 0, sizes.image);
+                encoder.copy_buffer_to_buffer(&bufs.host, 0, &bufs.host_staging, 0, sizes.host);
+            }
+            encoder.copy_buffer_to_buffer(&bufs.list, 0, &bufs.list_staging, 0, sizes.list);
             self.ctx.queue.submit([encoder.finish()]);
         })?;
-        let words = self.ctx.read_back::<u32>(&bufs.staging, "the mesh DRR");
-        let list = self
-            .ctx
-            .read_back::<u32>(&bufs.list_staging, "the mesh DRR's pixels");
-        let (words, list) = match (words, list) {
-            (Ok(w), Ok(l)) => (w, l),
-            (Err(e), _) | (_, Err(e)) => {
+        let (list, words, finished) = match bufs.read(&self.ctx, full) {
+            Ok(r) => r,
+            Err(e) => {
                 // A buffer left mapped (or lost with the device) is not reused.
                 *slot = None;
                 return Err(e);
             }
         };
-        if list[0] > LIST_CAPACITY {
-            // More pixels than the list holds: the CPU raster renders the view.
+        let host_overflow = finished.as_ref().is_some_and(|(_, h)| h[0] > LIST_CAPACITY);
+        if list[0] > LIST_CAPACITY || host_overflow {
+            // More pixels than the lists hold: the CPU raster renders the view.
             return Ok(None);
         }
         let mut pairs: Vec<[u32; 2]> = list[1..1 + 2 * list[0] as usize]
@@ -443,9 +451,20 @@ impl GpuMeshRenderer {
             .map(|p| [p[0], p[1]])
             .collect();
         pairs.sort_unstable();
+        let finished = finished.map(|(image, host)| {
+            let mut pixels = host[4..4 + host[0] as usize].to_vec();
+            pixels.sort_unstable();
+            Finished {
+                image,
+                pixels,
+                rays: host[1],
+                hits: u64::from(host[2]) | u64::from(host[3]) << 32,
+            }
+        });
         Ok(Some(GpuFrame {
             stride: stride as usize,
             words,
+            finished,
             scale,
             chord_scale,
             pairs,

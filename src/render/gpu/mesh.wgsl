@@ -35,9 +35,13 @@ struct Globals {
     // The scales of the fixed-point sums: x of Σ ± μ·depth (units per μ·mm), y of a mesh's chord
     // (units per mm of depth).
     scale: vec4<f32>,
-    // Capacity of `list` in (pixel, triangle) entries (x); the chords (y..z, in units of scale.y, as
-    // i32) within rounding of the silhouette threshold, whose pixels the host evaluates.
+    // Capacity of `list` in (pixel, triangle) entries and of `host` in pixels (x); the chords (y..z, in
+    // units of scale.y, as i32) within rounding of the silhouette threshold, whose pixels the host
+    // evaluates.
     list: vec4<u32>,
+    // A pixel's ray direction K⁻¹ [u, v, 1]ᵀ (for `finish`): x = ray_x · (u, v, 1), y = ray_y · (u, v, 1).
+    ray_x: vec4<f32>,
+    ray_y: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> G: Globals;
@@ -56,6 +60,11 @@ struct Globals {
 @group(0) @binding(4) var<storage, read_write> acc: array<atomic<u32>>;
 // `collect`'s list: the number of entries it wanted to write (word 0), then (pixel, triangle) pairs.
 @group(0) @binding(5) var<storage, read_write> list: array<atomic<u32>>;
+// `finish`'s pixels for the host: how many it wanted to write (word 0), the pixels it finished (1) and
+// their crossings (2: low word, 3: high word), then the indices of the pixels the host evaluates.
+@group(0) @binding(6) var<storage, read_write> host: array<atomic<u32>>;
+// `finish`'s line integrals (mm·μ, 0 where the host evaluates the pixel).
+@group(0) @binding(7) var<storage, read_write> image: array<f32>;
 
 // Pixel-box margin (px) around the projected corners (as the CPU raster's).
 const MARGIN: f32 = 1e-2;
@@ -319,6 +328,56 @@ fn collect(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
                 atomicStore(&list[1u + 2u * k], pix);
                 atomicStore(&list[2u + 2u * k], t);
             }
+        }
+    }
+}
+
+var<workgroup> finished: atomic<u32>;
+var<workgroup> finished_hits: atomic<u32>;
+
+// After `rasterise` (sums only, 4 words per pixel): each pixel's line integral, Σ ± μ·depth times the
+// ray's length per unit depth |K⁻¹ [u, v, 1]ᵀ|, into `image`, so that the host reads back one f32 per
+// pixel instead of four words and finishes only the pixels listed in `host` (not `clean`; their
+// triangles are in `list`). The f32 conversion and product round to within 2 ulp of the host's f64.
+@compute @workgroup_size(64, 1, 1)
+fn finish(
+    @builtin(global_invocation_id) gid: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    if lid == 0u {
+        atomicStore(&finished, 0u);
+        atomicStore(&finished_hits, 0u);
+    }
+    workgroupBarrier();
+    let w = G.image.x;
+    let pix = triangle_index(gid, groups);
+    if pix < w * G.image.y {
+        let a = pix * 4u;
+        let count = atomicLoad(&acc[a + 3u]);
+        var value = 0.0;
+        if count != 0u {
+            if clean(a, 4u) {
+                let p = vec3<f32>(f32(pix % w), f32(pix / w), 1.0);
+                let dir = vec3<f32>(dot(G.ray_x.xyz, p), dot(G.ray_y.xyz, p), 1.0);
+                value = f32(bitcast<i32>(atomicLoad(&acc[a]))) / G.scale.x * length(dir);
+                atomicAdd(&finished, 1u);
+                atomicAdd(&finished_hits, count);
+            } else {
+                let k = atomicAdd(&host[0], 1u);
+                if k < G.list.x {
+                    atomicStore(&host[4u + k], pix);
+                }
+            }
+        }
+        image[pix] = value;
+    }
+    workgroupBarrier();
+    if lid == 0u {
+        atomicAdd(&host[1], atomicLoad(&finished));
+        let hits = atomicLoad(&finished_hits);
+        if atomicAdd(&host[2], hits) > 0xffffffffu - hits {
+            atomicAdd(&host[3], 1u);
         }
     }
 }

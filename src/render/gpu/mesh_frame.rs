@@ -1,6 +1,10 @@
-//! One view's GPU sums as `mesh.wgsl` leaves them ([`GpuFrame`]), and the layout of its words.
+//! One view's GPU sums as `mesh.wgsl` leaves them ([`GpuFrame`]), the layout of its words, and the
+//! buffers a render works in ([`FrameBuffers`]).
 
 use glam::DVec3;
+
+use super::GpuContext;
+use crate::Result;
 
 /// Per-mesh slots per pixel (mesh.wgsl's `SLOTS`): a pixel whose ray meets more meshes is evaluated by
 /// the host.
@@ -18,11 +22,14 @@ pub(super) const WORDS_ALL: u32 = 4 + 3 * SLOTS;
 const HOST: u32 = 0x8000_0000;
 
 /// One view's accumulated sums as the shader left them, per pixel `stride` words (see mesh.wgsl's
-/// `acc`), the scale of the fixed-point sum, and what the host needs to evaluate the pixels the sums
-/// cannot give: their candidate triangles and the camera-frame vertices.
+/// `acc`) — or, when the GPU finished the line integrals itself, those ([`Finished`]) —, the scale of
+/// the fixed-point sum, and what the host needs to evaluate the pixels the sums cannot give: their
+/// candidate triangles and the camera-frame vertices.
 pub(crate) struct GpuFrame {
     pub stride: usize,
+    /// The per-pixel words (empty when [`Self::finished`] holds the line integrals instead).
     pub words: Vec<u32>,
+    pub finished: Option<Finished>,
     pub scale: f64,
     /// Units per mm of a slot's chord (camera depth).
     pub chord_scale: f64,
@@ -30,6 +37,18 @@ pub(crate) struct GpuFrame {
     pub pairs: Vec<[u32; 2]>,
     /// Camera-frame vertices (source at the origin), by global vertex index.
     pub cam: Vec<DVec3>,
+}
+
+/// A view's line integrals as mesh.wgsl's `finish` left them: every pixel the sums give, 0 elsewhere,
+/// and the pixels the host evaluates.
+pub(crate) struct Finished {
+    /// Line integrals (μ·mm), row-major.
+    pub image: Vec<f32>,
+    /// The pixels the host evaluates (sorted): crossed by a triangle but not balanced, or flagged.
+    pub pixels: Vec<u32>,
+    /// The pixels the GPU finished and their crossings.
+    pub rays: u32,
+    pub hits: u64,
 }
 
 impl GpuFrame {
@@ -74,5 +93,75 @@ impl GpuFrame {
                 s[0] >> ID_BITS,
             )
         })
+    }
+}
+
+/// The byte sizes of a render's buffers: a render whose sizes differ allocates new ones.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct FrameSizes {
+    pub verts: u64,
+    pub acc: u64,
+    pub list: u64,
+    pub host: u64,
+    pub image: u64,
+}
+
+/// The vertex, accumulator, list and image buffers of a render, and their read-back copies.
+pub(super) struct FrameBuffers {
+    pub sizes: FrameSizes,
+    pub verts: wgpu::Buffer,
+    pub acc: wgpu::Buffer,
+    pub staging: wgpu::Buffer,
+    pub list: wgpu::Buffer,
+    pub list_staging: wgpu::Buffer,
+    /// `finish`'s pixels for the host and line integrals.
+    pub host: wgpu::Buffer,
+    pub host_staging: wgpu::Buffer,
+    pub image: wgpu::Buffer,
+    pub image_staging: wgpu::Buffer,
+}
+
+/// What a render reads back: `collect`'s list, and either every pixel's words or `finish`'s image
+/// and host list.
+pub(super) type ReadBack = (Vec<u32>, Vec<u32>, Option<(Vec<f32>, Vec<u32>)>);
+
+impl FrameBuffers {
+    pub fn new(device: &wgpu::Device, sizes: FrameSizes) -> Self {
+        use wgpu::BufferUsages as U;
+        let buffer = |label, size, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let work = U::STORAGE | U::COPY_SRC | U::COPY_DST;
+        let read = U::MAP_READ | U::COPY_DST;
+        FrameBuffers {
+            sizes,
+            verts: buffer("mesh vertices", sizes.verts, U::STORAGE | U::COPY_DST),
+            acc: buffer("mesh sums", sizes.acc, work),
+            staging: buffer("mesh sums read back", sizes.acc, read),
+            list: buffer("mesh pixels for the host", sizes.list, work),
+            list_staging: buffer("mesh pixels read back", sizes.list, read),
+            host: buffer("mesh pixels the host finishes", sizes.host, work),
+            host_staging: buffer("mesh pixels the host finishes, read back", sizes.host, read),
+            image: buffer("mesh DRR", sizes.image, U::STORAGE | U::COPY_SRC),
+            image_staging: buffer("mesh DRR read back", sizes.image, read),
+        }
+    }
+
+    /// Reads back what the render left (with `full`, every pixel's words; else `finish`'s image and
+    /// host list), once the queue's work is done.
+    pub fn read(&self, ctx: &GpuContext, full: bool) -> Result<ReadBack> {
+        let list = ctx.read_back::<u32>(&self.list_staging, "the mesh DRR's pixels")?;
+        if full {
+            let words = ctx.read_back::<u32>(&self.staging, "the mesh DRR")?;
+            return Ok((list, words, None));
+        }
+        let image = ctx.read_back::<f32>(&self.image_staging, "the mesh DRR")?;
+        let host = ctx.read_back::<u32>(&self.host_staging, "the mesh DRR's host pixels")?;
+        Ok((list, Vec::new(), Some((image, host))))
     }
 }

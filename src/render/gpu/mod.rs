@@ -15,6 +15,7 @@ mod mesh_frame;
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 
 pub use ct::GpuCtRenderer;
+pub(crate) use mesh::GpuFrame;
 pub use mesh::GpuMeshRenderer;
 
 use crate::{Error, Result};

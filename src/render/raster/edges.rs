@@ -42,6 +42,16 @@ impl PixelDirs {
         )
     }
 
+    /// The rows of `K⁻¹` that give [`Self::camera_dir`]: its x is `x[0]·u + x[1]·v + x[2]`, its y
+    /// `y[0]·u + y[1]·v + y[2]` (the GPU's finishing pass computes the ray's length from them).
+    #[cfg(feature = "gpu")]
+    pub(crate) fn rows(&self) -> ([f64; 3], [f64; 3]) {
+        (
+            [self.inv_fx, -self.k_skew, -self.k_x],
+            [0.0, self.inv_fy, -self.k_y],
+        )
+    }
+
     /// `[a, b, c]` of the edge function of normal `n`.
     #[inline]
     fn coefficients(&self, n: DVec3) -> [f64; 3] {
