@@ -23,7 +23,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 pub(crate) use super::mesh_frame::GpuFrame;
-use super::mesh_frame::{Finished, FrameBuffers, FrameSizes};
+use super::mesh_frame::{FrameBuffers, FrameSizes};
 use super::mesh_frame::{WORDS_ALL, WORDS_SUM};
 use super::{GpuContext, buffer_binding, compute_entry};
 use crate::geometry::View;
@@ -424,47 +424,25 @@ impl GpuMeshRenderer {
                 pass.set_bind_group(0, &bind, &[]);
                 pass.dispatch_workgroups(grid[0], grid[1], 1);
             }
-            if full {
-                encoder.copy_buffer_to_buffer(&bufs.acc, 0, &bufs.staging, 0, sizes.acc);
-            } else {
-                encoder.copy_buffer_to_buffer(&bufs.image, 0, &bufs.image_staging, 0, sizes.image);
-                encoder.copy_buffer_to_buffer(&bufs.host, 0, &bufs.host_staging, 0, sizes.host);
-            }
-            encoder.copy_buffer_to_buffer(&bufs.list, 0, &bufs.list_staging, 0, sizes.list);
+            bufs.copy_out(&mut encoder, full);
             self.ctx.queue.submit([encoder.finish()]);
         })?;
-        let (list, words, finished) = match bufs.read(&self.ctx, full) {
-            Ok(r) => r,
+        let back = match bufs.read(&self.ctx, full, LIST_CAPACITY) {
+            Ok(Some(b)) => b,
+            // More pixels than the lists hold: the CPU raster renders the view.
+            Ok(None) => return Ok(None),
             Err(e) => {
                 // A buffer left mapped (or lost with the device) is not reused.
                 *slot = None;
                 return Err(e);
             }
         };
-        let host_overflow = finished.as_ref().is_some_and(|(_, h)| h[0] > LIST_CAPACITY);
-        if list[0] > LIST_CAPACITY || host_overflow {
-            // More pixels than the lists hold: the CPU raster renders the view.
-            return Ok(None);
-        }
-        let mut pairs: Vec<[u32; 2]> = list[1..1 + 2 * list[0] as usize]
-            .chunks_exact(2)
-            .map(|p| [p[0], p[1]])
-            .collect();
+        let mut pairs: Vec<[u32; 2]> = back.pairs.chunks_exact(2).map(|p| [p[0], p[1]]).collect();
         pairs.sort_unstable();
-        let finished = finished.map(|(image, host)| {
-            let mut pixels = host[4..4 + host[0] as usize].to_vec();
-            pixels.sort_unstable();
-            Finished {
-                image,
-                pixels,
-                rays: host[1],
-                hits: u64::from(host[2]) | u64::from(host[3]) << 32,
-            }
-        });
         Ok(Some(GpuFrame {
             stride: stride as usize,
-            words,
-            finished,
+            words: back.words,
+            finished: back.finished,
             scale,
             chord_scale,
             pairs,

@@ -119,11 +119,20 @@ pub(super) struct FrameBuffers {
     pub host_staging: wgpu::Buffer,
     pub image: wgpu::Buffer,
     pub image_staging: wgpu::Buffer,
+    /// The first four words of `list` and of `host` (the counts).
+    pub header_staging: wgpu::Buffer,
 }
 
-/// What a render reads back: `collect`'s list, and either every pixel's words or `finish`'s image
-/// and host list.
-pub(super) type ReadBack = (Vec<u32>, Vec<u32>, Option<(Vec<f32>, Vec<u32>)>);
+/// Bytes of [`FrameBuffers::header_staging`].
+const HEADER_BYTES: u64 = 32;
+
+/// What a render reads back: `collect`'s (pixel, triangle) pairs, and either every pixel's words or
+/// `finish`'s image and host list.
+pub(super) struct ReadBack {
+    pub pairs: Vec<u32>,
+    pub words: Vec<u32>,
+    pub finished: Option<Finished>,
+}
 
 impl FrameBuffers {
     pub fn new(device: &wgpu::Device, sizes: FrameSizes) -> Self {
@@ -149,19 +158,74 @@ impl FrameBuffers {
             host_staging: buffer("mesh pixels the host finishes, read back", sizes.host, read),
             image: buffer("mesh DRR", sizes.image, U::STORAGE | U::COPY_SRC),
             image_staging: buffer("mesh DRR read back", sizes.image, read),
+            header_staging: buffer("mesh lists' counts read back", HEADER_BYTES, read),
         }
     }
 
-    /// Reads back what the render left (with `full`, every pixel's words; else `finish`'s image and
-    /// host list), once the queue's work is done.
-    pub fn read(&self, ctx: &GpuContext, full: bool) -> Result<ReadBack> {
-        let list = ctx.read_back::<u32>(&self.list_staging, "the mesh DRR's pixels")?;
+    /// Records the copies of what a render leaves that come back whatever it holds: the lists'
+    /// counts, and (with `full`) every pixel's words or (without) `finish`'s image.
+    pub fn copy_out(&self, encoder: &mut wgpu::CommandEncoder, full: bool) {
+        let half = HEADER_BYTES / 2;
+        encoder.copy_buffer_to_buffer(&self.list, 0, &self.header_staging, 0, half);
+        encoder.copy_buffer_to_buffer(&self.host, 0, &self.header_staging, half, half);
+        if full {
+            encoder.copy_buffer_to_buffer(&self.acc, 0, &self.staging, 0, self.sizes.acc);
+        } else {
+            encoder.copy_buffer_to_buffer(&self.image, 0, &self.image_staging, 0, self.sizes.image);
+        }
+    }
+
+    /// Reads back what the render left once the queue's work is done: the lists' counts first, then
+    /// only the entries they hold (a second copy), so a render's read-back is its image and its
+    /// lists' entries, not the lists' capacity. `None` when a list overflowed `capacity`.
+    pub fn read(&self, ctx: &GpuContext, full: bool, capacity: u32) -> Result<Option<ReadBack>> {
+        let header = ctx.read_back::<u32>(&self.header_staging, "the mesh DRR's list counts")?;
+        let half = (HEADER_BYTES / 8) as usize;
+        let (n_pairs, n_host) = (header[0], if full { 0 } else { header[half] });
+        if n_pairs > capacity || n_host > capacity {
+            return Ok(None);
+        }
+        let (pair_bytes, host_bytes) = (8 * u64::from(n_pairs), 4 * u64::from(n_host));
+        if pair_bytes + host_bytes > 0 {
+            ctx.checked("reading the mesh DRR's lists", || {
+                let mut encoder = ctx.device.create_command_encoder(&Default::default());
+                if pair_bytes > 0 {
+                    encoder.copy_buffer_to_buffer(&self.list, 4, &self.list_staging, 0, pair_bytes);
+                }
+                if host_bytes > 0 {
+                    encoder.copy_buffer_to_buffer(
+                        &self.host,
+                        16,
+                        &self.host_staging,
+                        0,
+                        host_bytes,
+                    );
+                }
+                ctx.queue.submit([encoder.finish()]);
+            })?;
+        }
+        let pairs = ctx.read_back_first(&self.list_staging, pair_bytes, "the mesh DRR's pixels")?;
         if full {
             let words = ctx.read_back::<u32>(&self.staging, "the mesh DRR")?;
-            return Ok((list, words, None));
+            return Ok(Some(ReadBack {
+                pairs,
+                words,
+                finished: None,
+            }));
         }
         let image = ctx.read_back::<f32>(&self.image_staging, "the mesh DRR")?;
-        let host = ctx.read_back::<u32>(&self.host_staging, "the mesh DRR's host pixels")?;
-        Ok((list, Vec::new(), Some((image, host))))
+        let mut pixels: Vec<u32> =
+            ctx.read_back_first(&self.host_staging, host_bytes, "the mesh DRR's host pixels")?;
+        pixels.sort_unstable();
+        Ok(Some(ReadBack {
+            pairs,
+            words: Vec::new(),
+            finished: Some(Finished {
+                image,
+                pixels,
+                rays: header[half + 1],
+                hits: u64::from(header[half + 2]) | u64::from(header[half + 3]) << 32,
+            }),
+        }))
     }
 }

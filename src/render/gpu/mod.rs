@@ -143,8 +143,21 @@ impl GpuContext {
         staging: &wgpu::Buffer,
         what: &str,
     ) -> Result<Vec<T>> {
+        self.read_back_first(staging, staging.size(), what)
+    }
+
+    /// The first `bytes` bytes of `staging` (a multiple of 4; none when 0), as [`Self::read_back`].
+    pub(crate) fn read_back_first<T: bytemuck::Pod>(
+        &self,
+        staging: &wgpu::Buffer,
+        bytes: u64,
+        what: &str,
+    ) -> Result<Vec<T>> {
+        if bytes == 0 {
+            return Ok(Vec::new());
+        }
         let (sender, receiver) = mpsc::channel();
-        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        staging.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
             let _ = sender.send(r);
         });
         self.wait(&format!("computing {what}"))?;
@@ -156,10 +169,12 @@ impl GpuContext {
                 message: format!("reading {what} back from {}: {e}", self.adapter_name()),
             })?;
         let data: Vec<T> = {
-            let mapped = staging.get_mapped_range(..).map_err(|e| Error::External {
-                library: "wgpu",
-                message: format!("mapping {what} of {}: {e}", self.adapter_name()),
-            })?;
+            let mapped = staging
+                .get_mapped_range(..bytes)
+                .map_err(|e| Error::External {
+                    library: "wgpu",
+                    message: format!("mapping {what} of {}: {e}", self.adapter_name()),
+                })?;
             bytemuck::cast_slice(&mapped).to_vec()
         };
         staging.unmap();
