@@ -1,9 +1,10 @@
 //! Mesh DRRs in a compute shader (`mesh.wgsl`): the raster's signed-depth sum
 //! (`render::raster::summed`), one invocation per triangle, fixed-point sums added with atomics.
 //!
-//! The scene's triangles, meshes and μ are uploaded once; per view the host projects the vertices in f64
-//! exactly as the CPU raster does (camera frame, then K) and uploads their pixel positions as hi + lo
-//! f32s with their depths, and the shader adds every covered pixel's `± μ · depth` together with two
+//! The scene's triangles, meshes and μ are uploaded once; per view the vertices are projected in f64 with
+//! the CPU raster's formula (camera frame, then K) into pixel positions as hi + lo f32s with their depths
+//! — on the GPU when it computes in f64 (`project.rs`), else by the host, which uploads them —, and the
+//! shader adds every covered pixel's `± μ · depth` together with two
 //! balance counters (`Σ s`, `Σ s · mesh`, `s = ±1`). The result, a [`GpuFrame`], is turned into a DRR by
 //! the thickness renderer, which evaluates on the CPU the few pixels the sums cannot give (crossings
 //! that did not balance, centres near an edge). For the line integral alone a third pass finishes every
@@ -25,7 +26,11 @@ use rayon::prelude::*;
 pub(crate) use super::mesh_frame::GpuFrame;
 use super::mesh_frame::{FrameBuffers, FrameSizes};
 use super::mesh_frame::{WORDS_ALL, WORDS_SUM};
-use super::{GpuContext, buffer_binding, compute_entry};
+use super::project::Projector;
+use super::{
+    GpuContext, READ, UNIFORM, WRITE, bind_buffers, buffer_layout, compute_pipeline, storage_init,
+    uniform_init,
+};
 use crate::geometry::View;
 use crate::render::pairing::MIN_SILHOUETTE_CHORD_MM;
 use crate::render::raster::{MIN_DEPTH_MM, PixelDirs};
@@ -73,6 +78,10 @@ pub struct GpuMeshRenderer {
     pipeline: wgpu::ComputePipeline,
     collect: wgpu::ComputePipeline,
     finish: wgpu::ComputePipeline,
+    /// Projects the vertices on the GPU (an adapter with `SHADER_F64`); else the host projects them.
+    pub(super) project: Option<Projector>,
+    /// Each mesh's bounding box (world frame).
+    bounds: Vec<Option<(DVec3, DVec3)>>,
     /// The vertex, accumulator and read-back buffers, reused by the next render of the same size; held
     /// for a whole render, so renders from several threads take turns.
     buffers: Mutex<Option<FrameBuffers>>,
@@ -151,61 +160,28 @@ impl GpuMeshRenderer {
         let device = &ctx.device;
         let (tris_buf, meshes_buf, layout, pipeline) =
             ctx.checked("uploading the meshes and compiling their shader", || {
-                use wgpu::util::DeviceExt;
-                // An empty binding is not allowed: a scene of empty meshes uploads one unused entry.
-                let init = |label, bytes: &[u8]| {
-                    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some(label),
-                        contents: if bytes.is_empty() { &[0; 16] } else { bytes },
-                        usage: wgpu::BufferUsages::STORAGE,
-                    })
-                };
-                let tris_buf = init("mesh triangles", bytemuck::cast_slice(&tris));
-                let meshes_buf = init("meshes", bytemuck::cast_slice(&meshes));
+                // A scene of empty meshes uploads one unused entry.
+                let tris_buf = storage_init(device, "mesh triangles", bytemuck::cast_slice(&tris));
+                let meshes_buf = storage_init(device, "meshes", bytemuck::cast_slice(&meshes));
                 let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some("mesh.wgsl"),
                     source: wgpu::ShaderSource::Wgsl(include_str!("mesh.wgsl").into()),
                 });
-                let read = || buffer_binding(wgpu::BufferBindingType::Storage { read_only: true });
-                let write =
-                    || buffer_binding(wgpu::BufferBindingType::Storage { read_only: false });
-                let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                    label: Some("mesh"),
-                    entries: &[
-                        compute_entry(0, buffer_binding(wgpu::BufferBindingType::Uniform)),
-                        compute_entry(1, read()),
-                        compute_entry(2, read()),
-                        compute_entry(3, read()),
-                        compute_entry(4, write()),
-                        compute_entry(5, write()),
-                        compute_entry(6, write()),
-                        compute_entry(7, write()),
-                    ],
-                });
-                let pipeline_layout =
-                    device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                        label: Some("mesh"),
-                        bind_group_layouts: &[Some(&layout)],
-                        immediate_size: 0,
-                    });
-                let pipeline = |entry| {
-                    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                        label: Some(entry),
-                        layout: Some(&pipeline_layout),
-                        module: &module,
-                        entry_point: Some(entry),
-                        compilation_options: Default::default(),
-                        cache: None,
-                    })
-                };
+                let (layout, pipeline_layout) = buffer_layout(
+                    device,
+                    "mesh",
+                    &[UNIFORM, READ, READ, READ, WRITE, WRITE, WRITE, WRITE],
+                );
+                let pipeline = |entry| compute_pipeline(device, &pipeline_layout, &module, entry);
                 let pipelines = (
                     pipeline("rasterise"),
                     pipeline("collect"),
                     pipeline("finish"),
+                    ctx.has_f64().then(|| Projector::new(&ctx, scene)),
                 );
                 (tris_buf, meshes_buf, layout, pipelines)
             })?;
-        let (pipeline, collect, finish) = pipeline;
+        let (pipeline, collect, finish, project) = pipeline;
         Ok(GpuMeshRenderer {
             ctx,
             triangles: tris.len() as u32,
@@ -218,6 +194,8 @@ impl GpuMeshRenderer {
             pipeline,
             collect,
             finish,
+            project,
+            bounds: scene.meshes.iter().map(|m| m.mesh.bounds()).collect(),
             buffers: Mutex::new(None),
         })
     }
@@ -227,11 +205,6 @@ impl GpuMeshRenderer {
         let t = t as usize;
         let g = self.triangle_start.partition_point(|&s| s <= t) - 1;
         (g, t - self.triangle_start[g])
-    }
-
-    /// The first global vertex of mesh `g`.
-    pub(crate) fn vertex_start(&self, g: usize) -> usize {
-        self.vertex_start[g]
     }
 
     /// The adapter the renders run on.
@@ -254,26 +227,57 @@ impl GpuMeshRenderer {
     ) -> Result<Option<GpuFrame>> {
         let intr = &view.intrinsics;
         let (w, h) = (intr.width, intr.height);
-        // Per vertex: (u_hi, v_hi, u_lo, v_lo), (z, z − z_ref, 0, 0); per mesh its depth extent.
-        let mut verts = vec![[0f32; 4]; 2 * self.vertices];
-        let mut cam = vec![DVec3::ZERO; self.vertices];
+        // Per mesh its reference depth (its bounding box's centre) and its depth extent; per vertex,
+        // when the host projects, (u_hi, v_hi, u_lo, v_lo), (z, z − z_ref, 0, 0).
+        let z_ref: Vec<f64> = self
+            .bounds
+            .iter()
+            .map(|b| b.map_or(0.0, |(a, b)| view.depth(0.5 * (a + b))))
+            .collect();
+        // The GPU projects when it computes in f64 and every bounding box lies in front of the source
+        // plane (then so does every vertex: depth is linear, the box convex).
+        let corners = |(a, b): (DVec3, DVec3)| {
+            (0..8).map(move |c| {
+                let pick = |bit: usize, lo: f64, hi: f64| if c >> bit & 1 == 0 { lo } else { hi };
+                view.depth(DVec3::new(
+                    pick(0, a.x, b.x),
+                    pick(1, a.y, b.y),
+                    pick(2, a.z, b.z),
+                ))
+            })
+        };
+        let on_gpu = self.project.is_some()
+            && self
+                .bounds
+                .iter()
+                .flatten()
+                .all(|&b| corners(b).all(|z| z > MIN_DEPTH_MM));
+        let mut verts = Vec::new();
         let mut extent = Vec::with_capacity(scene.meshes.len());
         for (g, m) in scene.meshes.iter().enumerate() {
+            if on_gpu {
+                // The box's depth range bounds the vertices'.
+                let (lo, hi) = self.bounds[g].map_or((0.0, 0.0), |b| {
+                    corners(b).fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), z| {
+                        (lo.min(z), hi.max(z))
+                    })
+                });
+                extent.push(hi - lo);
+                continue;
+            }
+            if verts.is_empty() {
+                verts = vec![[0f32; 4]; 2 * self.vertices];
+            }
             let start = self.vertex_start[g];
             let n = m.mesh.vertices.len();
             let out = &mut verts[2 * start..2 * (start + n)];
-            let z_ref = m
-                .mesh
-                .bounds()
-                .map_or(0.0, |(a, b)| view.depth(0.5 * (a + b)));
+            let z_ref = z_ref[g];
             let (lo, hi, ok) = out
                 .par_chunks_mut(2)
-                .zip(cam[start..start + n].par_iter_mut())
                 .zip(m.mesh.vertices.par_iter())
                 .with_min_len(4096)
-                .map(|((o, cam), &p)| {
+                .map(|(o, &p)| {
                     let c = view.world_to_camera.apply(p);
-                    *cam = c;
                     let px = intr.project_camera(c);
                     let (u_hi, u_lo) = split(px.x);
                     let (v_hi, v_lo) = split(px.y);
@@ -377,40 +381,35 @@ impl GpuMeshRenderer {
             })?),
         };
         self.ctx.checked("rendering a mesh DRR", || {
-            use wgpu::util::DeviceExt;
             if !verts.is_empty() {
                 self.ctx
                     .queue
                     .write_buffer(&bufs.verts, 0, bytemuck::cast_slice(&verts));
             }
-            let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("mesh globals"),
-                contents: bytemuck::bytes_of(&globals),
-                usage: wgpu::BufferUsages::UNIFORM,
-            });
-            let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("mesh"),
-                layout: &self.layout,
-                entries: &[
-                    (0, &uniform),
-                    (1, &bufs.verts),
-                    (2, &self.tris),
-                    (3, &self.meshes),
-                    (4, &bufs.acc),
-                    (5, &bufs.list),
-                    (6, &bufs.host),
-                    (7, &bufs.image),
-                ]
-                .map(|(binding, b)| wgpu::BindGroupEntry {
-                    binding,
-                    resource: b.as_entire_binding(),
-                }),
-            });
+            let uniform = uniform_init(device, "mesh globals", bytemuck::bytes_of(&globals));
+            let bind = bind_buffers(
+                device,
+                "mesh",
+                &self.layout,
+                &[
+                    &uniform,
+                    &bufs.verts,
+                    &self.tris,
+                    &self.meshes,
+                    &bufs.acc,
+                    &bufs.list,
+                    &bufs.host,
+                    &bufs.image,
+                ],
+            );
             let mut encoder = device.create_command_encoder(&Default::default());
             // The sums start at 0 (a reused buffer holds the last render).
             encoder.clear_buffer(&bufs.acc, 0, None);
             encoder.clear_buffer(&bufs.list, 0, Some(4));
             encoder.clear_buffer(&bufs.host, 0, Some(16));
+            if let (true, Some(p)) = (on_gpu, &self.project) {
+                p.encode(&self.ctx, &mut encoder, view, &z_ref, &bufs.verts);
+            }
             // `collect` reads what every invocation of `rasterise` added, and `finish` (without `full`)
             // each pixel's total.
             let passes = [
@@ -446,7 +445,6 @@ impl GpuMeshRenderer {
             scale,
             chord_scale,
             pairs,
-            cam,
         }))
     }
 }

@@ -8,8 +8,8 @@
 // in, and wrapping (two's complement), so a partial sum may overflow as long as the pixel's total fits;
 // the host picks the scale so that every pixel's total does.
 //
-// The host projects the vertices in f64 (the CPU raster's projection) and passes each pixel position as
-// hi + lo f32s. Coverage is the 2-D edge-function test on those positions, which has the sign of the CPU
+// The vertices are projected in f64 (the CPU raster's projection; by project.wgsl or the host) and each
+// pixel position is passed as hi + lo f32s. Coverage is the 2-D edge-function test on those positions, which has the sign of the CPU
 // raster's `(A × B) · K⁻¹ [u, v, 1]ᵀ` (both depths are positive and det K⁻¹ > 0). An edge is evaluated
 // from its lower-numbered vertex, so the two triangles sharing it compute exactly opposite values
 // (watertight, with the CPU's tie rule for a pixel exactly on it). The offset of a pixel from a vertex,

@@ -1,8 +1,6 @@
 //! One view's GPU sums as `mesh.wgsl` leaves them ([`GpuFrame`]), the layout of its words, and the
 //! buffers a render works in ([`FrameBuffers`]).
 
-use glam::DVec3;
-
 use super::GpuContext;
 use crate::Result;
 
@@ -24,7 +22,7 @@ const HOST: u32 = 0x8000_0000;
 /// One view's accumulated sums as the shader left them, per pixel `stride` words (see mesh.wgsl's
 /// `acc`) — or, when the GPU finished the line integrals itself, those ([`Finished`]) —, the scale of
 /// the fixed-point sum, and what the host needs to evaluate the pixels the sums cannot give: their
-/// candidate triangles and the camera-frame vertices.
+/// candidate triangles (whose camera-frame corners the host computes in f64 from the view).
 pub(crate) struct GpuFrame {
     pub stride: usize,
     /// The per-pixel words (empty when [`Self::finished`] holds the line integrals instead).
@@ -35,8 +33,6 @@ pub(crate) struct GpuFrame {
     pub chord_scale: f64,
     /// (pixel, global triangle) for every pixel that is not [`Self::balanced`], sorted.
     pub pairs: Vec<[u32; 2]>,
-    /// Camera-frame vertices (source at the origin), by global vertex index.
-    pub cam: Vec<DVec3>,
 }
 
 /// A view's line integrals as mesh.wgsl's `finish` left them: every pixel the sums give, 0 elsewhere,

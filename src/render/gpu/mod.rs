@@ -11,6 +11,7 @@
 mod ct;
 mod mesh;
 mod mesh_frame;
+mod project;
 
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 
@@ -26,6 +27,8 @@ pub struct GpuContext {
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
+    /// The device was opened with `SHADER_F64` (mesh vertices are then projected on the GPU).
+    f64: bool,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -72,8 +75,14 @@ impl GpuContext {
         .map_err(|e| Error::Resource(format!("no GPU adapter found ({e}): {NO_ADAPTER_HELP}")))?;
         let info = adapter.get_info();
         let limits = adapter.limits();
+        let f64 = adapter.features().contains(wgpu::Features::SHADER_F64);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("spinedrr"),
+            required_features: if f64 {
+                wgpu::Features::SHADER_F64
+            } else {
+                wgpu::Features::empty()
+            },
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -92,7 +101,13 @@ impl GpuContext {
             queue,
             info,
             limits,
+            f64,
         }))
+    }
+
+    /// Whether shaders may compute in f64 (the adapter has `SHADER_F64`).
+    pub(crate) fn has_f64(&self) -> bool {
+        self.f64
     }
 
     /// The adapter as a sidecar records it: name, backend, device type and driver.
@@ -214,6 +229,95 @@ pub(crate) fn buffer_binding(ty: wgpu::BufferBindingType) -> wgpu::BindingType {
         has_dynamic_offset: false,
         min_binding_size: None,
     }
+}
+
+/// Binding kinds of [`buffer_layout`].
+pub(crate) const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
+pub(crate) const READ: wgpu::BufferBindingType =
+    wgpu::BufferBindingType::Storage { read_only: true };
+pub(crate) const WRITE: wgpu::BufferBindingType =
+    wgpu::BufferBindingType::Storage { read_only: false };
+
+/// A compute shader's bind group layout of buffers (binding `i` of kind `kinds[i]`) and the pipeline
+/// layout of that one group.
+pub(crate) fn buffer_layout(
+    device: &wgpu::Device,
+    label: &str,
+    kinds: &[wgpu::BufferBindingType],
+) -> (wgpu::BindGroupLayout, wgpu::PipelineLayout) {
+    let entries: Vec<_> = (0u32..)
+        .zip(kinds)
+        .map(|(i, &k)| compute_entry(i, buffer_binding(k)))
+        .collect();
+    let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(label),
+        entries: &entries,
+    });
+    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(label),
+        bind_group_layouts: &[Some(&layout)],
+        immediate_size: 0,
+    });
+    (layout, pipeline_layout)
+}
+
+/// The compute pipeline of `entry` in `module`.
+pub(crate) fn compute_pipeline(
+    device: &wgpu::Device,
+    layout: &wgpu::PipelineLayout,
+    module: &wgpu::ShaderModule,
+    entry: &str,
+) -> wgpu::ComputePipeline {
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout: Some(layout),
+        module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    })
+}
+
+/// A storage buffer holding `bytes` (one unused 16-byte entry when empty: an empty binding is not
+/// allowed).
+pub(crate) fn storage_init(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+    use wgpu::util::DeviceExt;
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents: if bytes.is_empty() { &[0; 16] } else { bytes },
+        usage: wgpu::BufferUsages::STORAGE,
+    })
+}
+
+/// A uniform buffer holding `bytes`.
+pub(crate) fn uniform_init(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+    use wgpu::util::DeviceExt;
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents: bytes,
+        usage: wgpu::BufferUsages::UNIFORM,
+    })
+}
+
+/// The bind group of `layout` with `buffers[i]` (whole) at binding `i`.
+pub(crate) fn bind_buffers(
+    device: &wgpu::Device,
+    label: &str,
+    layout: &wgpu::BindGroupLayout,
+    buffers: &[&wgpu::Buffer],
+) -> wgpu::BindGroup {
+    let entries: Vec<_> = (0u32..)
+        .zip(buffers)
+        .map(|(binding, b)| wgpu::BindGroupEntry {
+            binding,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout,
+        entries: &entries,
+    })
 }
 
 fn describe(info: &wgpu::AdapterInfo) -> String {

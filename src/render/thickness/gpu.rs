@@ -193,6 +193,7 @@ struct HostPixels<'a> {
     frame: &'a crate::render::gpu::GpuFrame,
     opts: &'a ThicknessOptions,
     cam: super::tiles::Camera,
+    world_to_camera: crate::geometry::RigidTransform,
     dirs: crate::render::raster::PixelDirs,
     width: usize,
 }
@@ -212,6 +213,7 @@ impl<'a> HostPixels<'a> {
             frame,
             opts,
             cam: super::tiles::Camera::new(view),
+            world_to_camera: view.world_to_camera,
             dirs: crate::render::raster::PixelDirs::new(&view.intrinsics),
             width: view.intrinsics.width as usize,
         }
@@ -241,9 +243,10 @@ impl<'a> HostPixels<'a> {
         let mut crossings: Vec<Crossing> = Vec::new();
         for &[_, t] in mine {
             let (g, k) = self.gpu.0.locate(t);
-            let first = self.gpu.0.vertex_start(g);
+            // The camera-frame corners as the CPU raster projects them (source at the origin).
+            let mesh = &r.scene.meshes[g].mesh;
             let corners =
-                r.scene.meshes[g].mesh.triangles[k].map(|c| self.frame.cam[first + c as usize]);
+                mesh.triangles[k].map(|c| self.world_to_camera.apply(mesh.vertices[c as usize]));
             let Some(edges) = Edges::new(corners, &self.dirs) else {
                 continue;
             };
