@@ -19,7 +19,9 @@ use std::sync::{Arc, Mutex, PoisonError};
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 
-use super::{GpuContext, buffer_binding, compute_entry};
+use super::{
+    GpuContext, buffer_binding, compute_entry, compute_pipeline, storage_init, uniform_init,
+};
 use crate::geometry::View;
 use crate::io::ImageF32;
 use crate::render::volume::{VolumeDetails, VolumeMethod, VolumeRenderer, footprint};
@@ -191,17 +193,11 @@ impl GpuCtRenderer {
                         bind_group_layouts: &[Some(&layout)],
                         immediate_size: 0,
                     });
-                let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some("ct"),
-                    layout: Some(&pipeline_layout),
-                    module: &module,
-                    entry_point: Some(match method {
-                        VolumeMethod::Siddon => "siddon",
-                        VolumeMethod::Trilinear => "trilinear",
-                    }),
-                    compilation_options: Default::default(),
-                    cache: None,
-                });
+                let entry_point = match method {
+                    VolumeMethod::Siddon => "siddon",
+                    VolumeMethod::Trilinear => "trilinear",
+                };
+                let pipeline = compute_pipeline(device, &pipeline_layout, &module, entry_point);
                 (volume, layout, pipeline)
             })?;
         Ok(GpuCtRenderer {
@@ -323,17 +319,8 @@ impl GpuCtRenderer {
             };
         let (out, staging) = (&bufs.out, &bufs.staging);
         self.ctx.checked("rendering CT DRRs", || {
-            use wgpu::util::DeviceExt;
-            let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("ct globals"),
-                contents: bytemuck::bytes_of(&globals),
-                usage: wgpu::BufferUsages::UNIFORM,
-            });
-            let view_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("ct views"),
-                contents: bytemuck::cast_slice(&rays),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
+            let uniform = uniform_init(device, "ct globals", bytemuck::bytes_of(&globals));
+            let view_buffer = storage_init(device, "ct views", bytemuck::cast_slice(&rays));
             let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("ct"),
                 layout: &self.layout,
