@@ -170,7 +170,7 @@ impl GpuMeshRenderer {
                 let (layout, pipeline_layout) = buffer_layout(
                     device,
                     "mesh",
-                    &[UNIFORM, READ, READ, READ, WRITE, WRITE, WRITE, WRITE],
+                    &[UNIFORM, READ, READ, READ, WRITE, WRITE, WRITE, WRITE, WRITE],
                 );
                 let pipeline = |entry| compute_pipeline(device, &pipeline_layout, &module, entry);
                 let pipelines = (
@@ -357,7 +357,12 @@ impl GpuMeshRenderer {
         let row = |r: [f64; 3]| [r[0] as f32, r[1] as f32, r[2] as f32, 0.0];
         let globals = Globals {
             image: [w, h, self.triangles, stride],
-            scale: [scale as f32, chord_scale as f32, 0.0, 0.0],
+            scale: [
+                scale as f32,
+                chord_scale as f32,
+                MIN_SILHOUETTE_CHORD_MM as f32,
+                0.0,
+            ],
             list: [LIST_CAPACITY, chord_band[0], chord_band[1], 0],
             ray_x: row(rx),
             ray_y: row(ry),
@@ -368,6 +373,11 @@ impl GpuMeshRenderer {
             list: 4 * (1 + 2 * u64::from(LIST_CAPACITY)),
             host: 4 * (4 + u64::from(LIST_CAPACITY)),
             image: 4 * u64::from(w) * u64::from(h),
+            extra: if full {
+                16 * u64::from(w) * u64::from(h)
+            } else {
+                16
+            },
         };
         let device = &self.ctx.device;
         let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
@@ -400,6 +410,7 @@ impl GpuMeshRenderer {
                     &bufs.list,
                     &bufs.host,
                     &bufs.image,
+                    &bufs.extra,
                 ],
             );
             let mut encoder = device.create_command_encoder(&Default::default());
@@ -410,14 +421,14 @@ impl GpuMeshRenderer {
             if let (true, Some(p)) = (on_gpu, &self.project) {
                 p.encode(&self.ctx, &mut encoder, view, &z_ref, &bufs.verts);
             }
-            // `collect` reads what every invocation of `rasterise` added, and `finish` (without `full`)
-            // each pixel's total.
+            // `collect` reads what every invocation of `rasterise` added, and `finish` each pixel's
+            // totals.
             let passes = [
                 (&self.pipeline, grid),
                 (&self.collect, grid),
                 (&self.finish, pixel_grid),
             ];
-            for (pipeline, grid) in &passes[..if full { 2 } else { 3 }] {
+            for (pipeline, grid) in &passes {
                 let mut pass = encoder.begin_compute_pass(&Default::default());
                 pass.set_pipeline(pipeline);
                 pass.set_bind_group(0, &bind, &[]);
@@ -439,11 +450,7 @@ impl GpuMeshRenderer {
         let mut pairs: Vec<[u32; 2]> = back.pairs.chunks_exact(2).map(|p| [p[0], p[1]]).collect();
         pairs.sort_unstable();
         Ok(Some(GpuFrame {
-            stride: stride as usize,
-            words: back.words,
             finished: back.finished,
-            scale,
-            chord_scale,
             pairs,
         }))
     }

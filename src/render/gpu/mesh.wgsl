@@ -33,7 +33,7 @@ struct Globals {
     // 4 + SLOT_WORDS·SLOTS with the per-mesh slots).
     image: vec4<u32>,
     // The scales of the fixed-point sums: x of Σ ± μ·depth (units per μ·mm), y of a mesh's chord
-    // (units per mm of depth).
+    // (units per mm of depth); z the silhouettes' chord threshold (mm of ray).
     scale: vec4<f32>,
     // Capacity of `list` in (pixel, triangle) entries and of `host` in pixels (x); the chords (y..z, in
     // units of scale.y, as i32) within rounding of the silhouette threshold, whose pixels the host
@@ -65,6 +65,9 @@ struct Globals {
 @group(0) @binding(6) var<storage, read_write> host: array<atomic<u32>>;
 // `finish`'s line integrals (mm·μ, 0 where the host evaluates the pixel).
 @group(0) @binding(7) var<storage, read_write> image: array<f32>;
+// With the slots, `finish`'s other outputs, four words per pixel: the nearest silhouette crossing's depth
+// (f32 bits, +inf when none), the object bits (low, high word) and the structure bits.
+@group(0) @binding(8) var<storage, read_write> extra: array<u32>;
 
 // Pixel-box margin (px) around the projected corners (as the CPU raster's).
 const MARGIN: f32 = 1e-2;
@@ -335,10 +338,13 @@ fn collect(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
 var<workgroup> finished: atomic<u32>;
 var<workgroup> finished_hits: atomic<u32>;
 
-// After `rasterise` (sums only, 4 words per pixel): each pixel's line integral, Σ ± μ·depth times the
-// ray's length per unit depth |K⁻¹ [u, v, 1]ᵀ|, into `image`, so that the host reads back one f32 per
-// pixel instead of four words and finishes only the pixels listed in `host` (not `clean`; their
-// triangles are in `list`). The f32 conversion and product round to within 2 ulp of the host's f64.
+// After `rasterise`: each pixel's line integral, Σ ± μ·depth times the ray's length per unit depth
+// |K⁻¹ [u, v, 1]ᵀ|, into `image`, and with the slots its silhouettes and depth into `extra` (a mesh
+// counts when its chord along the ray passes the threshold: outside the band `clean` sends to the host,
+// f32 decides that as the host's f64 does), so that the host reads back one f32 (with the slots, five
+// words) per pixel instead of every word of `acc` and finishes only the pixels listed in `host` (not
+// `clean`; their triangles are in `list`). The line integral's f32 conversion and product round to within
+// 2 ulp of the host's f64.
 @compute @workgroup_size(64, 1, 1)
 fn finish(
     @builtin(global_invocation_id) gid: vec3<u32>,
@@ -351,16 +357,22 @@ fn finish(
     }
     workgroupBarrier();
     let w = G.image.x;
+    let stride = G.image.w;
     let pix = triangle_index(gid, groups);
     if pix < w * G.image.y {
-        let a = pix * 4u;
-        let count = atomicLoad(&acc[a + 3u]);
+        let a = pix * stride;
+        let count = atomicLoad(&acc[a + 3u]) & ~HOST;
         var value = 0.0;
-        if count != 0u {
-            if clean(a, 4u) {
+        // Depth (+inf: none), object bits (two words), structure bits.
+        var more = vec4<u32>(0x7f800000u, 0u, 0u, 0u);
+        if atomicLoad(&acc[a + 3u]) != 0u {
+            if clean(a, stride) {
                 let p = vec3<f32>(f32(pix % w), f32(pix / w), 1.0);
-                let dir = vec3<f32>(dot(G.ray_x.xyz, p), dot(G.ray_y.xyz, p), 1.0);
-                value = f32(bitcast<i32>(atomicLoad(&acc[a]))) / G.scale.x * length(dir);
+                let path = length(vec3<f32>(dot(G.ray_x.xyz, p), dot(G.ray_y.xyz, p), 1.0));
+                value = f32(bitcast<i32>(atomicLoad(&acc[a]))) / G.scale.x * path;
+                if stride > 4u {
+                    more = silhouettes(a, path);
+                }
                 atomicAdd(&finished, 1u);
                 atomicAdd(&finished_hits, count);
             } else {
@@ -371,6 +383,11 @@ fn finish(
             }
         }
         image[pix] = value;
+        if stride > 4u {
+            for (var k = 0u; k < 4u; k++) {
+                extra[4u * pix + k] = more[k];
+            }
+        }
     }
     workgroupBarrier();
     if lid == 0u {
@@ -380,4 +397,31 @@ fn finish(
             atomicAdd(&host[3], 1u);
         }
     }
+}
+
+// A clean pixel's silhouettes from its slots (the host's rule): the meshes whose chord along the ray
+// (depth chord × path per unit depth) passes the threshold give their object and structure bits and their
+// nearest crossing's depth. Returns (depth bits, object bits low, high, structure bits).
+fn silhouettes(a: u32, path: f32) -> vec4<u32> {
+    var first = bitcast<f32>(0x7f800000u);
+    var bits = vec3<u32>(0u, 0u, 0u);
+    for (var j = 0u; j < SLOTS; j++) {
+        let b = a + 4u + SLOT_WORDS * j;
+        let id = atomicLoad(&acc[b]);
+        if id == 0u {
+            continue;
+        }
+        let chord = f32(bitcast<i32>(atomicLoad(&acc[b + 1u]))) / G.scale.y;
+        if chord * path > G.scale.z {
+            let object = meshes[(id & ID_MASK) - 1u].y;
+            if object < 32u {
+                bits.x |= 1u << object;
+            } else {
+                bits.y |= 1u << (object - 32u);
+            }
+            bits.z |= id >> ID_BITS;
+            first = min(first, bitcast<f32>(~atomicLoad(&acc[b + 2u])));
+        }
+    }
+    return vec4<u32>(bitcast<u32>(first), bits);
 }

@@ -114,9 +114,10 @@ mod tests {
     use crate::render::gpu::{GpuContext, GpuMeshRenderer};
     use crate::render::{RenderScene, SceneMesh};
 
-    /// The vertices projected on the GPU (f64) and by the host give the same sums: the line integrals
-    /// of every pixel neither leaves to the host, on a sphere inside a box and a second box, in AP and
-    /// LAT. (Without `SHADER_F64` only the host projects, and there is nothing to compare.)
+    /// The vertices projected on the GPU (f64) and by the host give the same sums: the line integrals,
+    /// and with the slots the depth and silhouettes, of every pixel neither leaves to the host, on a
+    /// sphere inside a box and a second box, in AP and LAT. (Without `SHADER_F64` only the host
+    /// projects, and there is nothing to compare.)
     #[test]
     fn gpu_and_host_projections_give_the_same_sums() {
         let ctx = GpuContext::shared().unwrap();
@@ -157,34 +158,42 @@ mod tests {
         let carm = CArm::default_paper();
         for name in ["ap", "lat"] {
             // The detector binned by 4 (256² px; the pixel centre mapping of registration's pyramid).
-            let full = carm.view(name).unwrap();
-            let mut k = full.intrinsics;
+            let detector = carm.view(name).unwrap();
+            let mut k = detector.intrinsics;
             (k.fx, k.fy, k.skew) = (k.fx / 4.0, k.fy / 4.0, k.skew / 4.0);
             (k.cx, k.cy) = ((k.cx - 1.5) / 4.0, (k.cy - 1.5) / 4.0);
             (k.width, k.height) = (k.width / 4, k.height / 4);
             let view = View {
                 intrinsics: k,
-                ..full.clone()
+                ..detector.clone()
             };
-            let project = gpu.project.take();
-            let host = gpu.rasterise(&scene, &view, false).unwrap().unwrap();
-            gpu.project = project;
-            let on_gpu = gpu.rasterise(&scene, &view, false).unwrap().unwrap();
-            let (a, b) = (host.finished.unwrap(), on_gpu.finished.unwrap());
-            let peak = a.image.iter().fold(0f32, |m, &x| m.max(x));
-            assert!(peak > 20.0, "{name}: the boxes must be in view ({peak})");
-            let mut compared = 0;
-            for (i, (x, y)) in a.image.iter().zip(&b.image).enumerate() {
-                let i = i as u32;
-                if a.pixels.binary_search(&i).is_ok() || b.pixels.binary_search(&i).is_ok() {
-                    continue;
+            for full in [false, true] {
+                let project = gpu.project.take();
+                let host = gpu.rasterise(&scene, &view, full).unwrap().unwrap();
+                gpu.project = project;
+                let on_gpu = gpu.rasterise(&scene, &view, full).unwrap().unwrap();
+                let (a, b) = (host.finished, on_gpu.finished);
+                let peak = a.image.iter().fold(0f32, |m, &x| m.max(x));
+                assert!(peak > 20.0, "{name}: the boxes must be in view ({peak})");
+                let mut compared = 0;
+                for (i, (x, y)) in a.image.iter().zip(&b.image).enumerate() {
+                    let i = i as u32;
+                    if a.pixels.binary_search(&i).is_ok() || b.pixels.binary_search(&i).is_ok() {
+                        continue;
+                    }
+                    // f32 values to ~60 μ·mm; the two fixed-point scales may differ by a power of two.
+                    assert!((x - y).abs() <= 1e-4, "{name}: pixel {i}: {x} vs {y}");
+                    compared += u32::from(*x > 0.0);
+                    if full {
+                        // Depth (f32 bits), object and structure bits.
+                        let k = 4 * i as usize;
+                        assert_eq!(a.extra[k..k + 4], b.extra[k..k + 4], "{name}: pixel {i}");
+                    }
                 }
-                // f32 values to ~60 μ·mm; the two fixed-point scales may differ by a power of two.
-                assert!((x - y).abs() <= 1e-4, "{name}: pixel {i}: {x} vs {y}");
-                compared += u32::from(*x > 0.0);
+                assert!(compared > 1000, "{name}: {compared} pixels compared");
+                assert_eq!(a.rays, b.rays, "{name}");
+                assert_eq!(a.extra.len(), if full { 4 * a.image.len() } else { 0 });
             }
-            assert!(compared > 1000, "{name}: {compared} pixels compared");
-            assert_eq!(a.rays, b.rays, "{name}");
         }
     }
 }

@@ -58,9 +58,9 @@ impl GpuRaster {
     /// The pixels the GPU's sums cannot give (unbalanced, or with a centre near an edge: see
     /// `gpu/mesh.wgsl`) come with their candidate triangles; each is evaluated with the CPU raster's
     /// own edge functions and pairing, from the same f64 camera-frame vertices, so it is the CPU
-    /// raster's value exactly (repaired like it when its crossings do not pair). A line integral alone
-    /// is finished on the GPU and read back as one f32 per pixel, and the host visits only those
-    /// pixels; with depth or masks every pixel's words come back and the host finishes each.
+    /// raster's value exactly (repaired like it when its crossings do not pair). Every other pixel is
+    /// finished on the GPU (its line integral, and with depth or masks its silhouettes and depth: one
+    /// f32 or five words per pixel come back), and the host visits only the listed pixels.
     pub(super) fn render(
         &self,
         r: &ThicknessRenderer,
@@ -70,99 +70,63 @@ impl GpuRaster {
     ) -> Result<Option<RenderStats>> {
         use rayon::prelude::*;
 
-        use crate::render::pairing::MIN_SILHOUETTE_CHORD_MM;
-
         let start = std::time::Instant::now();
         let Some(frame) = self.0.rasterise(&r.scene, view, opts.masks || opts.depth)? else {
             return Ok(None);
         };
         let host = HostPixels::new(self, r, view, &frame, opts);
+        let done = &frame.finished;
         let w = view.intrinsics.width as usize;
-        let stats = if let Some(done) = &frame.finished {
-            // The line integral alone: the GPU's image, and the host's pixels evaluated in parallel.
-            out.li.copy_from_slice(&done.image);
-            let values: Vec<(usize, f32, RenderStats)> = done
-                .pixels
-                .par_iter()
-                .map(|&i| {
-                    let i = i as usize;
-                    let mut stats = RenderStats::default();
-                    let value = host.evaluate(i % w, i / w, &mut stats);
-                    (i, value.map_or(0.0, |v| v.line_integral as f32), stats)
-                })
-                .collect();
-            let mut stats = RenderStats {
-                rays_traced: u64::from(done.rays),
-                hits: done.hits,
-                ..RenderStats::default()
-            };
-            for (i, li, s) in values {
-                out.li[i] = li;
-                stats = stats.add(s);
-            }
-            let pixels = (w * view.intrinsics.height as usize) as u64;
-            stats.rays_culled = pixels - stats.rays_traced;
-            stats
-        } else {
-            let rows: Vec<_> = out
-                .li
-                .chunks_mut(w)
-                .zip(rows_of(out.depth, w))
-                .zip(rows_of(out.obj, w))
-                .zip(rows_of(out.st, w))
-                .collect();
-            rows.into_par_iter()
-                .enumerate()
-                .map(|(v, (((li, depth), obj), st))| {
-                    let mut stats = RenderStats::default();
-                    for (u, li) in li.iter_mut().enumerate() {
-                        let i = v * w + u;
-                        if !frame.touched(i) {
-                            stats.rays_culled += 1;
-                            continue;
-                        }
-                        let listed = host.listed(i);
-                        if listed.is_empty() && frame.balanced(i) {
-                            stats.rays_traced += 1;
-                            stats.hits += u64::from(frame.crossings(i));
-                            let path = host.dirs.camera_dir(u as f64, v as f64).length();
-                            *li = (frame.sum(i) * path) as f32;
-                            // A mesh is in the silhouettes when its chord passes the CPU's threshold.
-                            let (mut o, mut s, mut first) = (0u64, 0u32, f32::INFINITY);
-                            for (g, chord, z, bits) in frame.slots(i) {
-                                if chord * path > MIN_SILHOUETTE_CHORD_MM {
-                                    o |= 1 << r.scene.object_of_mesh[g];
-                                    s |= bits;
-                                    first = first.min(z);
-                                }
-                            }
-                            if let Some(d) = depth.get_mut(u)
-                                && first.is_finite()
-                            {
-                                *d = first;
-                            }
-                            if let (Some(ob), Some(st)) = (obj.get_mut(u), st.get_mut(u)) {
-                                (*ob, *st) = (o, s);
-                            }
-                            continue;
-                        }
-                        let Some(ray) = host.evaluate(u, v, &mut stats) else {
-                            continue;
-                        };
-                        *li = ray.line_integral as f32;
-                        if let Some(d) = depth.get_mut(u)
-                            && ray.first_t.is_finite()
-                        {
-                            *d = (ray.first_t * ray.depth_per_t) as f32;
-                        }
-                        if let (Some(o), Some(s)) = (obj.get_mut(u), st.get_mut(u)) {
-                            (*o, *s) = (ray.object_bits, ray.structure_bits);
-                        }
+        // The GPU's pixels: the line integral, and with depth or masks its silhouettes and depth.
+        out.li.copy_from_slice(&done.image);
+        if !done.extra.is_empty() {
+            let n = out.li.len();
+            for i in 0..n {
+                let e = &done.extra[4 * i..4 * i + 4];
+                if let Some(d) = out.depth.get_mut(i) {
+                    let z = f32::from_bits(e[0]);
+                    if z.is_finite() {
+                        *d = z;
                     }
-                    stats
-                })
-                .reduce(RenderStats::default, RenderStats::add)
+                }
+                if let (Some(o), Some(s)) = (out.obj.get_mut(i), out.st.get_mut(i)) {
+                    (*o, *s) = (u64::from(e[1]) | u64::from(e[2]) << 32, e[3]);
+                }
+            }
+        }
+        // The host's pixels, evaluated in parallel.
+        let rays: Vec<(usize, Option<HostRay>, RenderStats)> = done
+            .pixels
+            .par_iter()
+            .map(|&i| {
+                let i = i as usize;
+                let mut stats = RenderStats::default();
+                let ray = host.evaluate(i % w, i / w, &mut stats);
+                (i, ray, stats)
+            })
+            .collect();
+        let mut stats = RenderStats {
+            rays_traced: u64::from(done.rays),
+            hits: done.hits,
+            ..RenderStats::default()
         };
+        for (i, ray, s) in rays {
+            stats = stats.add(s);
+            let Some(ray) = ray else {
+                continue;
+            };
+            out.li[i] = ray.line_integral as f32;
+            if let Some(d) = out.depth.get_mut(i)
+                && ray.first_t.is_finite()
+            {
+                *d = (ray.first_t * ray.depth_per_t) as f32;
+            }
+            if let (Some(o), Some(s)) = (out.obj.get_mut(i), out.st.get_mut(i)) {
+                (*o, *s) = (ray.object_bits, ray.structure_bits);
+            }
+        }
+        let pixels = (w * view.intrinsics.height as usize) as u64;
+        stats.rays_culled = pixels - stats.rays_traced;
         Ok(Some(RenderStats {
             render_ms: start.elapsed().as_secs_f64() * 1e3,
             ..stats
@@ -284,11 +248,4 @@ impl<'a> HostPixels<'a> {
         stats.hits += u64::from(ray.hits);
         Some(HostRay { ray, depth_per_t })
     }
-}
-
-/// The rows of an optional output (`w` values each), or endless empty rows when it was not asked for.
-#[cfg(feature = "gpu")]
-fn rows_of<T>(x: &mut [T], w: usize) -> impl Iterator<Item = &mut [T]> {
-    x.chunks_mut(w.max(1))
-        .chain(std::iter::repeat_with(|| &mut [][..]))
 }
