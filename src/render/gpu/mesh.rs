@@ -7,10 +7,11 @@
 //! shader adds every covered pixel's `± μ · depth` together with two
 //! balance counters (`Σ s`, `Σ s · mesh`, `s = ±1`). The result, a [`GpuFrame`], is turned into a DRR by
 //! the thickness renderer, which evaluates on the CPU the few pixels the sums cannot give (crossings
-//! that did not balance, centres near an edge). For the line integral alone a third pass finishes every
-//! other pixel on the GPU (sum × the ray's length per unit depth), so one f32 per pixel and the list of
-//! the host's pixels come back instead of every pixel's sums (measured at 1024², L1–L5 in LAT on
-//! lavapipe: the host's share of a render 16–32 ms → ~1 ms). How the shader's f32 arithmetic keeps the
+//! that did not balance, centres near an edge). A third pass finishes every other pixel on the GPU (sum ×
+//! the ray's length per unit depth; with masks or depth also its silhouettes and nearest depth from its
+//! slots), so one f32 (or five words) per pixel and the list of the host's pixels come back instead of
+//! every pixel's sums (measured at 1024², L1–L5 in LAT on lavapipe: the host's share of a line-integral
+//! render 16–32 ms → ~1 ms). How the shader's f32 arithmetic keeps the
 //! CPU's coverage and depth is written at the top of `mesh.wgsl`.
 //!
 //! The sums are integers in units of `1 / scale` (μ·mm): exact and the same whatever order the GPU adds
@@ -212,10 +213,10 @@ impl GpuMeshRenderer {
         self.ctx.adapter_name()
     }
 
-    /// Sums `scene` (the scene this renderer was built from) as seen from `view`; with `full`, also the
-    /// first entry's depth and the silhouette bits, read back per pixel for the host to finish; without,
-    /// the GPU finishes every pixel it can into a line integral (`finish` in mesh.wgsl) and only the
-    /// image and the pixels left to the host come back ([`GpuFrame::finished`]). `None` when a vertex
+    /// Sums `scene` (the scene this renderer was built from) as seen from `view` and finishes every
+    /// pixel it can on the GPU (`finish` in mesh.wgsl): its line integral and, with `full`, its
+    /// silhouettes and nearest depth; only those and the pixels left to the host, with their candidate
+    /// triangles, come back ([`GpuFrame`]). `None` when a vertex
     /// lies at or behind the source plane (no finite projection: the CPU raster traces such a view, and
     /// so does the caller) or when more pixels than [`LIST_CAPACITY`] entries can hold need the host: the
     /// caller renders the view on the CPU.
