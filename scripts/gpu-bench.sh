@@ -90,6 +90,10 @@ IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat)
 row "spinedrr L1–L5 mesh DRR (LAT), raster, CPU" "$ms" "$(uname -n)"
 IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --backend gpu)
 row "spinedrr L1–L5 mesh DRR (LAT), --backend gpu" "$ms" "${adapter:-no adapter}"
+IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat --masks)
+row "spinedrr L1–L5 mesh DRR with masks (LAT), raster, CPU" "$ms" "$(uname -n)"
+IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --masks --backend gpu)
+row "spinedrr L1–L5 mesh DRR with masks (LAT), --backend gpu" "$ms" "${adapter:-no adapter}"
 
 # One AP+LAT intensity registration of the phantom's L3 (its fixed images rendered at the true pose; NCC,
 # the default levels, from 2 mm and 2° off): `register --intensity`'s own "seconds" (after the problem is
