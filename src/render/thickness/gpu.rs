@@ -79,20 +79,21 @@ impl GpuRaster {
         let w = view.intrinsics.width as usize;
         // The GPU's pixels: the line integral, and with depth or masks its silhouettes and depth.
         out.li.copy_from_slice(&done.image);
-        if !done.extra.is_empty() {
-            let n = out.li.len();
-            for i in 0..n {
-                let e = &done.extra[4 * i..4 * i + 4];
-                if let Some(d) = out.depth.get_mut(i) {
-                    let z = f32::from_bits(e[0]);
-                    if z.is_finite() {
-                        *d = z;
-                    }
+        // `extra`: per pixel the depth (f32 bits, +inf: none), the object bits (two words) and the
+        // structure bits (empty without depth and masks).
+        let extra = &done.extra;
+        if !extra.is_empty() {
+            out.depth.par_iter_mut().enumerate().for_each(|(i, d)| {
+                let z = f32::from_bits(extra[4 * i]);
+                if z.is_finite() {
+                    *d = z;
                 }
-                if let (Some(o), Some(s)) = (out.obj.get_mut(i), out.st.get_mut(i)) {
-                    (*o, *s) = (u64::from(e[1]) | u64::from(e[2]) << 32, e[3]);
-                }
-            }
+            });
+            let masks = out.obj.par_iter_mut().zip(out.st.par_iter_mut());
+            masks.enumerate().for_each(|(i, (o, s))| {
+                let e = &extra[4 * i..4 * i + 4];
+                (*o, *s) = (u64::from(e[1]) | u64::from(e[2]) << 32, e[3]);
+            });
         }
         // The host's pixels, evaluated in parallel.
         let rays: Vec<(usize, Option<HostRay>, RenderStats)> = done
