@@ -178,11 +178,20 @@ impl GpuMeshRenderer {
                     pipeline("rasterise"),
                     pipeline("collect"),
                     pipeline("finish"),
-                    ctx.has_f64().then(|| Projector::new(&ctx, scene)),
                 );
                 (tris_buf, meshes_buf, layout, pipelines)
             })?;
-        let (pipeline, collect, finish, project) = pipeline;
+        let (pipeline, collect, finish) = pipeline;
+        // The f64 projection in a scope of its own: a driver that advertises SHADER_F64 but cannot
+        // compile the shader (reported of some) leaves the projection to the host instead of failing.
+        let project = if ctx.has_f64() {
+            ctx.checked("compiling the f64 projection shader", || {
+                Projector::new(&ctx, scene)
+            })
+            .ok()
+        } else {
+            None
+        };
         Ok(GpuMeshRenderer {
             ctx,
             triangles: tris.len() as u32,
