@@ -225,10 +225,10 @@ impl GpuMeshRenderer {
     /// Sums `scene` (the scene this renderer was built from) as seen from `view` and finishes every
     /// pixel it can on the GPU (`finish` in mesh.wgsl): its line integral and, with `full`, its
     /// silhouettes and nearest depth; only those and the pixels left to the host, with their candidate
-    /// triangles, come back ([`GpuFrame`]). `None` when a vertex
-    /// lies at or behind the source plane (no finite projection: the CPU raster traces such a view, and
-    /// so does the caller) or when more pixels than [`LIST_CAPACITY`] entries can hold need the host: the
-    /// caller renders the view on the CPU.
+    /// triangles, come back ([`GpuFrame`]). `None` when a vertex lies at or behind the source plane (no
+    /// finite projection: the CPU raster traces such a view, and so does the caller) or when more
+    /// pixels than [`LIST_CAPACITY`] entries can hold need the host: the caller renders the view on the
+    /// CPU.
     pub(crate) fn rasterise(
         &self,
         scene: &RenderScene,
@@ -262,7 +262,11 @@ impl GpuMeshRenderer {
                 .iter()
                 .flatten()
                 .all(|&b| corners(b).all(|z| z > MIN_DEPTH_MM));
-        let mut verts = Vec::new();
+        let mut verts = if on_gpu {
+            Vec::new()
+        } else {
+            vec![[0f32; 4]; 2 * self.vertices]
+        };
         let mut extent = Vec::with_capacity(scene.meshes.len());
         for (g, m) in scene.meshes.iter().enumerate() {
             if on_gpu {
@@ -274,9 +278,6 @@ impl GpuMeshRenderer {
                 });
                 extent.push(hi - lo);
                 continue;
-            }
-            if verts.is_empty() {
-                verts = vec![[0f32; 4]; 2 * self.vertices];
             }
             let start = self.vertex_start[g];
             let n = m.mesh.vertices.len();

@@ -96,7 +96,7 @@ impl GpuRaster {
             });
         }
         // The host's pixels, evaluated in parallel.
-        let rays: Vec<(usize, Option<HostRay>, RenderStats)> = done
+        let rays: Vec<_> = done
             .pixels
             .par_iter()
             .map(|&i| {
@@ -113,19 +113,20 @@ impl GpuRaster {
         };
         for (i, ray, s) in rays {
             stats = stats.add(s);
-            let Some(ray) = ray else {
+            let Some((ray, depth_per_t)) = ray else {
                 continue;
             };
             out.li[i] = ray.line_integral as f32;
             if let Some(d) = out.depth.get_mut(i)
                 && ray.first_t.is_finite()
             {
-                *d = (ray.first_t * ray.depth_per_t) as f32;
+                *d = (ray.first_t * depth_per_t) as f32;
             }
             if let (Some(o), Some(s)) = (out.obj.get_mut(i), out.st.get_mut(i)) {
                 (*o, *s) = (ray.object_bits, ray.structure_bits);
             }
         }
+        // Every ray not traced was culled (untouched, or near an edge but inside no triangle).
         let pixels = (w * view.intrinsics.height as usize) as u64;
         stats.rays_culled = pixels - stats.rays_traced;
         Ok(Some(RenderStats {
@@ -135,27 +136,13 @@ impl GpuRaster {
     }
 }
 
-/// A pixel the host evaluated: its ray's integral, and the camera depth per unit of the ray's `t`.
-#[cfg(feature = "gpu")]
-struct HostRay {
-    ray: crate::render::pairing::RayIntegral,
-    depth_per_t: f64,
-}
-
-#[cfg(feature = "gpu")]
-impl std::ops::Deref for HostRay {
-    type Target = crate::render::pairing::RayIntegral;
-    fn deref(&self) -> &Self::Target {
-        &self.ray
-    }
-}
-
 /// What the host needs to evaluate the pixels the GPU's sums cannot give, as the CPU raster does.
 #[cfg(feature = "gpu")]
 struct HostPixels<'a> {
     gpu: &'a GpuRaster,
     r: &'a ThicknessRenderer,
-    frame: &'a crate::render::gpu::GpuFrame,
+    /// (pixel, global triangle) for every pixel the host evaluates, sorted.
+    pairs: &'a [[u32; 2]],
     opts: &'a ThicknessOptions,
     cam: super::tiles::Camera,
     world_to_camera: crate::geometry::RigidTransform,
@@ -175,7 +162,7 @@ impl<'a> HostPixels<'a> {
         HostPixels {
             gpu,
             r,
-            frame,
+            pairs: &frame.pairs,
             opts,
             cam: super::tiles::Camera::new(view),
             world_to_camera: view.world_to_camera,
@@ -186,16 +173,22 @@ impl<'a> HostPixels<'a> {
 
     /// The (pixel, triangle) pairs the GPU listed for pixel `i`.
     fn listed(&self, i: usize) -> &'a [[u32; 2]] {
-        let pairs = &self.frame.pairs;
+        let pairs = self.pairs;
         let first = pairs.partition_point(|p| (p[0] as usize) < i);
         let n = pairs[first..].partition_point(|p| p[0] as usize == i);
         &pairs[first..first + n]
     }
 
     /// Pixel (u, v)'s ray, from the candidate triangles the GPU listed for it with the CPU raster's
-    /// edge functions and pairing (traced when none were listed), repaired like the CPU raster's;
-    /// `None` (counted as culled) when it is near an edge but inside no triangle.
-    fn evaluate(&self, u: usize, v: usize, stats: &mut RenderStats) -> Option<HostRay> {
+    /// edge functions and pairing (traced when none were listed), repaired like the CPU raster's, and
+    /// the camera depth per unit of its `t`; `None` (a culled ray) when the pixel is near an edge but
+    /// inside no triangle.
+    fn evaluate(
+        &self,
+        u: usize,
+        v: usize,
+        stats: &mut RenderStats,
+    ) -> Option<(crate::render::pairing::RayIntegral, f64)> {
         use super::rays::{Scratch, trace_single};
         use super::repair;
         use crate::render::pairing::{Crossing, integrate_crossings};
@@ -234,7 +227,6 @@ impl<'a> HostPixels<'a> {
             (ray, dir.dot(self.cam.axis_z))
         } else if crossings.is_empty() {
             // Near an edge, but inside no triangle.
-            stats.rays_culled += 1;
             return None;
         } else {
             (
@@ -247,6 +239,6 @@ impl<'a> HostPixels<'a> {
         }
         stats.rays_traced += 1;
         stats.hits += u64::from(ray.hits);
-        Some(HostRay { ray, depth_per_t })
+        Some((ray, depth_per_t))
     }
 }
