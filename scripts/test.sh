@@ -6,10 +6,11 @@
 #   deps    scripts/install-deps.sh (system packages, only those missing)
 #   static  cargo fmt --check, the import-cycle check
 #   build   ONE `cargo build --all-targets` of the workspace (test binaries, benches, examples, the CLI, the
-#           Python cdylib) with clippy-driver as the workspace
-#           wrapper, so clippy's lints (-D warnings) are emitted by the same compile that produces the test
+#           Python cdylib) through clippy-driver (scripts/rustc-workspace-wrapper.sh as the workspace
+#           wrapper), so clippy's lints (-D warnings) are emitted by the same compile that produces the test
 #           binaries, the CLI and the Python module (no separate `cargo clippy` check build, no release build
-#           of the module); the Python virtual environment is made meanwhile
+#           of the module); the test harnesses compile unoptimised, the library at opt-level 2; the Python
+#           virtual environment is made meanwhile
 #   rust    the library's unit tests and the one integration-test binary (tests/it/)
 #   python  the module the build phase compiled, installed into the venv, and pytest over python/tests,
 #           run beside the Rust tests (both phases' times count from their common start)
@@ -32,16 +33,18 @@ phase() { # phase NAME COMMAND… : runs COMMAND, records its wall time under NA
   return $rc
 }
 
-# clippy-driver is rustc plus clippy's lints: as RUSTC_WORKSPACE_WRAPPER it lints the workspace's own crates
-# (not the dependencies) during the ordinary build, which is what `cargo clippy` does in a check build.
-# CLIPPY_ARGS is how cargo-clippy hands `-- -D warnings` to the driver.
+# clippy-driver is rustc plus clippy's lints: run by the workspace wrapper (RUSTC_WORKSPACE_WRAPPER) it lints
+# the workspace's own crates (not the dependencies) during the ordinary build, which is what `cargo clippy`
+# does in a check build. CLIPPY_ARGS is how cargo-clippy hands `-- -D warnings` to the driver. The wrapper
+# also compiles the test harnesses themselves without optimisation (scripts/rustc-workspace-wrapper.sh).
 clippy_driver="$(rustc --print sysroot)/bin/clippy-driver"
 [ -x "$clippy_driver" ] || clippy_driver="$(command -v clippy-driver || true)"
 if [ -z "$clippy_driver" ]; then
   echo "make test needs clippy (rustup component add clippy)" >&2
   exit 1
 fi
-export RUSTC_WORKSPACE_WRAPPER="$clippy_driver"
+export SPINEDRR_CLIPPY_DRIVER="$clippy_driver"
+export RUSTC_WORKSPACE_WRAPPER="$PWD/scripts/rustc-workspace-wrapper.sh"
 export CLIPPY_ARGS="-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__"
 # The Python module is compiled by the same build as an extension module (no libpython linked: what maturin
 # sets) for the system python3 the venv is made from, so it is installed as built (`python/install-dev.sh`).
