@@ -1,21 +1,38 @@
 #!/usr/bin/env bash
 # The RUSTC_WORKSPACE_WRAPPER of `make test` (scripts/test.sh): cargo runs it, for the workspace's own crates
-# only, as `rustc-workspace-wrapper.sh RUSTC ARGS…`.
+# only, as `rustc-workspace-wrapper.sh RUSTC ARGS…`, in the one `cargo build --workspace --all-targets`.
 #
-# 1. Every crate goes through clippy-driver ($SPINEDRR_CLIPPY_DRIVER, rustc plus clippy's lints), so the
-#    build that makes the test binaries also lints them (-D warnings through CLIPPY_ARGS).
-# 2. The test harnesses — the library's unit-test build, the integration-test crate (`--test`) and the
-#    benchmark binary (benches/, which `make test` compiles but does not run) — are compiled without
-#    optimisation (`-C opt-level=0`, after cargo's `-C opt-level=2`: rustc takes the last). The library
+# 1. The crates go through clippy-driver ($SPINEDRR_CLIPPY_DRIVER, rustc plus clippy's lints), so the build
+#    that makes the test binaries also lints them (-D warnings through CLIPPY_ARGS).
+# 2. The test harnesses — the unit-test builds and the integration-test crate (`--test`) — and the
+#    benchmark binary (benches/, which `make test` compiles but does not run) are compiled without
+#    optimisation (`-C opt-level=0` after cargo's `-C opt-level=2`: rustc takes the last). The library
 #    they exercise stays at the dev profile's opt-level 2, and so do the CLI and the Python module.
-#    Measured on 2 cores (see README, *The test suite*): the unit-test build 100 → 31 CPU-s and its tests
-#    still ~3 s, the integration crate 11 s instead of ~35 s alone, its tests within a few per cent.
-#    `cargo test` without this wrapper builds the same tests optimised; both are correct.
+# 3. The library itself (src/lib.rs, not as a test) is compiled by plain rustc with `-D warnings`: its
+#    unit-test build compiles every line of it again (there is no `cfg(not(test))` code) through clippy,
+#    so clippy's lints would only be computed twice; rustc's own warnings, which differ between the two
+#    builds (dead code), are still errors.
+# Measured on 2 cores (README, *The test suite*). `cargo test` or `cargo clippy` without this wrapper build
+# and lint the same code the usual way.
 set -euo pipefail
 driver="${SPINEDRR_CLIPPY_DRIVER:?the clippy-driver to run (scripts/test.sh sets it)}"
+rustc="$1"
+crate="" test=0 bench=0 lib=0
+prev=""
 for arg in "$@"; do
   case "$arg" in
-  --test | benches/*) exec "$driver" "$@" -C opt-level=0 ;;
+  --test) test=1 ;;
+  benches/*) bench=1 ;;
+  src/lib.rs) lib=1 ;;
   esac
+  [ "$prev" = --crate-name ] && crate="$arg"
+  prev="$arg"
 done
+if [ $test = 1 ] || [ $bench = 1 ]; then
+  exec "$driver" "$@" -C opt-level=0
+fi
+if [ "$crate" = spinedrr ] && [ $lib = 1 ]; then
+  shift
+  exec "$rustc" "$@" -D warnings
+fi
 exec "$driver" "$@"
