@@ -17,18 +17,17 @@
 set -euo pipefail
 driver="${SPINEDRR_CLIPPY_DRIVER:?the clippy-driver to run (scripts/test.sh sets it)}"
 rustc="$1"
-crate="" test=0 bench=0 lib=0
+crate="" harness=0 lib=0
 prev=""
 for arg in "$@"; do
   case "$arg" in
-  --test) test=1 ;;
-  benches/*) bench=1 ;;
+  --test | benches/*) harness=1 ;;
   src/lib.rs) lib=1 ;;
   esac
   [ "$prev" = --crate-name ] && crate="$arg"
   prev="$arg"
 done
-if [ $test = 1 ] || [ $bench = 1 ]; then
+if [ $harness = 1 ]; then
   exec "$driver" "$@" -C opt-level=0
 fi
 if [ "$crate" = spinedrr ] && [ $lib = 1 ]; then
