@@ -8,8 +8,9 @@
 #    benchmark binary (benches/, which `make test` compiles but does not run) are compiled without
 #    optimisation (`-C opt-level=0` after cargo's `-C opt-level=2`: rustc takes the last). The library
 #    they exercise stays at the dev profile's opt-level 2, and so do the CLI and the Python module.
-# 3. The library itself (src/lib.rs, not as a test) is compiled by plain rustc with `-D warnings`: its
-#    unit-test build compiles every line of it again (there is no `cfg(not(test))` code) through clippy,
+# 3. The libraries themselves (src/lib.rs, core/src/lib.rs, not as tests) are compiled by plain rustc with
+#    `-D warnings`: each one's unit-test build compiles every line of it again (there is no
+#    `cfg(not(test))` code) through clippy,
 #    so clippy's lints would only be computed twice; rustc's own warnings, which differ between the two
 #    builds (dead code), are still errors.
 # Measured on 2 cores (README, *The test suite*). `cargo test` or `cargo clippy` without this wrapper build
@@ -22,7 +23,7 @@ prev=""
 for arg in "$@"; do
   case "$arg" in
   --test | benches/*) harness=1 ;;
-  src/lib.rs) lib=1 ;;
+  src/lib.rs | core/src/lib.rs) lib=1 ;;
   esac
   [ "$prev" = --crate-name ] && crate="$arg"
   prev="$arg"
@@ -30,7 +31,7 @@ done
 if [ $harness = 1 ]; then
   exec "$driver" "$@" -C opt-level=0
 fi
-if [ "$crate" = spinedrr ] && [ $lib = 1 ]; then
+if { [ "$crate" = spinedrr ] || [ "$crate" = spinedrr_core ]; } && [ $lib = 1 ]; then
   shift
   exec "$rustc" "$@" -D warnings
 fi

@@ -54,6 +54,7 @@ export PYO3_BUILD_EXTENSION_MODULE=1
 static_checks() {
   cargo fmt --all -- --check
   python3 scripts/check_import_cycles.py src
+  python3 scripts/check_import_cycles.py core/src
 }
 
 build() {

@@ -20,20 +20,13 @@
 //! * [`registration`]: landmark 2D–3D registration (LM over SE(3), two-view Kabsch, OpenCV PnP).
 //! * [`calibration`]: simulated C-arm calibration with BB phantoms (Zhang via OpenCV; DLT + RQ + LM).
 //! * [`study`]: the calibration-sensitivity study: experiments, tables, figures and the report.
+//!
+//! Every module but [`study`] lives in the `spinedrr-core` crate (`core/`) and is re-exported here: the
+//! study, the report and the CLI are cold code that compiles without LLVM's optimisation in the test
+//! build, the core's hot loops with it (see the workspace's `Cargo.toml`).
 
-pub mod analysis;
-pub mod anatomy;
-pub mod calibration;
-pub mod error;
-pub mod geometry;
-pub mod io;
-pub mod math;
-pub mod registration;
-pub mod render;
-pub mod spectral;
+pub use spinedrr_core::{
+    Error, Result, VERSION, analysis, anatomy, calibration, error, geometry, io, math,
+    registration, render, spectral,
+};
 pub mod study;
-
-pub use error::{Error, Result};
-
-/// The tool version written into every sidecar.
-pub const VERSION: &str = env!("CARGO_PKG_VERSION");

@@ -10,7 +10,7 @@ use std::path::Path;
 use base64::Engine as _;
 
 use super::report::slug;
-use crate::io::write_atomic_bytes;
+use crate::io::{png_preview, write_atomic_bytes};
 use crate::{Error, Result};
 
 /// Width (px) of the embedded figure previews: the page's display width.
@@ -107,43 +107,14 @@ fn table_row(line: &str, cell: &str) -> String {
     format!("<tr>{}</tr>\n", cells.join(""))
 }
 
-/// `data:image/png;base64,…` of the PNG at `path`, downscaled to [`PREVIEW_WIDTH_PX`] wide if wider.
+/// `data:image/png;base64,…` of the PNG at `path`, downscaled to [`PREVIEW_WIDTH_PX`] wide if wider and
+/// posterised to [`PREVIEW_LEVELS`] levels per channel ([`crate::io::png_preview`]).
 fn preview_uri(path: &Path) -> Result<String> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let img = image::load_from_memory(&bytes).map_err(|e| Error::format(path, e.to_string()))?;
-    let mut rgb = img.to_rgb8();
-    if img.width() > PREVIEW_WIDTH_PX {
-        let h = (f64::from(img.height()) * f64::from(PREVIEW_WIDTH_PX) / f64::from(img.width()))
-            .round()
-            .max(1.0) as u32;
-        let filter = image::imageops::FilterType::Triangle;
-        rgb = image::imageops::resize(&rgb, PREVIEW_WIDTH_PX, h, filter);
-    }
-    posterise(&mut rgb);
-    let mut png = Vec::new();
-    let (w, h) = rgb.dimensions();
-    use image::ImageEncoder as _;
-    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    PngEncoder::new_with_quality(&mut png, CompressionType::Best, FilterType::Adaptive)
-        .write_image(&rgb, w, h, image::ExtendedColorType::Rgb8)
-        .map_err(|e| Error::encode(format!("preview of {}", path.display()), e))?;
+    let png = png_preview(path, PREVIEW_WIDTH_PX, PREVIEW_LEVELS)?;
     Ok(format!(
         "data:image/png;base64,{}",
         base64::engine::general_purpose::STANDARD.encode(png)
     ))
-}
-
-/// Rounds every channel to the nearest of [`PREVIEW_LEVELS`] evenly spaced levels (0 and 255 kept):
-/// the anti-aliased edges of a downscaled chart otherwise make hundreds of thousands of colours, which PNG
-/// compresses poorly; with few levels the preview is a fraction of the size and looks the same at
-/// display size.
-pub fn posterise(img: &mut image::RgbImage) {
-    let step = 255.0 / f64::from(PREVIEW_LEVELS - 1);
-    for p in img.pixels_mut() {
-        for c in &mut p.0 {
-            *c = ((f64::from(*c) / step).round() * step).round() as u8;
-        }
-    }
 }
 
 /// Levels per channel of the embedded previews.

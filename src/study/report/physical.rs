@@ -26,7 +26,7 @@ pub fn section(md: &mut String, rows: &[PhysicalRow], carm: Option<&CArm>, first
         md,
         "In each row the assumed (calibrated) focal spot or detector differs from the true one by one key, and \
 the target is rendered with the camera the assumed geometry amounts to, `P' = K'[R'|t']` \
-(`tables/physical.csv`; the derivation is in `src/geometry/physical.rs`). Keys are in the view's camera axes — x along the detector \
+(`tables/physical.csv`; the derivation is in `core/src/geometry/physical.rs`). Keys are in the view's camera axes — x along the detector \
 rows (u), y down the detector (v), z along the central ray from the source to the detector — and rotations \
 are right-handed about the axis through the piercing point. Unlike the intrinsic families above, these \
 change the camera's pose with K (`camera moved / turned`), so no homography maps one image to the other: \

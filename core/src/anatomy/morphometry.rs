@@ -11,7 +11,7 @@ use super::level::Level;
 use crate::{Error, Result};
 
 /// The embedded default table.
-pub const DEFAULT_MORPHOMETRY_TOML: &str = include_str!("../../assets/morphometry/lumbar.toml");
+pub const DEFAULT_MORPHOMETRY_TOML: &str = include_str!("../../../assets/morphometry/lumbar.toml");
 
 /// Morphometry of one level (millimetres, degrees); definitions in the data file.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]

@@ -13,7 +13,7 @@ use super::spline::NaturalSpline;
 use crate::{Error, Result};
 
 /// The embedded table (see its header for the source).
-const NIST_ELEMENTS_CSV: &str = include_str!("../../assets/xray/nist_elements.csv");
+const NIST_ELEMENTS_CSV: &str = include_str!("../../../assets/xray/nist_elements.csv");
 
 /// Lowest and highest photon energy (keV) the embedded tables cover.
 pub const TABLE_MIN_KEV: f64 = 1.0;

@@ -12,7 +12,7 @@ use super::nist::{TABLE_MAX_KEV, TABLE_MIN_KEV};
 use crate::{Error, Result};
 
 /// The TASMIP coefficient table (see its header for the source).
-const TASMIP_CSV: &str = include_str!("../../assets/xray/tasmip.csv");
+const TASMIP_CSV: &str = include_str!("../../../assets/xray/tasmip.csv");
 
 /// The tube potentials TASMIP was fitted over (kV).
 pub const TASMIP_KV: (f64, f64) = (30.0, 140.0);

@@ -5,6 +5,7 @@ mod atomic;
 mod heatmap;
 mod image;
 mod output_set;
+mod preview;
 mod products;
 mod sidecar;
 mod xray;
@@ -20,6 +21,7 @@ pub use image::{
 pub use output_set::{
     check_ours, check_output_paths, check_spares_inputs, create_output_dir, same_file,
 };
+pub use preview::{png_preview, posterise};
 pub use products::{
     DrrProducts, DrrValues, Silhouette, SilhouetteOf, difference_set_paths, drr_set_paths,
     read_with_sidecar, sibling, write_depth, write_difference, write_difference_heatmap,
