@@ -6,8 +6,9 @@
 #    that makes the test binaries also lints them (-D warnings through CLIPPY_ARGS).
 # 2. The test harnesses — the unit-test builds and the integration-test crate (`--test`) — and the
 #    benchmark binary (benches/, which `make test` compiles but does not run) are compiled without
-#    optimisation (`-C opt-level=0` after cargo's `-C opt-level=2`: rustc takes the last). The library
-#    they exercise stays at the dev profile's opt-level 2, and so do the CLI and the Python module.
+#    optimisation (`-C opt-level=0` after cargo's `-C opt-level=2`: rustc takes the last). The core
+#    library they exercise (spinedrr-core) stays at the dev profile's opt-level 2, and so does the Python
+#    module; the study crate and the CLI are at opt-level 0 through the profile itself (Cargo.toml).
 # 3. The libraries themselves (src/lib.rs, core/src/lib.rs, not as tests) are compiled by plain rustc with
 #    `-D warnings`: each one's unit-test build compiles every line of it again (there is no
 #    `cfg(not(test))` code) through clippy,

@@ -9,7 +9,8 @@
 #           Python cdylib) through clippy-driver (scripts/rustc-workspace-wrapper.sh as the workspace
 #           wrapper), so clippy's lints (-D warnings) are emitted by the same compile that produces the test
 #           binaries, the CLI and the Python module (no separate `cargo clippy` check build, no release build
-#           of the module); the test harnesses compile unoptimised, the library at opt-level 2; the Python
+#           of the module); the test harnesses and the study crate (study, report, CLI) compile
+#           unoptimised, the core library (spinedrr-core) and the Python module at opt-level 2; the Python
 #           virtual environment is made meanwhile
 #   rust    the library's unit tests and the one integration-test binary (tests/it/)
 #   python  the module the build phase compiled, installed into the venv, and pytest over python/tests,
