@@ -1,19 +1,25 @@
 //! Records the git commit the library is built from (`SPINEDRR_GIT_COMMIT`: the hash, with `-dirty`
-//! appended when tracked files differ from it; "unknown" outside a git checkout or without git), which
-//! the study report names in its provenance line. The code digest that keys the phantom mesh cache is
+//! appended when a tracked file among the build's inputs ([`INPUTS`]) differs from it; "unknown" outside
+//! a git checkout or without git), which the study report names in its provenance line. The mark covers
+//! exactly the files whose change reruns this script: a tree-wide `git status` let an edit to a file the
+//! binary is not built from (a test, the README) mark it `-dirty`, and the mark then outlived the
+//! edit's revert, since nothing the script watches had changed (a clean checkout's report called its
+//! binary dirty). The code digest that keys the phantom mesh cache is
 //! `spinedrr-core`'s (`core/build.rs`).
 
 use std::path::PathBuf;
 use std::process::Command;
 
 /// What the library is built from; a change to any of it reruns this script.
-const INPUTS: [&str; 8] = [
+const INPUTS: [&str; 10] = [
     "src",
     "core/src",
+    "sys",
     "assets",
     "reference",
     "Cargo.toml",
     "core/Cargo.toml",
+    "core/build.rs",
     "Cargo.lock",
     "build.rs",
 ];
@@ -29,7 +35,11 @@ fn git(args: &[&str]) -> Option<String> {
 fn main() {
     let commit = git(&["rev-parse", "HEAD"]).map_or_else(
         || "unknown".to_string(),
-        |c| match git(&["status", "--porcelain", "--untracked-files=no"]) {
+        |c| match git(&["status", "--porcelain", "--untracked-files=no", "--"]
+            .into_iter()
+            .chain(INPUTS)
+            .collect::<Vec<_>>())
+        {
             Some(_) => format!("{c}-dirty"),
             None => c,
         },

@@ -342,16 +342,30 @@ fn the_report_states_its_provenance() {
             .filter(|o| o.status.success())
             .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
     };
-    // The commit the binary was built from (HEAD, unless a commit was made since the build); a clean
-    // checkout (CI's) was built clean, so it must not be called `-dirty`.
+    // The commit the binary was built from (HEAD, unless a commit was made since the build); a checkout
+    // whose build inputs are clean (CI's) was built clean, so it must not be called `-dirty`. The inputs
+    // are build.rs's `INPUTS` (its `-dirty` mark covers those paths, not a test or the README), read
+    // from its source here.
     let head = git(&["rev-parse", "HEAD"]).unwrap_or_else(|| "unknown".to_string());
     assert!(
         line.contains(&format!("git commit `{head}`"))
             || line.contains(&format!("git commit `{head}-dirty`")),
         "{line} vs HEAD {head}"
     );
-    let clean =
-        git(&["status", "--porcelain", "--untracked-files=no"]).is_some_and(|s| s.is_empty());
+    let script = read(&Path::new(env!("CARGO_MANIFEST_DIR")).join("build.rs"));
+    let list = script
+        .split("const INPUTS")
+        .nth(1)
+        .and_then(|rest| rest.split("];").next())
+        .expect("build.rs declares INPUTS");
+    let inputs: Vec<&str> = list.split('"').skip(1).step_by(2).collect();
+    assert!(
+        inputs.contains(&"src") && inputs.contains(&"core/src"),
+        "INPUTS as read from build.rs: {inputs:?}"
+    );
+    let mut status = vec!["status", "--porcelain", "--untracked-files=no", "--"];
+    status.extend(&inputs);
+    let clean = git(&status).is_some_and(|s| s.is_empty());
     assert!(!(clean && line.contains("-dirty`")), "{line}");
     let toml = std::fs::read(quick_out().join("study.toml")).unwrap();
     let hash = blake3::hash(&toml).to_hex().to_string();
