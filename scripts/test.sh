@@ -71,9 +71,10 @@ build() {
 
 rust_tests() {
   set -o pipefail
-  # The Slurm tests mostly wait on the scheduler (measured alone: 52 s of wall for 16 s of CPU) and, last in
-  # libtest's alphabetical order, they were the run's tail with one core idle; they run in a second process
-  # of the test binary from the start instead, and their output follows the rest.
+  # The Slurm tests mostly wait on the scheduler (measured beside the other tests, session 32: 221 s of wall
+  # for 61 CPU-s in their process, their jobs' work running under slurmd) and, last in libtest's
+  # alphabetical order, they were the run's tail with one core idle; they run in a second process of the
+  # test binary from the start instead, and their output follows the rest.
   local rc=0 slurm_rc=0
   # `--workspace` as below: the same feature resolution, so the same binary (without it, cargo resolves the
   # root package's features alone and compiles a second library and test binary meanwhile).
