@@ -11,10 +11,11 @@ use std::path::PathBuf;
 use std::process::Command;
 
 /// What the library is built from; a change to any of it reruns this script.
-const INPUTS: [&str; 10] = [
+const INPUTS: [&str; 11] = [
     "src",
     "core/src",
     "sys",
+    "cv",
     "assets",
     "reference",
     "Cargo.toml",

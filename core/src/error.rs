@@ -75,11 +75,12 @@ impl Error {
     }
 }
 
-impl From<opencv::Error> for Error {
-    fn from(e: opencv::Error) -> Self {
+impl Error {
+    /// An [`Error::External`] of OpenCV (the text of the exception it threw).
+    pub(crate) fn opencv(message: String) -> Self {
         Error::External {
             library: "OpenCV",
-            message: e.to_string(),
+            message,
         }
     }
 }

@@ -2,10 +2,7 @@
 //! sub-pixel variant on top (marching squares on the 0/1 mask, edge crossings at the half-pixel).
 
 use glam::DVec2;
-use opencv::core::{Mat, Point, Vector};
-use opencv::imgproc;
 
-use super::cv_err;
 use crate::{Error, Result};
 
 pub(crate) fn check_mask(mask: &[bool], width: u32, height: u32) -> Result<()> {
@@ -71,21 +68,13 @@ pub fn contours(mask: &[bool], width: u32, height: u32) -> Result<Vec<Vec<DVec2>
         return Ok(Vec::new());
     };
     let bytes: Vec<u8> = crop(mask, width, win).into_iter().map(u8::from).collect();
-    let img = Mat::new_rows_cols_with_data(win.h as i32, win.w as i32, &bytes).map_err(cv_err)?;
-    let mut found: Vector<Vector<Point>> = Vector::new();
-    imgproc::find_contours(
-        &img,
-        &mut found,
-        imgproc::RETR_LIST,
-        imgproc::CHAIN_APPROX_NONE,
-        Point::new(win.u0 as i32, win.v0 as i32),
-    )
-    .map_err(cv_err)?;
+    let found = spinedrr_cv::find_contours(&bytes, win.h, win.w, [win.u0 as i32, win.v0 as i32])
+        .map_err(Error::opencv)?;
     Ok(found
-        .iter()
+        .into_iter()
         .map(|c| {
-            c.iter()
-                .map(|p| DVec2::new(p.x as f64, p.y as f64))
+            c.into_iter()
+                .map(|[x, y]| DVec2::new(f64::from(x), f64::from(y)))
                 .collect()
         })
         .collect())

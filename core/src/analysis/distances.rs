@@ -2,12 +2,8 @@
 //! directed nearest-neighbour distances `d(a, B) = min_b ‖a − b‖` and the metrics built from them.
 
 use glam::DVec2;
-use opencv::core::{CV_32F, Mat};
-use opencv::imgproc;
-use opencv::prelude::*;
 
 use super::contours::{border_pixels, bounding_window, check_mask, crop};
-use super::cv_err;
 use crate::{Error, Result};
 
 /// A uniform grid over a point set for exact nearest-neighbour queries (ring search).
@@ -195,15 +191,5 @@ pub fn edge_distance(
 fn distance_to_edges(edges: &[bool], width: u32, height: u32) -> Result<Vec<f32>> {
     // distanceTransform measures the distance to the nearest zero pixel.
     let bytes: Vec<u8> = edges.iter().map(|&e| if e { 0 } else { 255 }).collect();
-    let src = Mat::new_rows_cols_with_data(height as i32, width as i32, &bytes).map_err(cv_err)?;
-    let mut dst = Mat::default();
-    imgproc::distance_transform(
-        &src,
-        &mut dst,
-        imgproc::DIST_L2,
-        imgproc::DIST_MASK_PRECISE,
-        CV_32F,
-    )
-    .map_err(cv_err)?;
-    Ok(dst.data_typed::<f32>().map_err(cv_err)?.to_vec())
+    spinedrr_cv::distance_transform(&bytes, height as usize, width as usize).map_err(Error::opencv)
 }

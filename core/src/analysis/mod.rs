@@ -33,11 +33,3 @@ pub use similarity::{
     mutual_information, mutual_information_in, ncc, ncc_in, ssim, ssim_in, ssim_whole_and_in,
 };
 pub(crate) use similarity::{sobel_at, three_rows};
-
-/// Maps an OpenCV error to [`crate::Error::External`].
-pub(crate) fn cv_err(e: opencv::Error) -> crate::Error {
-    crate::Error::External {
-        library: "OpenCV",
-        message: e.to_string(),
-    }
-}
