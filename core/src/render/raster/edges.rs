@@ -1,15 +1,30 @@
-//! The raster's per-triangle math: edge functions `E(u, v) = n · K⁻¹ [u, v, 1]ᵀ` in pixel space, the tie
-//! rule that gives a pixel exactly on a shared edge to one triangle, and the plane depth along a pixel's
-//! ray (see the watertightness argument in [`super`]).
+//! The raster's per-triangle math: edge functions in pixel space, the tie rule that gives a pixel exactly
+//! on a shared edge to one triangle, and the plane depth along a pixel's ray (see the watertightness
+//! argument in [`super`]).
+//!
+//! A triangle is set up from its corners' *centred homogeneous pixel coordinates* `H = K₀ X` (camera
+//! frame `X`, `K₀` the intrinsics with the principal point at 0, [`PixelDirs::homogeneous`], computed once
+//! per vertex), against pixel positions relative to the principal point, `q = [u − cx, v − cy, 1]ᵀ`, so
+//! that `K⁻¹ [u, v, 1]ᵀ = K₀⁻¹ q`. For camera-frame corners A, B the edge function `(A × B) · K₀⁻¹ q` is
+//! `(H_A × H_B) · q / det K₀` (`K₀ A × K₀ B = det K₀ · K₀⁻ᵀ (A × B)`): the pixel-space coefficients are one
+//! cross product of two vertices' `H`, with no per-triangle transform by `K⁻¹`, and `det K₀ = fx fy > 0`
+//! changes no sign. The plane and its depth scale alike: `((H_B − H_A) × (H_C − H_A)) · q =
+//! det K₀ · n · K₀⁻¹ q` and `(H_A × H_B) · H_C = det K₀ · (A × B) · C`, whose ratio is the camera depth
+//! `(n · A) / (n · d)`. Centring keeps a vertex on the optical axis exact: its `H` is `(0, 0, z)`, and
+//! the edge functions of its fan vanish exactly at the principal point's pixel, where the tie rule then
+//! decides, as it does for any pixel exactly on an edge.
 
 use glam::DVec3;
 
-/// The constants that turn a camera-frame edge normal `n` into its pixel-space edge function
-/// `E(u, v) = n · K⁻¹ [u, v, 1]ᵀ = a·u + (b·v + c)`. The coefficients are sums of products of `n`'s
-/// components, so the opposite normal of a neighbour's shared edge gets exactly the opposite coefficients
-/// and, evaluated in the same order, exactly the opposite value.
+/// `K` and `K⁻¹` as the raster uses them: a vertex's centred homogeneous pixel coordinates `K₀ X` and a
+/// pixel's camera-frame direction `K⁻¹ [u, v, 1]ᵀ`.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct PixelDirs {
+    fx: f64,
+    fy: f64,
+    skew: f64,
+    cx: f64,
+    cy: f64,
     inv_fx: f64,
     inv_fy: f64,
     /// `skew / (fx fy)`.
@@ -24,12 +39,24 @@ impl PixelDirs {
     pub(crate) fn new(k: &crate::geometry::Intrinsics) -> Self {
         let (inv_fx, inv_fy) = (1.0 / k.fx, 1.0 / k.fy);
         PixelDirs {
+            fx: k.fx,
+            fy: k.fy,
+            skew: k.skew,
+            cx: k.cx,
+            cy: k.cy,
             inv_fx,
             inv_fy,
             k_skew: k.skew * inv_fx * inv_fy,
             k_x: (k.cx - k.skew * k.cy * inv_fy) * inv_fx,
             k_y: k.cy * inv_fy,
         }
+    }
+
+    /// The centred homogeneous pixel coordinates `K₀ X` of camera-frame point `X` (`K₀`: K with the
+    /// principal point at 0; its z is `X`'s depth).
+    #[inline]
+    pub(crate) fn homogeneous(&self, x: DVec3) -> DVec3 {
+        DVec3::new(self.fx * x.x + self.skew * x.y, self.fy * x.y, x.z)
     }
 
     /// The camera-frame direction `K⁻¹ [u, v, 1]ᵀ` of pixel (u, v) (unit depth).
@@ -51,29 +78,24 @@ impl PixelDirs {
             [0.0, self.inv_fy, -self.k_y],
         )
     }
-
-    /// `[a, b, c]` of the edge function of normal `n`.
-    #[inline]
-    fn coefficients(&self, n: DVec3) -> [f64; 3] {
-        [
-            n.x * self.inv_fx,
-            n.y * self.inv_fy - n.x * self.k_skew,
-            n.z - n.x * self.k_x - n.y * self.k_y,
-        ]
-    }
 }
 
-/// A triangle's three edge functions in pixel space, oriented so that the inside is positive, and its
-/// depth along the pixel rays.
+/// A triangle's three edge functions in pixel space, `E(u, v) = a·u + (b·v + c)`, oriented so that the
+/// inside is positive, and its depth along the pixel rays. A shared edge's coefficients are one cross
+/// product of its two vertices' `H`, taken in the opposite order by the neighbour: exactly the opposite
+/// numbers, which, evaluated in the same order, give exactly the opposite value.
 pub(crate) struct Edges {
+    /// Coefficients of `E(q) = a·(u − cx) + b·(v − cy) + c` (see the module docs).
     e: [[f64; 3]; 3],
+    /// The principal point `(cx, cy)`.
+    centre: [f64; 2],
     /// Per edge, [`f64::MIN_POSITIVE`] when the triangle owns pixels exactly on it (the tie rule,
     /// [`owns_edge`]), else 0 (see [`RowEdges::covers`]).
     bias: [f64; 3],
-    /// `n · K⁻¹ [u, v, 1]ᵀ = p[0]·u + p[1]·v + p[2]` for the plane normal `n`, so a pixel's ray meets the
-    /// plane at depth `det / (p · [u, v, 1])`.
+    /// `det K · n · K⁻¹ [u, v, 1]ᵀ = p[0]·u + p[1]·v + p[2]` for the plane normal `n`, so a pixel's ray
+    /// meets the plane at depth `det / (p · [u, v, 1])`.
     p: [f64; 3],
-    /// `n · A`, the plane's offset from the source: negative when the triangle faces the source.
+    /// `det K · n · A`, the plane's offset from the source: negative when the triangle faces the source.
     det: f64,
     /// The corners' depth range (the plane depth of a covered pixel lies in it).
     z_range: (f64, f64),
@@ -82,8 +104,9 @@ pub(crate) struct Edges {
 }
 
 impl Edges {
-    /// From the camera-frame corners (source at the origin). `None` for a triangle whose plane contains
-    /// the source (seen edge-on; rays slide along it).
+    /// From the corners' centred homogeneous pixel coordinates `H = K₀ X` ([`PixelDirs::homogeneous`],
+    /// source at the origin). `None` for a triangle whose plane contains the source (seen edge-on; rays
+    /// slide along it).
     #[inline]
     pub(crate) fn new([a, b, c]: [DVec3; 3], dirs: &PixelDirs) -> Option<Self> {
         let (ab, bc, ca) = (a.cross(b), b.cross(c), c.cross(a));
@@ -94,12 +117,12 @@ impl Edges {
         // Negation is exact, so orienting keeps neighbours' edge functions exact opposites (a product by
         // ±1, without a branch: front- and back-facing triangles alternate unpredictably).
         let sign = if det > 0.0 { 1.0 } else { -1.0 };
-        let n = [ab * sign, bc * sign, ca * sign];
-        let e = n.map(|n| dirs.coefficients(n));
+        let e = [ab, bc, ca].map(|n| (n * sign).to_array());
         Some(Edges {
             e,
+            centre: [dirs.cx, dirs.cy],
             bias: e.map(|e| if owns_edge(e) { f64::MIN_POSITIVE } else { 0.0 }),
-            p: dirs.coefficients((b - a).cross(c - a)),
+            p: (b - a).cross(c - a).to_array(),
             det,
             z_range: (a.z.min(b.z).min(c.z), a.z.max(b.z).max(c.z)),
             entry: det < 0.0,
@@ -109,20 +132,23 @@ impl Edges {
     /// The edge functions along pixel row `v`.
     #[inline]
     pub(crate) fn row(&self, v: f64) -> RowEdges {
+        let y = v - self.centre[1];
         RowEdges {
+            cx: self.centre[0],
             a: self.e.map(|e| e[0]),
-            r: self.e.map(|e| e[1] * v + e[2]),
+            r: self.e.map(|e| e[1] * y + e[2]),
             bias: self.bias,
             pa: self.p[0],
-            pr: self.p[1] * v + self.p[2],
+            pr: self.p[1] * y + self.p[2],
             det: self.det,
             z_range: self.z_range,
         }
     }
 }
 
-/// Edge functions restricted to one row: `E_i(u) = a_i·u + r_i`; depth `det / (pa·u + pr)`.
+/// Edge functions restricted to one row: `E_i(u) = a_i·(u − cx) + r_i`; depth `det / (pa·(u − cx) + pr)`.
 pub(crate) struct RowEdges {
+    cx: f64,
     a: [f64; 3],
     r: [f64; 3],
     /// [`f64::MIN_POSITIVE`] for an edge the triangle owns, else 0 (see [`Self::covers`]).
@@ -138,7 +164,7 @@ impl RowEdges {
     /// within the corners' depths (a ray nearly in the plane meets it at an ill-conditioned depth).
     #[inline]
     pub(crate) fn depth(&self, u: f64) -> f64 {
-        let z = self.det / (self.pa * u + self.pr);
+        let z = self.det / (self.pa * (u - self.cx) + self.pr);
         // `max` first: a NaN becomes the near end.
         z.max(self.z_range.0).min(self.z_range.1)
     }
@@ -146,12 +172,13 @@ impl RowEdges {
     /// Whether the ray through pixel centre `(u, v)` crosses the triangle: inside every edge, or exactly
     /// on an edge the triangle owns (a NaN covers nothing), without a branch. `E ≥ 0` is tested as
     /// `E + bias > 0` with the smallest normal number (2.2e-308) as the bias, which is exact for every `E`
-    /// that is not subnormal: `E = a·u + r` is rounded from terms of the size of the coefficients
-    /// (`|n| / f`, far above 1e-100 for any scene in mm), so it is exactly 0 or many orders of magnitude
-    /// above the bias.
+    /// that is not subnormal: `E = a·(u − cx) + r` is rounded from terms of the size of the coefficients
+    /// (products of two vertices' `H`, far above 1e-100 for any scene in mm), so it is exactly 0 or many
+    /// orders of magnitude above the bias.
     #[inline]
     pub(crate) fn covers(&self, u: f64) -> bool {
-        let side = |i: usize| (self.a[i] * u + self.r[i]) + self.bias[i] > 0.0;
+        let x = u - self.cx;
+        let side = |i: usize| (self.a[i] * x + self.r[i]) + self.bias[i] > 0.0;
         side(0) & side(1) & side(2)
     }
 }
@@ -206,8 +233,9 @@ mod tests {
             DVec3::new(20.0, -5.0, 1100.0),
             DVec3::new(0.0, 15.0, 1050.0),
         ];
-        let fwd = Edges::new(tri, &dirs).expect("edges");
-        let rev = Edges::new([tri[0], tri[2], tri[1]], &dirs).expect("reversed");
+        let fwd = Edges::new(tri.map(|x| dirs.homogeneous(x)), &dirs).expect("edges");
+        let rev = Edges::new([tri[0], tri[2], tri[1]].map(|x| dirs.homogeneous(x)), &dirs)
+            .expect("reversed");
         let mut inside = 0;
         for v in 480..560 {
             for u in 470..540 {
@@ -238,7 +266,13 @@ mod tests {
             })
             .collect();
         let fan: Vec<Edges> = (0..7)
-            .map(|i| Edges::new([centre, ring[i], ring[(i + 1) % 7]], &dirs).expect("fan"))
+            .map(|i| {
+                Edges::new(
+                    [centre, ring[i], ring[(i + 1) % 7]].map(|x| dirs.homogeneous(x)),
+                    &dirs,
+                )
+                .expect("fan")
+            })
             .collect();
         let (cu, cv) = (k.cx.round(), k.cy.round());
         let mut checked = 0;
@@ -275,8 +309,16 @@ mod tests {
             DVec3::new(0.0, -10.0, 1000.0),
             DVec3::new(0.0, 10.0, 1000.0),
         );
-        let left = Edges::new([a, b, DVec3::new(-10.0, 0.0, 1000.0)], &dirs).expect("left");
-        let right = Edges::new([b, a, DVec3::new(10.0, 0.0, 1000.0)], &dirs).expect("right");
+        let left = Edges::new(
+            [a, b, DVec3::new(-10.0, 0.0, 1000.0)].map(|x| dirs.homogeneous(x)),
+            &dirs,
+        )
+        .expect("left");
+        let right = Edges::new(
+            [b, a, DVec3::new(10.0, 0.0, 1000.0)].map(|x| dirs.homogeneous(x)),
+            &dirs,
+        )
+        .expect("right");
         for v in (k.cy as i64 - 5)..=(k.cy as i64 + 5) {
             let n = [&left, &right]
                 .iter()

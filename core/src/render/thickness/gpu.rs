@@ -201,10 +201,13 @@ impl<'a> HostPixels<'a> {
         let mut crossings: Vec<Crossing> = Vec::new();
         for &[_, t] in mine {
             let (g, k) = self.gpu.0.locate(t);
-            // The camera-frame corners as the CPU raster projects them (source at the origin).
+            // The corners' centred homogeneous pixel coordinates as the CPU raster computes them (source at
+            // the origin).
             let mesh = &r.scene.meshes[g].mesh;
-            let corners =
-                mesh.triangles[k].map(|c| self.world_to_camera.apply(mesh.vertices[c as usize]));
+            let corners = mesh.triangles[k].map(|c| {
+                self.dirs
+                    .homogeneous(self.world_to_camera.apply(mesh.vertices[c as usize]))
+            });
             let Some(edges) = Edges::new(corners, &self.dirs) else {
                 continue;
             };
