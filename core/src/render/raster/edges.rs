@@ -80,8 +80,8 @@ impl PixelDirs {
     }
 }
 
-/// A triangle's three edge functions in pixel space, `E(u, v) = a·u + (b·v + c)`, oriented so that the
-/// inside is positive, and its depth along the pixel rays. A shared edge's coefficients are one cross
+/// A triangle's three edge functions in pixel space, `E(u, v) = a·(u − cx) + (b·(v − cy) + c)`, oriented
+/// so that the inside is positive, and its depth along the pixel rays. A shared edge's coefficients are one cross
 /// product of its two vertices' `H`, taken in the opposite order by the neighbour: exactly the opposite
 /// numbers, which, evaluated in the same order, give exactly the opposite value.
 pub(crate) struct Edges {
@@ -92,10 +92,10 @@ pub(crate) struct Edges {
     /// Per edge, [`f64::MIN_POSITIVE`] when the triangle owns pixels exactly on it (the tie rule,
     /// [`owns_edge`]), else 0 (see [`RowEdges::covers`]).
     bias: [f64; 3],
-    /// `det K · n · K⁻¹ [u, v, 1]ᵀ = p[0]·u + p[1]·v + p[2]` for the plane normal `n`, so a pixel's ray
-    /// meets the plane at depth `det / (p · [u, v, 1])`.
+    /// `det K₀ · n · K⁻¹ [u, v, 1]ᵀ = p[0]·(u − cx) + p[1]·(v − cy) + p[2]` for the plane normal `n`, so
+    /// a pixel's ray meets the plane at depth `det / (p · [u − cx, v − cy, 1])`.
     p: [f64; 3],
-    /// `det K · n · A`, the plane's offset from the source: negative when the triangle faces the source.
+    /// `det K₀ · n · A`, the plane's offset from the source: negative when the triangle faces the source.
     det: f64,
     /// The corners' depth range (the plane depth of a covered pixel lies in it).
     z_range: (f64, f64),

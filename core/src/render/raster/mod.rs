@@ -6,10 +6,10 @@
 //! and each band is rasterised by one worker: there is no acceleration structure to build and no traversal.
 //!
 //! The functions are evaluated in pixel space from each vertex's (centred) homogeneous pixel coordinates
-//! `K₀ A`, computed once per vertex (see [`edges`]). Watertight by construction: two triangles sharing an edge
-//! compute its function from the same two vertices, `B × A = −(A × B)` exactly in floating point, and a pixel exactly on the edge
-//! (`E = 0`) is given to exactly one of them by a tie rule on the sign of the edge normal (the 2D top-left
-//! rule). A pixel through a shared vertex may in rare rounding cases be given to two triangles of its fan
+//! `K₀ A`, computed once per vertex (see [`edges`]). Watertight by construction: two triangles sharing an
+//! edge compute its function from the same two vertices, `B × A = −(A × B)` exactly in floating point,
+//! and a pixel exactly on the edge (`E = 0`) is given to exactly one of them by a tie rule on the sign of
+//! the edge normal (the 2D top-left rule). A pixel through a shared vertex may in rare rounding cases be given to two triangles of its fan
 //! (the hits coincide and are clustered) or to none (the ray's crossings do not pair up, and the renderer
 //! repairs it like any other).
 //!
@@ -70,8 +70,8 @@ pub(crate) struct RasterView<'a> {
     scene: &'a RenderScene,
     intr: crate::geometry::Intrinsics,
     dirs: PixelDirs,
-    /// Centred homogeneous pixel coordinates `K₀ X` of the camera-frame vertices per mesh (source at the origin;
-    /// see [`Edges::new`]).
+    /// Centred homogeneous pixel coordinates `K₀ X` of the camera-frame vertices per mesh (source at the
+    /// origin; see [`Edges::new`]).
     hom: Vec<Vec<DVec3>>,
     band_rows: usize,
     /// The triangles binned by band, per chunk of one mesh's triangles.
@@ -324,16 +324,15 @@ impl Bins {
         let image = Vec4::new(0.0, 1.0 - width as f32, 0.0, 1.0 - height as f32);
         let shift = band_rows.trailing_zeros();
         // Every triangle is written and the length advances when its box holds a pixel centre, without a
-        // branch: for a fine mesh on a coarse detector that is a coin toss per triangle (a filtering
-        // `collect` spent 12 % of an intensity registration mispredicting it).
+        // branch (for a fine mesh on a coarse detector, whether it does is a coin toss per triangle).
         let mut boxed = vec![BinnedTriangle::default(); triangles.len()];
         let mut kept = 0;
         for (k, t) in triangles.iter().enumerate() {
             let [a, b, c] = t.map(|i| px[i as usize].0);
             // The box of the corners' boxes, within the image: `(u0, −u1, v0, −v1)`.
             let m = a.min(b).min(c).max(image);
-            // A box that holds no pixel centre converts to meaningless (saturated) numbers and is
-            // overwritten by the next triangle.
+            // A box that holds no pixel centre converts to meaningless (saturated) numbers; it is
+            // overwritten by the next triangle, or cut off after the loop.
             boxed[kept] = BinnedTriangle {
                 t: (first + k) as u32,
                 u0: m.x as u16,
