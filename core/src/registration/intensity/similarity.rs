@@ -222,15 +222,26 @@ impl FixedFeatures {
                 "moving and fixed features differ in size".into(),
             ));
         }
-        normalise(scratch, &self.layout, eps);
+        // [`normalise`] fused into the residual's pass: the same operations in the same order (so the
+        // same numbers), without writing the centred and the scaled features back.
         out.clear();
+        out.reserve(layout.len);
         let mut s = 0.0;
-        for (k, &(st, n)) in self.layout.blocks.iter().enumerate() {
+        for (k, (&(st, n), &e)) in self.layout.blocks.iter().zip(eps).enumerate() {
             let w = self.layout.weights[k];
             let sw = w.sqrt();
             let (m, f) = (&scratch[st..st + n], &self.normalised[st..st + n]);
+            let mean = m.iter().sum::<f64>() / n.max(1) as f64;
+            let mut energy = 0.0;
+            for &x in m {
+                let c = x - mean;
+                energy += c * c;
+            }
+            let d = (energy + e).sqrt();
+            let scale = if d > 0.0 { 1.0 / d } else { 0.0 };
             let mut dot = 0.0;
-            for (a, b) in m.iter().zip(f) {
+            for (&x, &b) in m.iter().zip(f) {
+                let a = (x - mean) * scale;
                 dot += a * b;
                 out.push(sw * (a - b));
             }
