@@ -10,7 +10,8 @@ use glam::{DVec2, DVec3};
 
 use super::acquisition::CalibrationImage;
 use super::bundle::Geometry;
-use crate::geometry::{Intrinsics, RigidTransform, rotation_exp, rotation_log};
+use crate::geometry::{Intrinsics, RigidTransform, rotation_log};
+use crate::registration::pose_of_rvec_tvec;
 use crate::{Error, Result};
 
 /// OpenCV's LM stops when the parameter step is below this fraction of the parameters (relative L2
@@ -63,11 +64,7 @@ pub fn calibrate_camera(
     intrinsics
         .validate()
         .map_err(|e| Error::Numerical(format!("OpenCV calibrateCamera: {e}")))?;
-    let poses = cal
-        .poses
-        .iter()
-        .map(|&(r, t)| RigidTransform::new(rotation_exp(DVec3::from(r)), DVec3::from(t)))
-        .collect();
+    let poses = cal.poses.iter().map(|&rt| pose_of_rvec_tvec(rt)).collect();
     Ok((
         Geometry {
             k: intrinsics,

@@ -22,6 +22,7 @@ use serde::Serialize;
 
 pub use kabsch::{fit_rigid, register_kabsch, triangulate};
 pub use lm::{cost, register_direct};
+pub(crate) use pnp::pose_of_rvec_tvec;
 pub use pnp::{PnpSolver, opencv_project_points, register_opencv};
 pub use problem::{LoadedProblem, ObservedView, RegistrationProblem};
 pub use request::{RegisterOutcome, RegisterRequest, run_request};

@@ -31,18 +31,26 @@ fn camera_matrix(view: &View) -> Result<[[f64; 3]; 3]> {
     Ok(k.matrix_rows())
 }
 
+/// OpenCV's form of a pose: the axis-angle rotation `rvec` and the translation `tvec`.
+fn rvec_tvec(pose: &RigidTransform) -> ([f64; 3], [f64; 3]) {
+    (
+        rotation_log(pose.rotation).to_array(),
+        pose.translation.to_array(),
+    )
+}
+
+/// The pose of OpenCV's `(rvec, tvec)`.
+pub(crate) fn pose_of_rvec_tvec((rvec, tvec): ([f64; 3], [f64; 3])) -> RigidTransform {
+    RigidTransform::new(rotation_exp(DVec3::from(rvec)), DVec3::from(tvec))
+}
+
 /// OpenCV `projectPoints` of world points through `view` (no distortion): the cross-check of
 /// [`View::project`].
 pub fn opencv_project_points(view: &View, world: &[DVec3]) -> Result<Vec<DVec2>> {
     let k = camera_matrix(view)?;
     let pts: Vec<[f64; 3]> = world.iter().map(|p| p.to_array()).collect();
-    let out = spinedrr_cv::project_points(
-        &pts,
-        rotation_log(view.world_to_camera.rotation).to_array(),
-        view.world_to_camera.translation.to_array(),
-        k,
-    )
-    .map_err(Error::opencv)?;
+    let (rvec, tvec) = rvec_tvec(&view.world_to_camera);
+    let out = spinedrr_cv::project_points(&pts, rvec, tvec, k).map_err(Error::opencv)?;
     Ok(out.into_iter().map(DVec2::from).collect())
 }
 
@@ -74,18 +82,13 @@ pub fn register_opencv(
         (PnpSolver::Iterative, None) => (None, PnpMethod::Iterative),
         (PnpSolver::Sqpnp, _) => (None, PnpMethod::Sqpnp),
     };
-    let guess = guess.map(|g| {
-        (
-            rotation_log(g.rotation).to_array(),
-            g.translation.to_array(),
-        )
-    });
-    let Some((rvec, tvec)) =
+    let guess = guess.as_ref().map(rvec_tvec);
+    let Some(found) =
         spinedrr_cv::solve_pnp(&obj, &img, k, method, guess).map_err(Error::opencv)?
     else {
         return Err(Error::opencv("solvePnP found no solution".into()));
     };
-    let cam = RigidTransform::new(rotation_exp(DVec3::from(rvec)), DVec3::from(tvec));
+    let cam = pose_of_rvec_tvec(found);
     let pose = w2c.inverse().compose(&cam);
     Ok(RegistrationResult {
         pose,

@@ -140,6 +140,38 @@ pub fn features(sim: Similarity, img: &ImageF32, out: &mut Vec<f64>) -> Result<L
     })
 }
 
+/// A block's normalisation `x̂ = (x − mean) · scale`, `scale = 1 / √(energy + eps)`, and its energy
+/// `‖x − x̄‖²`: the one place both [`normalise`] and [`FixedFeatures::residual`] take it from, so both
+/// compute the same numbers.
+struct BlockNorm {
+    mean: f64,
+    scale: f64,
+    energy: f64,
+}
+
+impl BlockNorm {
+    fn of(b: &[f64], eps: f64) -> Self {
+        let mean = b.iter().sum::<f64>() / b.len().max(1) as f64;
+        let mut energy = 0.0;
+        for &x in b {
+            let c = x - mean;
+            energy += c * c;
+        }
+        let d = (energy + eps).sqrt();
+        let scale = if d > 0.0 { 1.0 / d } else { 0.0 };
+        BlockNorm {
+            mean,
+            scale,
+            energy,
+        }
+    }
+
+    #[inline]
+    fn apply(&self, x: f64) -> f64 {
+        (x - self.mean) * self.scale
+    }
+}
+
 /// Centres each block of `x` and divides it by `√(energy + eps[k])`; returns each block's energy
 /// `‖x_k − x̄_k‖²` (before normalisation).
 pub fn normalise(x: &mut [f64], layout: &Layout, eps: &[f64]) -> Vec<f64> {
@@ -149,16 +181,9 @@ pub fn normalise(x: &mut [f64], layout: &Layout, eps: &[f64]) -> Vec<f64> {
         .zip(eps)
         .map(|(&(s, n), &e)| {
             let b = &mut x[s..s + n];
-            let mean = b.iter().sum::<f64>() / n.max(1) as f64;
-            let mut energy = 0.0;
-            for v in b.iter_mut() {
-                *v -= mean;
-                energy += *v * *v;
-            }
-            let d = (energy + e).sqrt();
-            let scale = if d > 0.0 { 1.0 / d } else { 0.0 };
-            b.iter_mut().for_each(|v| *v *= scale);
-            energy
+            let norm = BlockNorm::of(b, e);
+            b.iter_mut().for_each(|v| *v = norm.apply(*v));
+            norm.energy
         })
         .collect()
 }
@@ -222,8 +247,8 @@ impl FixedFeatures {
                 "moving and fixed features differ in size".into(),
             ));
         }
-        // [`normalise`] fused into the residual's pass: the same operations in the same order (so the
-        // same numbers), without writing the centred and the scaled features back.
+        // [`normalise`] fused into the residual's pass (the same [`BlockNorm`]), without writing the
+        // normalised features back.
         out.clear();
         out.reserve(layout.len);
         let mut s = 0.0;
@@ -231,17 +256,10 @@ impl FixedFeatures {
             let w = self.layout.weights[k];
             let sw = w.sqrt();
             let (m, f) = (&scratch[st..st + n], &self.normalised[st..st + n]);
-            let mean = m.iter().sum::<f64>() / n.max(1) as f64;
-            let mut energy = 0.0;
-            for &x in m {
-                let c = x - mean;
-                energy += c * c;
-            }
-            let d = (energy + e).sqrt();
-            let scale = if d > 0.0 { 1.0 / d } else { 0.0 };
+            let norm = BlockNorm::of(m, e);
             let mut dot = 0.0;
             for (&x, &b) in m.iter().zip(f) {
-                let a = (x - mean) * scale;
+                let a = norm.apply(x);
                 dot += a * b;
                 out.push(sw * (a - b));
             }
