@@ -144,6 +144,29 @@ fn intensity_study_tables_agree_with_the_library_and_resume_byte_identically() {
         assert_eq!(s.successes, cell.iter().filter(|r| r.success).count());
         let reached = cell.iter().filter(|r| r.reached_optimum).count();
         assert!((s.reached_optimum_rate - reached as f64 / cell.len() as f64).abs() < 1e-12);
+        // The optimum is searched once per bin, the first from the truth and the second 0.5 mm away; the
+        // summary's bias is the first search's, its spread the two searches' range.
+        let of_bin = |b: usize| cell.iter().find(|r| r.bin == b).unwrap();
+        assert_eq!(of_bin(0).optimum_start_mtre_mm, 0.0);
+        assert_eq!(of_bin(1).optimum_start_mtre_mm, 0.5);
+        assert_eq!(s.optimum_searches, 2);
+        assert_eq!(s.optimum_mtre_mm, of_bin(0).optimum_mtre_mm);
+        let spread = (of_bin(0).optimum_mtre_mm - of_bin(1).optimum_mtre_mm).abs();
+        assert!(
+            (s.optimum_spread_mm - spread).abs() < 1e-12,
+            "{} Δf {}: spread {} against {spread}",
+            s.views,
+            s.df_px,
+            s.optimum_spread_mm
+        );
+    }
+    // At the true K in AP+LAT the search from 0.5 mm away returns to the truth as the one from it does.
+    for s in t
+        .intensity_summary
+        .iter()
+        .filter(|s| s.df_px == 0.0 && s.views == "ap+lat")
+    {
+        assert!(s.optimum_spread_mm < 0.5, "{}", s.optimum_spread_mm);
     }
     let report = std::fs::read_to_string(a.join("report.md")).unwrap();
     assert!(report.contains("## Intensity-based registration"));

@@ -25,7 +25,7 @@ use crate::render::{
     phantom_spectral_scene,
 };
 use crate::study::config::{FixedImage, FixedScope, IntensityCell, IntensitySection, StudyConfig};
-use crate::study::schema::{IntensityRow, UnitRows};
+use crate::study::schema::{IntensityRow, OPTIMUM_RESTART_MM, UnitRows};
 use crate::study::timings::{Phase, Timings};
 use crate::study::units::derive_seed;
 use crate::{Error, Result};
@@ -256,13 +256,34 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
     };
     let landmark_pose = landmark_optimum(&t.landmarks, &truth_views, &assumed);
     let landmark = landmark_pose.map_or(f64::NAN, |l| mtre_mm(&l, &TRUTH, &t.targets));
+    let (centre, rho) = (problem.centre(), problem.rho_mm());
     // The intensity optimum under this K: the registration started at the truth (local stage only).
     // Its mTRE is the calibration's bias, free of capture failures; a start "reached" it when it ends
-    // within the success radius of it.
+    // within the success radius of it. Each bin searches it once: the first from the truth, every
+    // other from OPTIMUM_RESTART_MM away (a direction seeded per bin, the same for every fixed-image
+    // model), so the cell's searches show how reproducible the optimum is (the summary's spread).
+    let optimum_start_mtre = if cell.bin == 0 {
+        0.0
+    } else {
+        OPTIMUM_RESTART_MM
+    };
+    let optimum_init = if cell.bin == 0 {
+        TRUTH
+    } else {
+        let mut rng = SplitMix64::new(derive_seed(ctx.cfg.seed, &cell.seed_key(), u64::MAX));
+        start_at_mtre(
+            &TRUTH,
+            &t.targets,
+            centre,
+            rho,
+            OPTIMUM_RESTART_MM,
+            &mut rng,
+        )
+    };
     let optimum = ctx.timings.time(Phase::Registration, 1, || {
         register_intensity(
             &problem,
-            &TRUTH,
+            &optimum_init,
             &IntensityOptions {
                 global: false,
                 ..options(s, 0)?
@@ -271,7 +292,6 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
     });
     let optimum = optimum.ok().map(|r| r.pose);
     let optimum_mtre = optimum.map_or(f64::NAN, |o| mtre_mm(&o, &TRUTH, &t.targets));
-    let (centre, rho) = (problem.centre(), problem.rho_mm());
     let (optimum_to_landmark, optimum_to_landmark_centre, optimum_to_landmark_rot) =
         match (&optimum, &landmark_pose) {
             (Some(o), Some(l)) => (
@@ -357,6 +377,7 @@ pub fn run(ctx: &Context, cell: &IntensityCell) -> Result<UnitRows> {
             ty_mm: tr.y,
             tz_mm: tr.z,
             landmark_mtre_mm: landmark,
+            optimum_start_mtre_mm: optimum_start_mtre,
             optimum_mtre_mm: optimum_mtre,
             optimum_to_landmark_mm: optimum_to_landmark,
             optimum_to_landmark_centre_mm: optimum_to_landmark_centre,

@@ -10,7 +10,7 @@ use super::layout::{mean_text, num};
 use crate::registration::intensity::{CAPTURE_MIN_STARTS, CAPTURE_SUCCESS_RATE, SUCCESS_MTRE_MM};
 use crate::study::config::{FixedImage, FixedScope, StudyConfig};
 use crate::study::figures::{FigureEntry, Section, distinct};
-use crate::study::schema::{IntensitySummaryRow, StudyTables, ci95_half_width};
+use crate::study::schema::{IntensitySummaryRow, OPTIMUM_RESTART_MM, StudyTables, ci95_half_width};
 
 /// The section heading.
 pub const HEADING: &str = "Intensity-based registration: DRR against radiograph";
@@ -63,7 +63,13 @@ in the bin, random direction in the six pose parameters), measured over the leve
 vertices; success = final mTRE < {SUCCESS_MTRE_MM} mm, capture range = the last bin edge of the leading \
 run of bins with ≥ {:.0} % success, stated only with ≥ {CAPTURE_MIN_STARTS} starts in every bin{}. Beside each cell: the **landmark** registration of the same level \
 under the same assumed K (direct LM over the same views, the landmarks' exact true-K projections \
-observed, started at the truth), its mTRE over the same target points.\n",
+observed, started at the truth), its mTRE over the same target points. The **intensity optimum** under \
+each K is the registration started at the truth (local stage only): its mTRE is the bias, free of capture \
+failures. Every bin of a cell searches it once — the first from the truth, the others from {} mm away (a \
+seeded direction, the same for every fixed-image model) — and the spread of those searches' mTRE is how \
+reproducible the bias is: on a flat valley floor the optimiser's path decides where it stops. A difference \
+between two cells' biases no larger than their two spreads together is not put down to the cells' \
+difference.{}\n",
         list(&s.df_px),
         list(&s.piercing_px),
         grid_mm(s, pitch),
@@ -86,6 +92,13 @@ counts of a few starts, not rates)",
             )
         } else {
             String::new()
+        },
+        super::grid::short(OPTIMUM_RESTART_MM, 2),
+        if s.init_mtre_mm.len() < 3 {
+            " This run has one bin per cell, so it searches each optimum once and its reproducibility is \
+not measured."
+        } else {
+            ""
         },
     );
     layout::figures(md, figs, Section::Intensity, n);
@@ -180,7 +193,7 @@ fn successes_mtre(r: &IntensitySummaryRow) -> String {
 fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
     let _ = writeln!(
         md,
-        "| target | views | fixed image | Δf, {u} | piercing p, {v} | physical error | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| target | views | fixed image | Δf, {u} | piercing p, {v} | physical error | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | spread of the optimum's searches (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         u = pitch.unit("SDD error"),
         v = pitch.unit("on the detector")
     );
@@ -200,7 +213,7 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
         };
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {df} | {p} | {physical} | {} | {:.0} % | {} | {} | {} | {} | {:.0} % | {} | {}, {} | {:.0} |",
+            "| {} | {} | {} | {df} | {p} | {physical} | {} | {:.0} % | {} | {} | {} | {} | {} | {:.0} % | {} | {}, {} | {:.0} |",
             r.target,
             r.views,
             r.fixed_image,
@@ -210,6 +223,7 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
             successes_mtre(r),
             num(r.final_mtre_median_mm, 3),
             num(r.optimum_mtre_mm, 3),
+            spread_cell(r),
             100.0 * r.reached_optimum_rate,
             num(r.landmark_mtre_mm, 3),
             num(r.optimum_to_landmark_mm, 3),
@@ -218,6 +232,43 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
         );
     }
     let _ = writeln!(md);
+}
+
+/// A cell's spread of its optimum's searches as the summary table prints it.
+fn spread_cell(r: &IntensitySummaryRow) -> String {
+    if r.optimum_spread_mm.is_finite() {
+        format!(
+            "{} ({} searches)",
+            num(r.optimum_spread_mm, 3),
+            r.optimum_searches
+        )
+    } else if r.optimum_searches == 1 {
+        "one search".into()
+    } else {
+        "n/a".into()
+    }
+}
+
+/// The resolution of a comparison of two cells' biases: each bias is known only within its optimum's
+/// spread over its searches, so their difference within the sum of the two spreads (None when either
+/// was searched once, or a search failed).
+pub(super) fn bias_resolution(a: &IntensitySummaryRow, b: &IntensitySummaryRow) -> Option<f64> {
+    (a.optimum_spread_mm.is_finite() && b.optimum_spread_mm.is_finite())
+        .then_some(a.optimum_spread_mm + b.optimum_spread_mm)
+}
+
+/// A cell's optimum's reproducibility in words, for after its bias.
+pub(super) fn spread_words(r: &IntensitySummaryRow) -> String {
+    if r.optimum_spread_mm.is_finite() {
+        format!(
+            "its {} searches, from the truth and from {} mm away, give biases within {} mm of each other",
+            r.optimum_searches,
+            super::grid::short(OPTIMUM_RESTART_MM, 2),
+            num(r.optimum_spread_mm, 3)
+        )
+    } else {
+        "its reproducibility not measured".into()
+    }
 }
 
 /// Per target and view set: the floor at the true K, the bias under the largest perturbation, and what
@@ -286,12 +337,13 @@ only through magnification, which the DRR barely shows, so the depth stays where
                 let _ = write!(
                     words,
                     "Under {}, both started at the truth, the landmark \
-registration ends {} mm from it and the intensity-based one {} mm, the two optima {} mm apart (their \
+registration ends {} mm from it and the intensity-based one {} mm ({}), the two optima {} mm apart (their \
 centres {} mm, their orientations {}°); from the spread starts the intensity median is {} mm, {:.0} % of \
 them reaching the intensity optimum under this K and {:.0} % within {SUCCESS_MTRE_MM} mm of the truth. ",
                     assumed(w, pitch),
                     num(l, 3),
                     num(i, 3),
+                    spread_words(w),
                     num(d, 3),
                     num(dc, 3),
                     num(da, 2),
@@ -300,13 +352,18 @@ them reaching the intensity optimum under this K and {:.0} % within {SUCCESS_MTR
                     100.0 * w.success_rate,
                 );
                 let floor = truth.map_or(0.0, |t| t.optimum_mtre_mm.max(0.0));
+                let spread = if w.optimum_spread_mm.is_finite() {
+                    w.optimum_spread_mm
+                } else {
+                    0.0
+                };
                 if !(d.is_finite() && l.is_finite() && l > 0.0) {
                     let _ = write!(words, "The two cannot be compared in this cell. ");
-                } else if d <= floor.max(0.1 * l) {
+                } else if d <= floor.max(0.1 * l).max(spread) {
                     let _ = write!(
                         words,
-                        "The two optima agree (within 10 % of the bias or the intensity registration's floor \
-at the true K): the calibration error, not the way the pose is measured, sets the error — a wrong geometry \
+                        "The two optima agree (within 10 % of the bias, the intensity registration's floor \
+at the true K or its optimum's spread): the calibration error, not the way the pose is measured, sets the error — a wrong geometry \
 moves both to the pose whose projection through it best matches the true projections, and the level's \
 landmarks and its projected density agree on that pose. "
                     );

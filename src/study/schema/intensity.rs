@@ -9,6 +9,12 @@ use crate::registration::intensity::{
     BinSummary, SUCCESS_MTRE_MM, TrialOutcome, capture_range_mm, summarise,
 };
 
+/// How far from the truth (mTRE, mm) the searches of the intensity optimum in a cell's bins after the
+/// first start: far enough to leave the truth's rounding-level neighbourhood (on a flat valley floor the
+/// optimiser's path, not only the optimum, decides where it stops), well inside the capture ranges
+/// measured.
+pub const OPTIMUM_RESTART_MM: f64 = 0.5;
+
 /// One registration from one start.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IntensityRow {
@@ -71,7 +77,12 @@ pub struct IntensityRow {
     /// target points.
     #[serde(with = "num")]
     pub landmark_mtre_mm: f64,
-    /// The intensity optimum under this K (the registration started at the truth, local stage only):
+    /// Where this bin's search of the intensity optimum started: its mTRE to the truth (0 in the first
+    /// bin, the truth itself; [`OPTIMUM_RESTART_MM`] in
+    /// the others). NaN in a table written before the column existed.
+    #[serde(default = "nan", with = "num")]
+    pub optimum_start_mtre_mm: f64,
+    /// The intensity optimum under this K (this bin's search: local stage only, from the start above):
     /// its mTRE to the truth, the calibration's bias free of capture failures.
     #[serde(with = "num")]
     pub optimum_mtre_mm: f64,
@@ -155,8 +166,17 @@ pub struct IntensitySummaryRow {
     pub final_mtre_median_mm: f64,
     #[serde(with = "num")]
     pub landmark_mtre_mm: f64,
+    /// The intensity optimum's mTRE to the truth from the search started at the truth (the first bin's).
     #[serde(with = "num")]
     pub optimum_mtre_mm: f64,
+    /// How many searches of the optimum the cell ran (one per bin: the first from the truth, the others
+    /// from starts [`OPTIMUM_RESTART_MM`] away), and the
+    /// largest minus the smallest of their optima's mTRE to the truth: how reproducible the bias is. NaN
+    /// with one search, or when a search failed or its start is not recorded.
+    #[serde(default)]
+    pub optimum_searches: usize,
+    #[serde(default = "nan", with = "num")]
+    pub optimum_spread_mm: f64,
     /// See [`IntensityRow::optimum_to_landmark_mm`] and the two after it.
     #[serde(with = "num")]
     pub optimum_to_landmark_mm: f64,
@@ -173,6 +193,39 @@ pub struct IntensitySummaryRow {
 /// The fixed-image model of a table written before the column existed.
 fn mono() -> String {
     "mono".into()
+}
+
+/// A measurement a table written before its column existed does not have.
+fn nan() -> f64 {
+    f64::NAN
+}
+
+/// The cell's searches of the intensity optimum (one per bin): the row of the search started at the
+/// truth (the first bin's), how many there were, and the spread of their optima's mTRE to the truth
+/// (NaN with one, or when one failed or its start is unknown).
+fn optimum_searches<'a>(c: &[&'a IntensityRow]) -> (&'a IntensityRow, usize, f64) {
+    let mut first: Vec<&IntensityRow> = Vec::new();
+    for r in c {
+        if !first.iter().any(|f| f.bin == r.bin) {
+            first.push(r);
+        }
+    }
+    first.sort_by_key(|r| r.bin);
+    let at_truth = first[0];
+    let known = first
+        .iter()
+        .all(|r| r.optimum_mtre_mm.is_finite() && r.optimum_start_mtre_mm.is_finite());
+    let spread = if first.len() < 2 || !known {
+        f64::NAN
+    } else {
+        let (lo, hi) = first
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| {
+                (lo.min(r.optimum_mtre_mm), hi.max(r.optimum_mtre_mm))
+            });
+        hi - lo
+    };
+    (at_truth, first.len(), spread)
 }
 
 /// The rows of each cell, in first-appearance order.
@@ -275,6 +328,7 @@ pub fn summary(rows: &[IntensityRow]) -> Vec<IntensitySummaryRow> {
                 .collect();
             let (mean, sd) = mean_sd(&ok);
             let all: Vec<f64> = c.iter().map(|r| r.final_mtre_mm).collect();
+            let (at_truth, searches, spread) = optimum_searches(&c);
             IntensitySummaryRow {
                 target: r0.target.clone(),
                 views: r0.views.clone(),
@@ -290,14 +344,107 @@ pub fn summary(rows: &[IntensityRow]) -> Vec<IntensitySummaryRow> {
                 final_mtre_sd_mm: sd,
                 final_mtre_median_mm: crate::analysis::percentile(&all, 50.0),
                 landmark_mtre_mm: r0.landmark_mtre_mm,
-                optimum_mtre_mm: r0.optimum_mtre_mm,
-                optimum_to_landmark_mm: r0.optimum_to_landmark_mm,
-                optimum_to_landmark_centre_mm: r0.optimum_to_landmark_centre_mm,
-                optimum_to_landmark_rot_deg: r0.optimum_to_landmark_rot_deg,
+                optimum_mtre_mm: at_truth.optimum_mtre_mm,
+                optimum_searches: searches,
+                optimum_spread_mm: spread,
+                optimum_to_landmark_mm: at_truth.optimum_to_landmark_mm,
+                optimum_to_landmark_centre_mm: at_truth.optimum_to_landmark_centre_mm,
+                optimum_to_landmark_rot_deg: at_truth.optimum_to_landmark_rot_deg,
                 reached_optimum_rate: reached_rate(c.iter()),
                 evaluations_mean: c.iter().map(|r| r.evaluations as f64).sum::<f64>()
                     / c.len() as f64,
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(bin: usize, start_mm: f64, optimum_mm: f64) -> IntensityRow {
+        IntensityRow {
+            target: "L3".into(),
+            views: "ap+lat".into(),
+            df_px: 300.0,
+            piercing_px: 0.0,
+            physical: String::new(),
+            fixed_image: "mono".into(),
+            bin,
+            bin_lo_mm: 5.0 * bin as f64,
+            bin_hi_mm: 5.0 * (bin + 1) as f64,
+            start: 0,
+            initial_mtre_mm: 5.0 * bin as f64 + 1.0,
+            final_mtre_mm: optimum_mm,
+            success: optimum_mm < SUCCESS_MTRE_MM,
+            rot_err_deg: 0.1,
+            trans_err_mm: 0.1,
+            ptre_ap_px: 1.0,
+            ptre_lat_px: 1.0,
+            similarity: 0.99,
+            evaluations: 100,
+            converged: true,
+            rx: 0.0,
+            ry: 0.0,
+            rz: 0.0,
+            tx_mm: 0.0,
+            ty_mm: 0.0,
+            tz_mm: 0.0,
+            landmark_mtre_mm: 1.1,
+            optimum_start_mtre_mm: start_mm,
+            optimum_mtre_mm: optimum_mm,
+            optimum_to_landmark_mm: 0.2 + optimum_mm,
+            optimum_to_landmark_centre_mm: 0.1,
+            optimum_to_landmark_rot_deg: 0.1,
+            to_optimum_mm: 0.0,
+            reached_optimum: true,
+        }
+    }
+
+    /// The cell's bias is the search from the truth whatever the rows' order; its spread is the range
+    /// over the bins' searches; a table written before the start column existed reads the start as
+    /// NaN, and its spread is "not measured", not a perfect 0.
+    #[test]
+    fn the_optimum_s_spread_is_the_range_of_the_bins_searches() {
+        let rows = vec![
+            row(1, OPTIMUM_RESTART_MM, 1.5),
+            row(0, 0.0, 1.25),
+            row(2, 0.5, 1.375),
+        ];
+        let s = &summary(&rows)[0];
+        assert_eq!(s.optimum_mtre_mm, 1.25);
+        assert_eq!(s.optimum_to_landmark_mm, 1.45);
+        assert_eq!(s.optimum_searches, 3);
+        assert_eq!(s.optimum_spread_mm, 0.25);
+        assert!(summary(&rows[1..2])[0].optimum_spread_mm.is_nan());
+
+        let mut w = csv::Writer::from_writer(Vec::new());
+        for r in &rows {
+            w.serialize(r).unwrap();
+        }
+        let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+        let col = text
+            .lines()
+            .next()
+            .unwrap()
+            .split(',')
+            .position(|c| c == "optimum_start_mtre_mm")
+            .unwrap();
+        let old: String = text
+            .lines()
+            .map(|l| {
+                let mut f: Vec<&str> = l.split(',').collect();
+                f.remove(col);
+                f.join(",") + "\n"
+            })
+            .collect();
+        let read: Vec<IntensityRow> = csv::Reader::from_reader(old.as_bytes())
+            .deserialize()
+            .collect::<std::result::Result<_, _>>()
+            .unwrap();
+        assert!(read.iter().all(|r| r.optimum_start_mtre_mm.is_nan()));
+        let s = &summary(&read)[0];
+        assert_eq!((s.optimum_mtre_mm, s.optimum_searches), (1.25, 3));
+        assert!(s.optimum_spread_mm.is_nan());
+    }
 }

@@ -21,7 +21,7 @@ use super::config::RegistrationMethod;
 pub use calibration::{
     CalibrationAmbiguityRow, CalibrationRow, CalibrationToleranceRow, TOLERANCE_THRESHOLDS_PX,
 };
-pub use intensity::{IntensityBinRow, IntensityRow, IntensitySummaryRow};
+pub use intensity::{IntensityBinRow, IntensityRow, IntensitySummaryRow, OPTIMUM_RESTART_MM};
 pub use physical::{CalibrationPhysicalRow, PhysicalRow, RegistrationPhysicalRow};
 pub use screws::{ScrewNavigationRow, ScrewRow};
 pub use tables::{
