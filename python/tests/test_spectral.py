@@ -174,6 +174,24 @@ def test_python_spectral_render_equals_the_cli(cli, tmp_path, coarse):
         spinedrr.render_spectral(view, "80")
 
 
+def test_python_spectral_gpu_render_equals_the_cli_and_the_raster(cli, tmp_path, coarse):
+    """``backend="gpu"`` (lavapipe in CI): the channels on the GPU, the energy sum on the host — the CLI's
+    `--backend gpu` image bit for bit, the raster's within 1e-5 of its maximum; implants are refused."""
+    geometry, carm = coarse
+    view = carm.view("lat")
+    img, spectral = spinedrr.render_spectral(view, "80", phantom="L3", backend="gpu")
+    ref = cli.render(tmp_path / "g.tiff", "--phantom", "L3", "--geometry", geometry, "--view", "lat",
+                     "--spectrum", "80", "--backend", "gpu")
+    np.testing.assert_array_equal(img, ref)
+    assert spectral["gpu_adapter"] == json.loads((tmp_path / "g.json").read_text())["details"]["gpu_adapter"]
+    cpu, cpu_spectral = spinedrr.render_spectral(view, "80", phantom="L3")
+    assert "gpu_adapter" not in cpu_spectral
+    assert cpu.max() > 0.5
+    assert np.abs(img - cpu).max() <= 1e-5 * cpu.max()
+    with pytest.raises(ValueError, match="implant"):
+        spinedrr.render_spectral(view, "80", phantom="L3", screws=True, backend="gpu")
+
+
 def test_python_spectral_ct_and_posed_implants_equal_the_cli(cli, tmp_path, coarse, phantom_dir):
     """A CT with screws from a plan, and meshes with an implant placed by a pose: bit for bit the CLI's
     `--ct … --screws-at` and `--implant FILE:MATERIAL:POSE.json`."""

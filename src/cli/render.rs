@@ -78,7 +78,8 @@ pub struct Args {
     /// or DX12; Mesa's software Vulkan, lavapipe, where there is none); the sidecar names the adapter.
     /// Meshes on the GPU are the raster's signed-depth sums (exit − entry depths per pixel; closed meshes
     /// only, and a mesh that intersects itself counts twice where it overlaps), within ~1e-4 mm of the
-    /// raster, with the same masks; spectral mesh DRRs render on the CPU. A CT (`--ct`) renders on the
+    /// raster, with the same masks; a spectral mesh DRR (--spectrum, implants, screws) renders its
+    /// per-material channels on the GPU and sums the energies on the host. A CT (`--ct`) renders on the
     /// CPU unless `gpu` is given, the same Siddon or trilinear integral to ~1e-5.
     #[arg(long, value_enum, value_name = "BACKEND")]
     backend: Option<Backend>,
@@ -244,12 +245,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let mesh_backend = a.backend.unwrap_or(Backend::Raster);
     if let Some(model) = model {
-        if mesh_backend == Backend::Gpu {
-            bail!(
-                "--backend gpu renders thickness DRRs of meshes and CT DRRs; a spectral mesh DRR \
-                 (--spectrum, --implant, --screws) renders with raster, embree or bvh"
-            );
-        }
         let scene = super::render_spectral::SceneSpec {
             phantom: a.phantom.as_deref(),
             soft_tissue: a.soft_tissue,

@@ -291,6 +291,7 @@ pub fn run_spectral(
             json!({
                 "renderer": "spectral",
                 "backend": backend,
+                "adapter": renderer.gpu_adapter(),
                 "repeat": run.repeat,
                 "bins": renderer.model.bins(),
                 "channels": renderer.channels.len(),
@@ -317,6 +318,7 @@ pub fn run_spectral(
     let details = json!({
         "renderer": "spectral",
         "backend": backend,
+        "gpu_adapter": renderer.gpu_adapter(),
         "anatomy": anatomy,
         "spectral": renderer.summary(),
         "stats": {"channels_ms": drr.channels_ms, "energy_sum_ms": drr.energy_sum_ms},

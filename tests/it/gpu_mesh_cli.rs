@@ -7,8 +7,9 @@ use spinedrr::anatomy::TriMesh;
 use crate::render_models::worst_difference;
 
 /// `render --phantom … --backend gpu` end to end: the DRR, depth map and every silhouette file equal
-/// the raster's, the sidecar names the backend and the adapter; a spectral mesh DRR and an open mesh are
-/// refused by name with nothing written, and so is a render on a machine without a Vulkan driver.
+/// the raster's, the sidecar names the backend and the adapter; so does a spectral DRR's; implants and an
+/// open mesh are refused by name with nothing written, and so is a render on a machine without a Vulkan
+/// driver.
 #[test]
 fn cli_backend_gpu_renders_meshes_like_the_raster() {
     let dir = tempfile::tempdir().unwrap();
@@ -80,13 +81,47 @@ fn cli_backend_gpu_renders_meshes_like_the_raster() {
     open.triangles.truncate(10);
     spinedrr::anatomy::meshio::write_mesh(&dir.path().join("open.stl"), &open).unwrap();
     let open_stl = d("open.stl");
+    // A spectral DRR: its channels (cortical, cancellous bone, soft tissue) render on the GPU and the
+    // energy sum on the host, to the raster's image within the line integrals' 1e-5; the sidecar and the
+    // spectral summary name the adapter.
+    let spectral = |backend: &str| {
+        let out = d(&format!("spectral_{backend}.tiff"));
+        let (ok, err) = crate::common::Spinedrr::new()
+            .args([
+                "render",
+                "--phantom",
+                "L3",
+                "--soft-tissue",
+                "--spectrum",
+                "80",
+            ])
+            .args(["--geometry", &d("small.toml"), "--backend", backend])
+            .args(["--out", &out])
+            .outcome();
+        assert!(ok, "{backend}: {err}");
+        spinedrr::io::read_tiff_f32(std::path::Path::new(&out)).unwrap()
+    };
+    let (c, g) = (spectral("raster"), spectral("gpu"));
+    assert!(c.max() > 0.5, "{}", c.max());
+    let worst = worst_difference(&c, &g);
+    assert!(worst <= 1e-5 * c.max(), "spectral: {worst} of {}", c.max());
+    let side: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d("spectral_gpu.json")).unwrap()).unwrap();
+    let adapter = crate::gpu_ct::gpu().adapter_name();
+    assert_eq!(side["details"]["gpu_adapter"], adapter.as_str(), "{side}");
+    assert_eq!(side["details"]["spectral"]["gpu_adapter"], adapter.as_str());
+    // Implants are cut out of what they displace, which signed-depth sums cannot do: refused by name,
+    // and so is an open mesh.
     for (extra, want) in [
-        (["--phantom", "L3", "--spectrum", "80"], "spectral"),
-        (["--mesh", &open_stl, "--mu-default", "0.02"], "closed"),
+        (
+            vec!["--phantom", "L3", "--spectrum", "80", "--screws"],
+            "implant",
+        ),
+        (vec!["--mesh", &open_stl, "--mu-default", "0.02"], "closed"),
     ] {
         let (ok, err) = crate::common::Spinedrr::new()
             .args(["render", "--geometry", &d("small.toml"), "--backend", "gpu"])
-            .args(extra)
+            .args(&extra)
             .args(["--out", &d("refused.tiff")])
             .outcome();
         assert!(!ok && err.contains(want), "{extra:?}: {err}");

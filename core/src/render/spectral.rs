@@ -270,10 +270,22 @@ impl SpectralRenderer {
         }
     }
 
-    /// What the sidecar records beside the model: the channels.
+    /// The GPU adapter the channel renders run on (the gpu backend), else `None`.
+    pub fn gpu_adapter(&self) -> Option<String> {
+        match &self.passes {
+            Passes::Monochromatic(r) => r.as_ref().and_then(ThicknessRenderer::gpu_adapter),
+            Passes::Channels(v) => v.first().and_then(|(_, r)| r.gpu_adapter()),
+        }
+    }
+
+    /// What the sidecar records beside the model: the channels (and the GPU adapter that rendered them,
+    /// on the gpu backend).
     pub fn summary(&self) -> serde_json::Value {
         let mut s = self.model.summary();
         s["channels"] = json!(self.channels.iter().map(|c| c.name()).collect::<Vec<_>>());
+        if let Some(adapter) = self.gpu_adapter() {
+            s["gpu_adapter"] = adapter.into();
+        }
         s["passes"] = json!(match &self.passes {
             Passes::Monochromatic(_) => "one render at the single energy".to_string(),
             Passes::Channels(v) => format!("{} channel renders, then the energy sum", v.len()),
