@@ -163,7 +163,8 @@ def render_spectral(
     anatomy is one of ``meshes`` (μ or ``"MATERIAL[@DENSITY]"``), ``phantom="L1-L5"`` or ``ct`` (HU array
     with its ``affine``, ``mask``, ``placement``); ``implants`` (material meshes, optionally with a 4 × 4
     pose) and ``screws_at`` (a plan's ``PREFIXpedicle_entry``/``PREFIXpedicle_tip`` points) displace what
-    they occupy."""
+    they occupy. ``backend="gpu"`` renders the material channels of meshes or a CT on the GPU (the energy
+    sum on the host) and refuses implants."""
 
 def intensity(line_integral: F32, i0: float) -> F32:
     """``I0 · exp(−L)`` of a line-integral image, as ``spinedrr render --intensity I0`` writes it."""

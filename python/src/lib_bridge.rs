@@ -425,6 +425,12 @@ pub fn render_spectral(
             view.intrinsics.validate()?;
             let r = spinedrr::render::SpectralCtRenderer::new(&renderer, &ct.values, model)?
                 .with_implants(&moved, backend)?;
+            // On the gpu backend the material channels render there (implants were refused above).
+            let r = if backend == Backend::Gpu {
+                r.on_gpu(spinedrr::render::gpu::GpuContext::shared()?)?
+            } else {
+                r
+            };
             let drr = r.render(view)?;
             return Ok((drr.line_integral, r.summary(), Vec::new()));
         }

@@ -81,10 +81,11 @@ pub fn run_ct(
     implants: CtImplants,
     gpu: bool,
 ) -> anyhow::Result<()> {
-    if gpu && (model.is_some() || !implants.meshes.is_empty()) {
+    if gpu && !implants.meshes.is_empty() {
         bail!(
-            "--backend gpu renders monochromatic CT DRRs so far: drop --spectrum and --implant/--screws-at, \
-             or --backend gpu"
+            "--backend gpu renders a CT's DRR and its spectral channels, but an implant (--implant, \
+             --screws-at) is cut out of the CT along each ray's paired crossings, which the GPU does not \
+             keep: render a CT with implants on the CPU (leave --backend out)"
         );
     }
     let Some(ct_path) = &a.ct else {
@@ -152,12 +153,14 @@ pub fn run_ct(
     // Implants are given in the CT file's world (like its landmarks) and move with it.
     let moved = spinedrr::render::moved_implants(&implants.meshes, &placed.motion());
     let spectral = model
-        .map(|m| {
-            SpectralCtRenderer::new(&renderer, &ct.values, m)?
-                .with_implants(&moved, implants.backend)
+        .map(|m| -> anyhow::Result<SpectralCtRenderer> {
+            let s = SpectralCtRenderer::new(&renderer, &ct.values, m)?
+                .with_implants(&moved, implants.backend)?;
+            if gpu { OnGpu::spectral(s) } else { Ok(s) }
         })
         .transpose()?;
-    let on_gpu = if gpu {
+    // A spectral render's channels are on the GPU already; a monochromatic one renders the μ grid there.
+    let on_gpu = if gpu && spectral.is_none() {
         Some(OnGpu::new(&renderer)?)
     } else {
         None
@@ -173,7 +176,10 @@ pub fn run_ct(
         });
         times.push(start.elapsed().as_secs_f64() * 1e3);
     }
-    let adapter = on_gpu.as_ref().map(OnGpu::adapter);
+    let adapter = on_gpu
+        .as_ref()
+        .map(OnGpu::adapter)
+        .or_else(|| spectral.as_ref().and_then(SpectralCtRenderer::gpu_adapter));
     let Some(img) = img else {
         bail!("invalid --repeat 0: render at least once");
     };
@@ -318,6 +324,12 @@ impl OnGpu {
         Ok(OnGpu(GpuCtRenderer::new(ctx, cpu)?))
     }
 
+    /// `s` with its material channels rendered on the GPU.
+    fn spectral(s: SpectralCtRenderer) -> anyhow::Result<SpectralCtRenderer> {
+        let ctx = spinedrr::render::gpu::GpuContext::shared().context("--backend gpu")?;
+        Ok(s.on_gpu(ctx)?)
+    }
+
     fn render(&self, view: &spinedrr::geometry::View) -> anyhow::Result<spinedrr::io::ImageF32> {
         Ok(self.0.render(view)?)
     }
@@ -334,6 +346,12 @@ enum OnGpu {}
 #[cfg(not(feature = "gpu"))]
 impl OnGpu {
     fn new(_: &VolumeRenderer) -> anyhow::Result<OnGpu> {
+        bail!(
+            "--backend gpu: this spinedrr was built without its gpu feature (cargo build --features gpu)"
+        )
+    }
+
+    fn spectral(_: SpectralCtRenderer) -> anyhow::Result<SpectralCtRenderer> {
         bail!(
             "--backend gpu: this spinedrr was built without its gpu feature (cargo build --features gpu)"
         )

@@ -175,8 +175,8 @@ fn views_of_different_sizes_in_one_dispatch_are_refused() {
     assert!(gpu.render_views(&[]).unwrap().is_empty());
 }
 
-/// `render --ct --backend gpu` end to end: the image equals the CPU's, the sidecar names the adapter;
-/// what the GPU does not render yet is refused by name, and a machine without an adapter gets an error
+/// `render --ct --backend gpu` end to end: the image equals the CPU's, monochromatic and spectral, the
+/// sidecar names the adapter; what the GPU does not render (implants) is refused by name, and a machine without an adapter gets an error
 /// that says what to install, with nothing written.
 #[test]
 fn cli_backend_gpu_renders_ct_and_refuses_what_it_cannot() {
@@ -223,12 +223,56 @@ fn cli_backend_gpu_renders_ct_and_refuses_what_it_cannot() {
         assert_eq!(adapter, gpu().adapter_name(), "{side}");
         assert_eq!(side["details"]["method"], method, "{side}");
     }
+    // A spectral DRR: its two material channels (soft tissue, cortical bone) render on the GPU, the energy
+    // sum on the host: the CPU's image within 1e-5 of its peak (each channel within the Siddon's 1e-5);
+    // the sidecar and its spectral summary name the adapter.
+    let (ok, err) = render(&["--spectrum", "80"], "spectral_cpu.tiff");
+    assert!(ok, "{err}");
+    let (ok, err) = render(
+        &["--spectrum", "80", "--backend", "gpu"],
+        "spectral_gpu.tiff",
+    );
+    assert!(ok, "{err}");
+    let cpu = spinedrr::io::read_tiff_f32(&dir.path().join("spectral_cpu.tiff")).unwrap();
+    let on_gpu = spinedrr::io::read_tiff_f32(&dir.path().join("spectral_gpu.tiff")).unwrap();
+    let worst = crate::render_models::worst_difference(&cpu, &on_gpu);
+    assert!(
+        cpu.max() > 0.2 && worst <= 1e-5 * cpu.max(),
+        "spectral: {worst} of {}",
+        cpu.max()
+    );
+    let side: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("spectral_gpu.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        side["details"]["gpu_adapter"],
+        gpu().adapter_name().as_str(),
+        "{side}"
+    );
+    assert_eq!(
+        side["details"]["spectral"]["gpu_adapter"],
+        gpu().adapter_name().as_str()
+    );
+    // An implant is cut out of the CT along paired crossings, which the GPU does not keep: refused.
+    let rod = spinedrr::anatomy::TriMesh::cuboid(
+        "rod",
+        glam::DVec3::new(-1.0, -1.0, -4.0),
+        glam::DVec3::new(1.0, 1.0, 4.0),
+    );
+    spinedrr::anatomy::meshio::write_mesh(&dir.path().join("rod.stl"), &rod).unwrap();
+    let implant = format!("{}:titanium", d("rod.stl"));
+    let with_implant = [
+        "--backend",
+        "gpu",
+        "--spectrum",
+        "80",
+        "--implant",
+        &implant,
+    ];
     for (extra, want) in [
         (&["--backend", "embree"][..], "renders meshes"),
-        (
-            &["--backend", "gpu", "--spectrum", "80"][..],
-            "monochromatic",
-        ),
+        (&with_implant[..], "implant"),
     ] {
         let (ok, err) = render(extra, "refused.tiff");
         assert!(!ok && err.contains(want), "{extra:?}: {err}");

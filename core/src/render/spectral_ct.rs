@@ -19,6 +19,7 @@ use super::{Backend, RenderScene, SceneMesh, ThicknessOptions, ThicknessRenderer
 use crate::Result;
 use crate::anatomy::TriMesh;
 use crate::geometry::{Ray, View};
+use crate::io::ImageF32;
 use crate::spectral::{
     CT_MATERIALS, Channel, EnergyKernel, Material, MaterialAt, SpectralModel, hu_to_densities,
 };
@@ -40,6 +41,9 @@ pub struct SpectralCtRenderer {
     kernel: EnergyKernel,
     renderers: Vec<VolumeRenderer>,
     implants: Option<Implants>,
+    /// The channels' renderers on the GPU (the gpu backend: [`Self::on_gpu`]), one per CT material.
+    #[cfg(feature = "gpu")]
+    gpu: Option<Vec<super::gpu::GpuCtRenderer>>,
 }
 
 impl SpectralCtRenderer {
@@ -58,7 +62,50 @@ impl SpectralCtRenderer {
             channels,
             renderers,
             implants: None,
+            #[cfg(feature = "gpu")]
+            gpu: None,
         })
+    }
+
+    /// The same renderer with each CT material's channel rendered on the GPU of `ctx` (the same
+    /// Siddon or trilinear integral as on the CPU, to ~1e-5), the energy sum on the host. Implants are
+    /// refused: they are cut out of the CT along each ray's paired crossings, which the GPU's signed-depth
+    /// sums do not keep.
+    #[cfg(feature = "gpu")]
+    pub fn on_gpu(mut self, ctx: Arc<super::gpu::GpuContext>) -> Result<Self> {
+        if self.implants.is_some() {
+            return Err(crate::Error::invalid(
+                "backend",
+                "gpu renders a spectral CT's material channels, but implants are cut out of the CT along \
+                 each ray's paired crossings, which the GPU does not keep: render a CT with implants on \
+                 the CPU",
+            ));
+        }
+        self.gpu = Some(
+            self.renderers
+                .iter()
+                .map(|r| super::gpu::GpuCtRenderer::new(Arc::clone(&ctx), r))
+                .collect::<Result<_>>()?,
+        );
+        Ok(self)
+    }
+
+    /// The GPU adapter the channels render on ([`Self::on_gpu`]), else `None`.
+    pub fn gpu_adapter(&self) -> Option<String> {
+        #[cfg(feature = "gpu")]
+        if let Some(g) = &self.gpu {
+            return g.first().map(super::gpu::GpuCtRenderer::adapter_name);
+        }
+        None
+    }
+
+    /// Each CT material's mass-thickness map of `view`, on the GPU when [`Self::on_gpu`] moved them there.
+    fn channel_maps(&self, view: &View) -> Result<Vec<ImageF32>> {
+        #[cfg(feature = "gpu")]
+        if let Some(g) = &self.gpu {
+            return g.iter().map(|r| r.render(view)).collect();
+        }
+        Ok(self.renderers.iter().map(|r| r.render(view)).collect())
     }
 
     /// The same CT with `implants` (closed meshes, world mm, each of a material and density) in it,
@@ -70,6 +117,13 @@ impl SpectralCtRenderer {
     ) -> Result<Self> {
         if implants.is_empty() {
             return Ok(self);
+        }
+        if self.gpu_adapter().is_some() {
+            return Err(crate::Error::invalid(
+                "backend",
+                "implants are cut out of the CT along each ray's paired crossings, which the GPU does not \
+                 keep: render a CT with implants on the CPU",
+            ));
         }
         let mut channels: Vec<(Channel, ThicknessRenderer)> = Vec::new();
         let mut labels: Vec<String> = Vec::new();
@@ -167,7 +221,7 @@ impl SpectralCtRenderer {
     /// Renders `view`.
     pub fn render(&self, view: &View) -> Result<SpectralDrr> {
         let t0 = Instant::now();
-        let mut maps: Vec<_> = self.renderers.iter().map(|r| r.render(view)).collect();
+        let mut maps = self.channel_maps(view)?;
         if let Some(implants) = &self.implants {
             self.displace(implants, view, &mut maps)?;
             for (_, r) in &implants.channels {
@@ -200,6 +254,9 @@ impl SpectralCtRenderer {
                 })
                 .collect::<Vec<_>>()
         );
+        if let Some(adapter) = self.gpu_adapter() {
+            s["gpu_adapter"] = adapter.into();
+        }
         if let Some(i) = &self.implants {
             s["implants"] = serde_json::json!(i.described);
             s["implant_displacement"] = serde_json::json!(
