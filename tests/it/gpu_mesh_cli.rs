@@ -150,20 +150,27 @@ fn cli_backend_gpu_renders_meshes_like_the_raster() {
     );
 }
 
-/// A study with `geometry.backend = "gpu"`: the same tables as the raster's (silhouette metrics
-/// identical, intensity metrics within 1e-6), the report names the backend and the reference DRRs'
-/// sidecars the adapter.
+/// A study with `geometry.backend = "gpu"` — the phantom's L1 and a CT target (the synthetic CT's L1,
+/// whose image metrics come from its volume DRR): the same tables as the raster's (silhouette metrics
+/// identical, intensity metrics within 1e-6), the report names the backend and says the CT's volume DRR
+/// ran on the GPU, and the reference DRRs' sidecars — thickness and CT volume — name the adapter.
 #[test]
 fn a_study_on_the_gpu_backend_matches_the_raster() {
     use crate::study_hardening::{SMALL, study, write};
     let dir = tempfile::tempdir().unwrap();
+    let ct = crate::study_ct::inputs();
     let run = |backend: &str| {
         let cfg = write(
             dir.path(),
             &format!("{backend}.toml"),
             &SMALL.replace(
                 "[geometry]\n",
-                &format!("[geometry]\nbackend = \"{backend}\"\n"),
+                &format!(
+                    "[[anatomy.ct]]\nname = \"syn\"\nct = {:?}\nseg = {:?}\nlabels = \"totalseg\"\n\
+                     levels = [\"L1\"]\n[geometry]\nbackend = \"{backend}\"\n",
+                    ct.join("ct.nii").to_str().unwrap(),
+                    ct.join("seg.nii").to_str().unwrap(),
+                ),
             ),
         );
         let out = dir.path().join(backend);
@@ -200,14 +207,27 @@ fn a_study_on_the_gpu_backend_matches_the_raster() {
         report.contains("gpu backend") && report.contains("GPU backend"),
         "{report}"
     );
+    assert!(
+        report.contains("volume DRR by Siddon's exact traversal of the piecewise-constant voxels in the GPU's compute shader"),
+        "{report}"
+    );
+    assert!(c.lines().any(|l| l.starts_with("syn-L1,")), "no CT rows");
+    for reference in ["L1_ap.json", "syn-L1_ap.json"] {
+        let side: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(gpu.join("references").join(reference)).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(
+            side["details"]["gpu_adapter"].as_str().unwrap_or_default(),
+            crate::gpu_ct::gpu().adapter_name(),
+            "{reference}"
+        );
+    }
     let side: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(gpu.join("references").join("L1_ap.json")).unwrap(),
+        &std::fs::read_to_string(gpu.join("references").join("syn-L1_ap.json")).unwrap(),
     )
     .unwrap();
-    assert_eq!(
-        side["details"]["gpu_adapter"].as_str().unwrap_or_default(),
-        crate::gpu_ct::gpu().adapter_name()
-    );
+    assert_eq!(side["details"]["renderer"], "ct-volume (Siddon)", "{side}");
 }
 
 /// `register --intensity --backend gpu`: the loop renders on the GPU (its sums checked against the

@@ -33,7 +33,7 @@ struct Inputs {
 
 /// `ct.nii`, `seg.nii` (TotalSegmentator labels L1 = 31, L2 = 30) and `given.json` (the phantom's L1
 /// landmarks, renamed, in scanner coordinates), written once.
-fn inputs() -> &'static Path {
+pub(crate) fn inputs() -> &'static Path {
     static IN: OnceLock<Inputs> = OnceLock::new();
     &IN.get_or_init(|| {
         let dir = tempfile::tempdir().expect("temp dir");

@@ -64,7 +64,8 @@ impl IntensityBench {
     pub fn new(t: &Target, carm: &CArm, targets: Vec<DVec3>) -> Result<Self> {
         let bin = finest_bin(carm.views.first().map_or(1, |v| v.intrinsics.width));
         let moving = match &t.volume {
-            Some(v) => MovingDrr::Volume(Box::new(v.clone())),
+            // The volume's CPU renderer (the registration loop renders CT on the CPU).
+            Some(v) => MovingDrr::Volume(Box::new(v.cpu.clone())),
             // The target's renderer's backend (the study's).
             None => MovingDrr::Mesh(MeshDrr::new(
                 t.renderer.backend().renderer(t.renderer.scene().clone())?,

@@ -32,7 +32,7 @@ use std::sync::Arc;
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::{Target, target_with_landmarks};
+use super::{StudyVolume, Target, target_with_landmarks};
 use crate::anatomy::auto_landmarks::{VertebraFrame, analyse};
 use crate::anatomy::ct::{
     Alignment, CtVolume, LabelMap, MAX_SMOOTH_ITERATIONS, Placed, SurfaceOptions, VoxelMask,
@@ -348,7 +348,7 @@ fn assemble(
     timings: &Timings,
 ) -> Result<Target> {
     let motion = placed.motion();
-    let volume = timings.time(Phase::Scene, 1, || -> Result<VolumeRenderer> {
+    let volume = timings.time(Phase::Scene, 1, || -> Result<StudyVolume> {
         let mask = VoxelMask::from_labels(seg, ids)?;
         // One voxel of margin keeps the crop's box strictly around the label.
         let (lo, hi) = mask.bbox;
@@ -362,7 +362,10 @@ fn assemble(
             method,
             ..VolumeRenderOptions::default()
         };
-        VolumeRenderer::new(&ct_crop, &opts, Some(&mask))
+        StudyVolume::new(
+            VolumeRenderer::new(&ct_crop, &opts, Some(&mask))?,
+            cfg.geometry.backend,
+        )
     })?;
     let meshes = surfaces
         .iter()

@@ -17,6 +17,8 @@ mod registration;
 mod screws;
 pub use screws::{SCREWS_KEY, screw_image_path};
 mod tracking;
+mod volume;
+pub use volume::StudyVolume;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -35,7 +37,6 @@ use crate::anatomy::{
 };
 use crate::geometry::{CArm, View};
 use crate::io::ImageF32;
-use crate::render::volume::VolumeRenderer;
 use crate::render::{
     RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, orient_outward_warning, phantom_scene,
 };
@@ -144,7 +145,7 @@ pub struct Target {
     /// Thickness renderer: silhouettes and contours, and image metrics when there is no `volume`.
     pub renderer: ThicknessRenderer,
     /// CT volume DRR masked to the target's labels (CT targets): image metrics and heatmaps.
-    pub volume: Option<VolumeRenderer>,
+    pub volume: Option<StudyVolume>,
     pub landmarks: Vec<(String, DVec3)>,
     /// Clinical target points (world mm): the phantom's planned pedicle-screw entry, isthmus and tip per
     /// side, or a user target's landmarks whose name contains `pedicle`. Errors there are what a screw's

@@ -5,7 +5,7 @@
 //! Silhouettes come from the thickness render's ray-hit masks; image metrics and heatmaps from the CT
 //! volume DRR when the target has one (CT targets), else from the thickness DRR's line integral.
 
-use super::{Context, Reference, Target};
+use super::{Context, Reference, StudyVolume, Target};
 use crate::Result;
 use crate::analysis::{
     MaskPair, REGION_MARGIN_PX, Region, abs_difference, image_metrics_whole_and_in,
@@ -46,7 +46,8 @@ pub fn run(ctx: &Context, t: &Target, view_name: &str, np: &NamedPerturbation) -
         let b_volume = t
             .volume
             .as_ref()
-            .map(|v| tm.time(Phase::RenderVolume, 1, || v.render(&pv)));
+            .map(|v| tm.time(Phase::RenderVolume, 1, || v.render(&pv)))
+            .transpose()?;
         let images = match (&reference.volume_drr, &b_volume) {
             (Some(ia), Some(ib)) => (ia, ib),
             _ => (&a.line_integral, &b.line_integral),
@@ -105,7 +106,7 @@ pub fn reference(ctx: &Context, t: &Target, view: &View) -> Result<Reference> {
         None
     };
     let volume_drr = match &t.volume {
-        Some(v) if drr.is_some() => Some(tm.time(Phase::RenderVolume, 1, || v.render(view))),
+        Some(v) if drr.is_some() => Some(tm.time(Phase::RenderVolume, 1, || v.render(view))?),
         _ => None,
     };
     // The reference image is the Setup's evidence of where each target lies on the detector (and
@@ -143,7 +144,7 @@ fn write_reference_image(
     let volume_name = t
         .volume
         .as_ref()
-        .map(|v| match v.details().method.as_str() {
+        .map(|v| match v.cpu.details().method.as_str() {
             "trilinear" => "ct-volume (trilinear)",
             _ => "ct-volume (Siddon)",
         });
@@ -168,7 +169,12 @@ fn write_reference_image(
     side.details.insert("renderer".into(), renderer.into());
     side.details
         .insert("backend".into(), ctx.cfg.geometry.backend_name().into());
-    if let (Some(adapter), "thickness") = (t.renderer.gpu_adapter(), renderer) {
+    let adapter = if renderer == "thickness" {
+        t.renderer.gpu_adapter()
+    } else {
+        t.volume.as_ref().and_then(StudyVolume::gpu_adapter)
+    };
+    if let Some(adapter) = adapter {
         side.details.insert("gpu_adapter".into(), adapter.into());
     }
     side.details.insert("target".into(), t.name.clone().into());

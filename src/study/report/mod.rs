@@ -328,8 +328,14 @@ seen tilted);",
 across thick slices)"
             }
         };
+        let gpu = if cfg.geometry.backend == crate::render::Backend::Gpu {
+            " in the GPU's compute shader (`geometry.backend = \"gpu\"`; the adapter is named in the \
+reference DRRs' sidecars)"
+        } else {
+            ""
+        };
         note += &format!(
-            "\n- CT `{}`: volume DRR by {method}; label surfaces {}.",
+            "\n- CT `{}`: volume DRR by {method}{gpu}; label surfaces {}.",
             c.name,
             match c.smooth_iterations {
                 0 => "unsmoothed (the exact 0.5-isosurface of the voxels)".to_string(),
