@@ -55,7 +55,8 @@ pub struct Args {
     /// With --intensity: what renders a mesh or phantom anatomy's DRRs in the loop: `raster` (the
     /// default), `embree`, `bvh` or `gpu` (signed-depth sums in compute shaders through wgpu, checked
     /// against the raster's paired render before the loop relies on them; R.json then names the
-    /// adapter). A CT anatomy renders on the CPU.
+    /// adapter). A CT anatomy renders with the CPU's volume renderer (the default) or, with `gpu`, the
+    /// same Siddon integral in the GPU's compute shader.
     #[arg(long, value_enum, value_name = "BACKEND", requires = "intensity")]
     backend: Option<spinedrr::render::Backend>,
 }

@@ -117,7 +117,7 @@ fn body() -> Vec<TriMesh> {
 }
 
 /// The default AP view binned by 8 (128 × 128 px).
-fn ap() -> View {
+pub(crate) fn ap() -> View {
     binned_view(CArm::default_paper().view("ap").unwrap(), 8).unwrap()
 }
 

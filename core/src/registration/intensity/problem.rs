@@ -97,8 +97,8 @@ pub struct LoadedIntensityProblem {
 
 impl LoadedIntensityProblem {
     /// Reads and builds `path` (anatomy, fixed images, views); every error names its field. A mesh or
-    /// phantom anatomy renders with `backend`; a CT anatomy renders on the CPU (a `backend` other than
-    /// the raster is refused for it).
+    /// phantom anatomy renders with `backend`; a CT anatomy renders on the CPU, or on the GPU with
+    /// `gpu` (embree and bvh are refused for it).
     pub fn read(path: &Path, backend: Backend) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let pj: ProblemJson =
@@ -269,11 +269,11 @@ fn build_anatomy(
             let renderer = backend.renderer(RenderScene::new(meshes)?)?;
             Ok((MovingDrr::Mesh(MeshDrr::new(renderer)), targets))
         }
-        _ if backend != Backend::Raster => Err(Error::invalid(
+        _ if !matches!(backend, Backend::Raster | Backend::Gpu) => Err(Error::invalid(
             "backend",
             format!(
-                "{}: a CT anatomy registers with the CPU's volume renderer; --backend applies to \
-                 mesh and phantom anatomies",
+                "{}: a CT anatomy renders with the CPU's volume renderer (the default) or the GPU's \
+                 (gpu); embree and bvh trace meshes",
                 backend.name()
             ),
         )),
@@ -305,9 +305,28 @@ fn build_anatomy(
             let mask = (scope == MovingScope::Level).then_some(&mask);
             let renderer = VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), mask)?;
             let targets = subsample(&surface.vertices, super::MAX_TARGET_POINTS);
-            Ok((MovingDrr::Volume(Box::new(renderer)), targets))
+            Ok((volume_moving(renderer, backend)?, targets))
         }
     }
+}
+
+/// A CT's moving DRR on `backend` (the raster's name stands for the CPU's volume renderer).
+fn volume_moving(renderer: VolumeRenderer, backend: Backend) -> Result<MovingDrr> {
+    #[cfg(feature = "gpu")]
+    if backend == Backend::Gpu {
+        let ctx = crate::render::gpu::GpuContext::shared()?;
+        return Ok(MovingDrr::VolumeGpu(Box::new(
+            crate::render::gpu::GpuCtRenderer::new(ctx, &renderer)?,
+        )));
+    }
+    #[cfg(not(feature = "gpu"))]
+    if backend == Backend::Gpu {
+        return Err(Error::invalid(
+            "backend",
+            "gpu: this spinedrr was built without its gpu feature",
+        ));
+    }
+    Ok(MovingDrr::Volume(Box::new(renderer)))
 }
 
 /// Registers a loaded problem and returns the `R.json` record: `R`, `t`, `similarity`,
