@@ -78,8 +78,8 @@ pub struct IntensityRow {
     #[serde(with = "num")]
     pub landmark_mtre_mm: f64,
     /// Where this bin's search of the intensity optimum started: its mTRE to the truth (0 in the first
-    /// bin, the truth itself; [`OPTIMUM_RESTART_MM`] in
-    /// the others). NaN in a table written before the column existed.
+    /// bin, the truth itself; [`OPTIMUM_RESTART_MM`] in the others). NaN in a table written before the
+    /// column existed (whose every search started at the truth).
     #[serde(default = "nan", with = "num")]
     pub optimum_start_mtre_mm: f64,
     /// The intensity optimum under this K (this bin's search: local stage only, from the start above):
@@ -170,9 +170,9 @@ pub struct IntensitySummaryRow {
     #[serde(with = "num")]
     pub optimum_mtre_mm: f64,
     /// How many searches of the optimum the cell ran (one per bin: the first from the truth, the others
-    /// from starts [`OPTIMUM_RESTART_MM`] away), and the
-    /// largest minus the smallest of their optima's mTRE to the truth: how reproducible the bias is. NaN
-    /// with one search, or when a search failed or its start is not recorded.
+    /// from starts [`OPTIMUM_RESTART_MM`] away), and the largest minus the smallest of their optima's
+    /// mTRE to the truth: how reproducible the bias is. NaN with one search, or when a search failed or
+    /// its start is not recorded.
     #[serde(default)]
     pub optimum_searches: usize,
     #[serde(default = "nan", with = "num")]
@@ -211,7 +211,12 @@ fn optimum_searches<'a>(c: &[&'a IntensityRow]) -> (&'a IntensityRow, usize, f64
         }
     }
     first.sort_by_key(|r| r.bin);
-    let at_truth = first[0];
+    // The search started at the truth (the first bin's; every search of an older table started there).
+    let at_truth = first
+        .iter()
+        .copied()
+        .find(|r| r.optimum_start_mtre_mm == 0.0)
+        .unwrap_or(first[0]);
     let known = first
         .iter()
         .all(|r| r.optimum_mtre_mm.is_finite() && r.optimum_start_mtre_mm.is_finite());
