@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue #33's GPU table, measured on this machine: spinedrr's CT DRRs on the CPU and with --backend gpu,
-# the L1–L5 mesh DRR, an AP+LAT intensity registration, and nanodrr on the same CT and GPU when it is
+# the L1–L5 mesh DRR, spectral CT and mesh DRRs, an AP+LAT intensity registration, and nanodrr on the same CT and GPU when it is
 # installed. Prints one Markdown table.
 #
 # Usage: scripts/gpu-bench.sh [--bin PATH] [--repeat N] [--threads N]
@@ -90,6 +90,14 @@ IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat)
 row "spinedrr L1–L5 mesh DRR (LAT), raster, CPU" "$ms" "$(uname -n)"
 IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --backend gpu)
 row "spinedrr L1–L5 mesh DRR (LAT), --backend gpu" "$ms" "${adapter:-no adapter}"
+IFS=$'\t' read -r ms _ < <(median_ms --ct "$CT" --view ap --spectrum 80)
+row "spinedrr spectral CT DRR (80 kV, 2 material channels + energy sum), CPU" "$ms" "$(uname -n)"
+IFS=$'\t' read -r ms adapter < <(median_ms --ct "$CT" --view ap --spectrum 80 --backend gpu)
+row "spinedrr spectral CT DRR, channels --backend gpu, energy sum on the host" "$ms" "${adapter:-no adapter}"
+IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat --soft-tissue --spectrum 80)
+row "spinedrr spectral L1–L5 + soft tissue (LAT, 80 kV, 3 channels), raster, CPU" "$ms" "$(uname -n)"
+IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --soft-tissue --spectrum 80 --backend gpu)
+row "spinedrr spectral L1–L5 + soft tissue (LAT), channels --backend gpu" "$ms" "${adapter:-no adapter}"
 IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat --masks)
 row "spinedrr L1–L5 mesh DRR with masks (LAT), raster, CPU" "$ms" "$(uname -n)"
 IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --masks --backend gpu)
