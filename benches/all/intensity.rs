@@ -58,7 +58,7 @@ fn ct_problem(carm: &CArm) -> IntensityProblem {
         })
         .collect();
     IntensityProblem {
-        moving: MovingDrr::Volume(Box::new(renderer)),
+        moving: MovingDrr::Volume(Box::new(renderer.into())),
         views,
         targets,
     }

@@ -329,7 +329,7 @@ fn intensity_registration_on_the_gpu_matches_the_raster() {
     let volume =
         VolumeRenderer::new(&ct_vol, &VolumeRenderOptions::default(), Some(&mask)).unwrap();
     // The problem's one view (write_problem's).
-    let moving = spinedrr::registration::intensity::MovingDrr::Volume(Box::new(volume));
+    let moving = spinedrr::registration::intensity::MovingDrr::Volume(Box::new(volume.into()));
     let mut ct = problem.clone();
     ct["anatomy"] = serde_json::json!({"ct": "ct.nii.gz", "seg": "seg.nii.gz", "label": 22});
     let lat = spinedrr::registration::intensity::binned_view(

@@ -61,7 +61,7 @@ fn a_masked_ct_level_registers_at_the_true_k() {
         })
         .collect();
     let problem = IntensityProblem {
-        moving: MovingDrr::Volume(Box::new(renderer)),
+        moving: MovingDrr::Volume(Box::new(renderer.into())),
         views,
         targets,
     };

@@ -6,7 +6,7 @@
 //! rasteriser of primary rays, `pairing` how a ray's hits become a path length, `thickness` the image loop,
 //! `phantom_scene` the phantom's meshes with μ from HU (or materials, for `spectral`), `spectral` the
 //! polychromatic DRR of meshes (per-material path lengths, then the energy sum), `spectral_ct` that of a
-//! CT (per-material Siddon renders), `volume` the CT renderer (Siddon and trilinear), `gpu` CT DRRs
+//! CT (per-material Siddon renders), `volume` the CT renderer (Siddon and trilinear), `volume_backend` a CT renderer on the CPU or the GPU, `gpu` CT DRRs
 //! and mesh signed-depth sums in compute shaders (wgpu; the `gpu` feature, on by default).
 
 mod backend;
@@ -23,6 +23,7 @@ mod spectral_ct;
 mod thickness;
 mod tracer;
 pub mod volume;
+mod volume_backend;
 
 pub use backend::Backend;
 pub use phantom_scene::{
@@ -39,3 +40,4 @@ pub use thickness::{
     Masks, RenderStats, ThicknessDetails, ThicknessDrr, ThicknessOptions, ThicknessRenderer,
 };
 pub use tracer::{HitTracer, PACKET, RawHit, RayPacket};
+pub use volume_backend::VolumeOnBackend;

@@ -74,12 +74,7 @@ impl SpectralCtRenderer {
     #[cfg(feature = "gpu")]
     pub fn on_gpu(mut self, ctx: Arc<super::gpu::GpuContext>) -> Result<Self> {
         if self.implants.is_some() {
-            return Err(crate::Error::invalid(
-                "backend",
-                "gpu renders a spectral CT's material channels, but implants are cut out of the CT along \
-                 each ray's paired crossings, which the GPU does not keep: render a CT with implants on \
-                 the CPU",
-            ));
+            return Err(implants_on_gpu());
         }
         self.gpu = Some(
             self.renderers
@@ -119,11 +114,7 @@ impl SpectralCtRenderer {
             return Ok(self);
         }
         if self.gpu_adapter().is_some() {
-            return Err(crate::Error::invalid(
-                "backend",
-                "implants are cut out of the CT along each ray's paired crossings, which the GPU does not \
-                 keep: render a CT with implants on the CPU",
-            ));
+            return Err(implants_on_gpu());
         }
         let mut channels: Vec<(Channel, ThicknessRenderer)> = Vec::new();
         let mut labels: Vec<String> = Vec::new();
@@ -272,6 +263,15 @@ impl SpectralCtRenderer {
         s
     }
 }
+/// Why a CT with implants does not render on the GPU (with them or after them, in either order).
+fn implants_on_gpu() -> crate::Error {
+    crate::Error::invalid(
+        "backend",
+        "gpu renders a spectral CT's material channels, but implants are cut out of the CT along each \
+         ray's paired crossings, which the GPU does not keep: render a CT with implants on the CPU",
+    )
+}
+
 /// `implants` (given in a CT file's world, like its landmarks) moved by `motion`, the CT's placement, so
 /// they stay where they were in the anatomy.
 pub fn moved_implants(

@@ -65,7 +65,7 @@ impl IntensityBench {
         let bin = finest_bin(carm.views.first().map_or(1, |v| v.intrinsics.width));
         let moving = match &t.volume {
             // The volume's CPU renderer (the registration loop renders CT on the CPU).
-            Some(v) => MovingDrr::Volume(Box::new(v.cpu.clone())),
+            Some(v) => MovingDrr::Volume(Box::new(v.cpu.clone().into())),
             // The target's renderer's backend (the study's).
             None => MovingDrr::Mesh(MeshDrr::new(
                 t.renderer.backend().renderer(t.renderer.scene().clone())?,

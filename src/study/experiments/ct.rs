@@ -32,7 +32,7 @@ use std::sync::Arc;
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::{StudyVolume, Target, target_with_landmarks};
+use super::{Target, target_with_landmarks};
 use crate::anatomy::auto_landmarks::{VertebraFrame, analyse};
 use crate::anatomy::ct::{
     Alignment, CtVolume, LabelMap, MAX_SMOOTH_ITERATIONS, Placed, SurfaceOptions, VoxelMask,
@@ -44,7 +44,7 @@ use crate::anatomy::structure_split::split_structures;
 use crate::anatomy::tissue_mu;
 use crate::anatomy::{Landmarks, Tissue, TriMesh};
 use crate::render::volume::{VolumeMethod, VolumeRenderOptions, VolumeRenderer};
-use crate::render::{RenderScene, SceneMesh};
+use crate::render::{RenderScene, SceneMesh, VolumeOnBackend};
 use crate::study::config::{CtTarget, StudyConfig};
 use crate::study::timings::{Phase, Timings};
 use crate::{Error, Result};
@@ -348,7 +348,7 @@ fn assemble(
     timings: &Timings,
 ) -> Result<Target> {
     let motion = placed.motion();
-    let volume = timings.time(Phase::Scene, 1, || -> Result<StudyVolume> {
+    let volume = timings.time(Phase::Scene, 1, || -> Result<VolumeOnBackend> {
         let mask = VoxelMask::from_labels(seg, ids)?;
         // One voxel of margin keeps the crop's box strictly around the label.
         let (lo, hi) = mask.bbox;
@@ -362,7 +362,7 @@ fn assemble(
             method,
             ..VolumeRenderOptions::default()
         };
-        StudyVolume::new(
+        VolumeOnBackend::new(
             VolumeRenderer::new(&ct_crop, &opts, Some(&mask))?,
             cfg.geometry.backend,
         )

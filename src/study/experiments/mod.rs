@@ -17,8 +17,6 @@ mod registration;
 mod screws;
 pub use screws::{SCREWS_KEY, screw_image_path};
 mod tracking;
-mod volume;
-pub use volume::StudyVolume;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -38,7 +36,8 @@ use crate::anatomy::{
 use crate::geometry::{CArm, View};
 use crate::io::ImageF32;
 use crate::render::{
-    RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, orient_outward_warning, phantom_scene,
+    RenderScene, SceneMesh, ThicknessDrr, ThicknessRenderer, VolumeOnBackend,
+    orient_outward_warning, phantom_scene,
 };
 use crate::{Error, Result};
 use ct::CtInput;
@@ -145,7 +144,7 @@ pub struct Target {
     /// Thickness renderer: silhouettes and contours, and image metrics when there is no `volume`.
     pub renderer: ThicknessRenderer,
     /// CT volume DRR masked to the target's labels (CT targets): image metrics and heatmaps.
-    pub volume: Option<StudyVolume>,
+    pub volume: Option<VolumeOnBackend>,
     pub landmarks: Vec<(String, DVec3)>,
     /// Clinical target points (world mm): the phantom's planned pedicle-screw entry, isthmus and tip per
     /// side, or a user target's landmarks whose name contains `pedicle`. Errors there are what a screw's

@@ -5,7 +5,7 @@
 //! Silhouettes come from the thickness render's ray-hit masks; image metrics and heatmaps from the CT
 //! volume DRR when the target has one (CT targets), else from the thickness DRR's line integral.
 
-use super::{Context, Reference, StudyVolume, Target};
+use super::{Context, Reference, Target};
 use crate::Result;
 use crate::analysis::{
     MaskPair, REGION_MARGIN_PX, Region, abs_difference, image_metrics_whole_and_in,
@@ -14,7 +14,7 @@ use crate::analysis::{
 use crate::anatomy::Structure;
 use crate::geometry::{Perturbation, View, apply_homography};
 use crate::io::{ImageF32, Sidecar, kind, sidecar_path, units, write_tiff_f32};
-use crate::render::{ThicknessDrr, ThicknessOptions};
+use crate::render::{ThicknessDrr, ThicknessOptions, VolumeOnBackend};
 use crate::study::config::Experiment;
 use crate::study::schema::{Family, LandmarkRow, ProjectionRow, StructureRow, UnitRows};
 use crate::study::timings::Phase;
@@ -172,7 +172,7 @@ fn write_reference_image(
     let adapter = if renderer == "thickness" {
         t.renderer.gpu_adapter()
     } else {
-        t.volume.as_ref().and_then(StudyVolume::gpu_adapter)
+        t.volume.as_ref().and_then(VolumeOnBackend::gpu_adapter)
     };
     if let Some(adapter) = adapter {
         side.details.insert("gpu_adapter".into(), adapter.into());

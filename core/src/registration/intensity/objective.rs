@@ -21,7 +21,7 @@ use super::similarity::{FixedFeatures, Similarity};
 use crate::anatomy::decimate;
 use crate::geometry::{RigidTransform, View, rotation_exp};
 use crate::io::{ImageF32, gaussian_blur};
-use crate::render::volume::VolumeRenderer;
+use crate::render::VolumeOnBackend;
 use crate::render::{Backend, RenderScene, SceneMesh, ThicknessRenderer};
 use crate::{Error, Result};
 
@@ -29,12 +29,9 @@ use crate::{Error, Result};
 pub enum MovingDrr {
     /// Closed meshes with μ (the level alone, or the whole anatomy), rendered by a thickness renderer.
     Mesh(MeshDrr),
-    /// A CT (optionally masked to the level) rendered by Siddon or trilinear sampling.
-    Volume(Box<VolumeRenderer>),
-    /// The same CT rendered by the GPU's compute shader (the gpu backend: the same rays and integral,
-    /// within ~1e-5 of the CPU's).
-    #[cfg(feature = "gpu")]
-    VolumeGpu(Box<crate::render::gpu::GpuCtRenderer>),
+    /// A CT (optionally masked to the level) rendered by Siddon or trilinear sampling, on the CPU or
+    /// (the gpu backend) in the GPU's compute shader.
+    Volume(Box<VolumeOnBackend>),
 }
 
 impl MovingDrr {
@@ -42,9 +39,7 @@ impl MovingDrr {
     pub fn gpu_adapter(&self) -> Option<String> {
         match self {
             MovingDrr::Mesh(m) => m.full.gpu_adapter(),
-            MovingDrr::Volume(_) => None,
-            #[cfg(feature = "gpu")]
-            MovingDrr::VolumeGpu(g) => Some(g.adapter_name()),
+            MovingDrr::Volume(v) => v.gpu_adapter(),
         }
     }
 
@@ -52,9 +47,7 @@ impl MovingDrr {
     pub fn backend(&self) -> Option<Backend> {
         match self {
             MovingDrr::Mesh(m) => Some(m.full.backend()),
-            MovingDrr::Volume(_) => None,
-            #[cfg(feature = "gpu")]
-            MovingDrr::VolumeGpu(_) => Some(Backend::Gpu),
+            MovingDrr::Volume(v) => v.gpu_adapter().map(|_| Backend::Gpu),
         }
     }
 }
@@ -132,9 +125,7 @@ impl MeshDrr {
 /// The renderer one level uses: a mesh renderer of its detail, or the volume.
 enum LevelRenderer<'a> {
     Mesh(Arc<ThicknessRenderer>),
-    Volume(&'a VolumeRenderer),
-    #[cfg(feature = "gpu")]
-    VolumeGpu(&'a crate::render::gpu::GpuCtRenderer),
+    Volume(&'a VolumeOnBackend),
 }
 
 impl MovingDrr {
@@ -147,8 +138,6 @@ impl MovingDrr {
         Ok(match self {
             MovingDrr::Mesh(m) => LevelRenderer::Mesh(m.at_detail(detail)?),
             MovingDrr::Volume(v) => LevelRenderer::Volume(v.as_ref()),
-            #[cfg(feature = "gpu")]
-            MovingDrr::VolumeGpu(g) => LevelRenderer::VolumeGpu(g.as_ref()),
         })
     }
 }
@@ -181,9 +170,7 @@ impl LevelRenderer<'_> {
             LevelRenderer::Mesh(r) => {
                 r.render_line_integral_into(&moved, out)?;
             }
-            LevelRenderer::Volume(v) => v.render_into(&moved, out),
-            #[cfg(feature = "gpu")]
-            LevelRenderer::VolumeGpu(g) => *out = g.render(&moved)?,
+            LevelRenderer::Volume(v) => v.render_into(&moved, out)?,
         }
         Ok(())
     }

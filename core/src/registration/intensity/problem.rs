@@ -30,7 +30,7 @@ use crate::geometry::{Intrinsics, RigidTransform, View};
 use crate::io::{ImageF32, Sidecar, read_tiff_f32, sidecar_path, units};
 use crate::registration::pose_errors;
 use crate::render::volume::{VolumeRenderOptions, VolumeRenderer};
-use crate::render::{Backend, RenderScene, SceneMesh};
+use crate::render::{Backend, RenderScene, SceneMesh, VolumeOnBackend};
 use crate::{Error, Result};
 
 #[derive(Deserialize)]
@@ -305,28 +305,12 @@ fn build_anatomy(
             let mask = (scope == MovingScope::Level).then_some(&mask);
             let renderer = VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), mask)?;
             let targets = subsample(&surface.vertices, super::MAX_TARGET_POINTS);
-            Ok((volume_moving(renderer, backend)?, targets))
+            Ok((
+                MovingDrr::Volume(Box::new(VolumeOnBackend::new(renderer, backend)?)),
+                targets,
+            ))
         }
     }
-}
-
-/// A CT's moving DRR on `backend` (the raster's name stands for the CPU's volume renderer).
-fn volume_moving(renderer: VolumeRenderer, backend: Backend) -> Result<MovingDrr> {
-    #[cfg(feature = "gpu")]
-    if backend == Backend::Gpu {
-        let ctx = crate::render::gpu::GpuContext::shared()?;
-        return Ok(MovingDrr::VolumeGpu(Box::new(
-            crate::render::gpu::GpuCtRenderer::new(ctx, &renderer)?,
-        )));
-    }
-    #[cfg(not(feature = "gpu"))]
-    if backend == Backend::Gpu {
-        return Err(Error::invalid(
-            "backend",
-            "gpu: this spinedrr was built without its gpu feature",
-        ));
-    }
-    Ok(MovingDrr::Volume(Box::new(renderer)))
 }
 
 /// Registers a loaded problem and returns the `R.json` record: `R`, `t`, `similarity`,
