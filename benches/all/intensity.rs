@@ -5,6 +5,8 @@
 //! of one pose evaluation (both views rendered and compared) at each level. The evaluations, iterations,
 //! stopping rule and seconds of every stage of the two registrations are printed once.
 
+use std::sync::Arc;
+
 use criterion::Criterion;
 use spinedrr::anatomy::ct::{SurfaceOptions, VoxelMask, label_surface};
 use spinedrr::anatomy::synthetic_ct::{SyntheticCtOptions, synthetic_ct};
@@ -58,7 +60,7 @@ fn ct_problem(carm: &CArm) -> IntensityProblem {
         })
         .collect();
     IntensityProblem {
-        moving: MovingDrr::Volume(Box::new(renderer.into())),
+        moving: MovingDrr::Volume(Arc::new(renderer.into())),
         views,
         targets,
     }

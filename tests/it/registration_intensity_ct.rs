@@ -4,6 +4,8 @@
 //! true pose with the true K; AP+LAT on the default C-arm binned by 2 (512² px). From seeded starts of
 //! initial mTRE ≤ 10 mm the registration must end at the truth.
 
+use std::sync::Arc;
+
 use glam::DVec3;
 use spinedrr::anatomy::ct::{SurfaceOptions, VoxelMask, label_surface};
 use spinedrr::anatomy::labels::LabelConvention;
@@ -61,7 +63,7 @@ fn a_masked_ct_level_registers_at_the_true_k() {
         })
         .collect();
     let problem = IntensityProblem {
-        moving: MovingDrr::Volume(Box::new(renderer.into())),
+        moving: MovingDrr::Volume(Arc::new(renderer.into())),
         views,
         targets,
     };

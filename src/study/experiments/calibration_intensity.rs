@@ -10,6 +10,8 @@
 //! fixed and the moving DRR are sampled alike and the optimum is exactly the true pose (the finest level
 //! is that grid itself, so the library neither bins nor subsamples it).
 
+use std::sync::Arc;
+
 use glam::DVec3;
 
 use super::Target;
@@ -64,8 +66,8 @@ impl IntensityBench {
     pub fn new(t: &Target, carm: &CArm, targets: Vec<DVec3>) -> Result<Self> {
         let bin = finest_bin(carm.views.first().map_or(1, |v| v.intrinsics.width));
         let moving = match &t.volume {
-            // The volume's CPU renderer (the registration loop renders CT on the CPU).
-            Some(v) => MovingDrr::Volume(Box::new(v.cpu.clone().into())),
+            // The target's volume renderer, on the study's backend (shared, not copied).
+            Some(v) => MovingDrr::Volume(Arc::clone(v)),
             // The target's renderer's backend (the study's).
             None => MovingDrr::Mesh(MeshDrr::new(
                 t.renderer.backend().renderer(t.renderer.scene().clone())?,

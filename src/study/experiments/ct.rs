@@ -395,7 +395,7 @@ fn assemble(
         })
         .collect();
     let mut t = target_with_landmarks(cfg, name, renderer, sets, surfaces.len() > 1, timings)?;
-    t.volume = Some(volume);
+    t.volume = Some(Arc::new(volume));
     t.placement = Some(placed);
     Ok(t)
 }

@@ -144,7 +144,7 @@ pub struct Target {
     /// Thickness renderer: silhouettes and contours, and image metrics when there is no `volume`.
     pub renderer: ThicknessRenderer,
     /// CT volume DRR masked to the target's labels (CT targets): image metrics and heatmaps.
-    pub volume: Option<VolumeOnBackend>,
+    pub volume: Option<Arc<VolumeOnBackend>>,
     pub landmarks: Vec<(String, DVec3)>,
     /// Clinical target points (world mm): the phantom's planned pedicle-screw entry, isthmus and tip per
     /// side, or a user target's landmarks whose name contains `pedicle`. Errors there are what a screw's

@@ -172,7 +172,7 @@ fn write_reference_image(
     let adapter = if renderer == "thickness" {
         t.renderer.gpu_adapter()
     } else {
-        t.volume.as_ref().and_then(VolumeOnBackend::gpu_adapter)
+        t.volume.as_deref().and_then(VolumeOnBackend::gpu_adapter)
     };
     if let Some(adapter) = adapter {
         side.details.insert("gpu_adapter".into(), adapter.into());

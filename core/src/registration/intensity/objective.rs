@@ -31,7 +31,7 @@ pub enum MovingDrr {
     Mesh(MeshDrr),
     /// A CT (optionally masked to the level) rendered by Siddon or trilinear sampling, on the CPU or
     /// (the gpu backend) in the GPU's compute shader.
-    Volume(Box<VolumeOnBackend>),
+    Volume(Arc<VolumeOnBackend>),
 }
 
 impl MovingDrr {

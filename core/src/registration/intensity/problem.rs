@@ -306,7 +306,7 @@ fn build_anatomy(
             let renderer = VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), mask)?;
             let targets = subsample(&surface.vertices, super::MAX_TARGET_POINTS);
             Ok((
-                MovingDrr::Volume(Box::new(VolumeOnBackend::new(renderer, backend)?)),
+                MovingDrr::Volume(Arc::new(VolumeOnBackend::new(renderer, backend)?)),
                 targets,
             ))
         }
