@@ -22,6 +22,8 @@ mod gpu_ct;
 mod gpu_mesh;
 #[cfg(feature = "gpu")]
 mod gpu_mesh_cli;
+#[cfg(feature = "gpu")]
+mod gpu_registration;
 mod landmark_formats;
 mod meshing_cli;
 mod meshing_decimate;

@@ -28,4 +28,6 @@ pub use products::{
     write_difference_set, write_drr, write_drr_set, write_masks,
 };
 pub use sidecar::{Sidecar, kind, sidecar_path, units};
+#[cfg(feature = "gpu")]
+pub(crate) use xray::gaussian_taps;
 pub use xray::{XrayModel, expected_counts, gaussian_blur, poisson_counts};

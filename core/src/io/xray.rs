@@ -134,7 +134,7 @@ pub fn poisson_counts(expected: &ImageF32, seed: u64) -> ImageF32 {
 }
 
 /// The normalised 1-D Gaussian taps of standard deviation `sigma` px, from `−⌈3σ⌉` to `⌈3σ⌉`.
-fn gaussian_taps(sigma: f64) -> Vec<f64> {
+pub(crate) fn gaussian_taps(sigma: f64) -> Vec<f64> {
     let r = (3.0 * sigma).ceil() as i64;
     let taps: Vec<f64> = (-r..=r)
         .map(|k| (-(k * k) as f64 / (2.0 * sigma * sigma)).exp())

@@ -69,6 +69,12 @@ impl VolumeOnBackend {
         Ok(())
     }
 
+    /// The GPU copy that renders (the gpu backend), else `None`.
+    #[cfg(feature = "gpu")]
+    pub fn gpu(&self) -> Option<&super::gpu::GpuCtRenderer> {
+        self.gpu.as_ref()
+    }
+
     /// The GPU adapter the DRRs render on, else `None`.
     pub fn gpu_adapter(&self) -> Option<String> {
         #[cfg(feature = "gpu")]

@@ -20,7 +20,7 @@
 
 use rayon::prelude::*;
 
-use super::objective::{Evaluation, Objective};
+use super::objective::{Evaluation, Objective, Residual};
 use crate::Result;
 use crate::math::cholesky_solve;
 
@@ -52,11 +52,18 @@ pub struct LmResult {
     pub stop: &'static str,
 }
 
-/// The Jacobian of the stacked residual, one row of six partial derivatives per residual.
+/// The Jacobian of the stacked residual, one row of six partial derivatives per residual: in host
+/// memory, or on the GPU beside its residuals.
 struct Jacobian {
-    rows: Vec<[f64; 6]>,
+    rows: Rows,
     /// Secant updates since it was formed by differences.
     updates: usize,
+}
+
+enum Rows {
+    Host(Vec<[f64; 6]>),
+    #[cfg(feature = "gpu")]
+    Device(super::device::DeviceJacobian),
 }
 
 /// Secant updates after which the Jacobian is formed by differences again (Madsen et al. refresh it
@@ -69,99 +76,147 @@ const MAX_SECANTS: usize = 10;
 const CHUNK: usize = 4096;
 
 impl Jacobian {
-    /// Forward differences of step `h` at `p` (residual `r`): six renders in parallel.
-    fn by_differences(obj: &Objective, p: &[f64; 6], r: &[f64], h: f64) -> Result<Self> {
-        let cols: Vec<Vec<f64>> = (0..6)
-            .into_par_iter()
-            .map(|k| {
-                let mut q = *p;
-                q[k] += h;
-                let mut rk = Vec::new();
-                obj.evaluate(&q, Some(&mut rk))?;
-                Ok(rk)
-            })
-            .collect::<Result<_>>()?;
-        let mut rows = vec![[0.0; 6]; r.len()];
-        rows.par_chunks_mut(CHUNK)
-            .enumerate()
-            .for_each(|(c, chunk)| {
-                let i0 = c * CHUNK;
-                for (j, row) in chunk.iter_mut().enumerate() {
-                    let i = i0 + j;
-                    for k in 0..6 {
-                        row[k] = (cols[k][i] - r[i]) / h;
-                    }
-                }
-            });
+    /// Forward differences of step `h` at `p` (residual `r`): six renders, in parallel on the CPU, in one
+    /// submission on the GPU.
+    fn by_differences(obj: &Objective, p: &[f64; 6], r: &Residual, h: f64) -> Result<Self> {
+        let rows = match r {
+            Residual::Host(r) => Rows::Host(host_differences(obj, p, r, h)?),
+            #[cfg(feature = "gpu")]
+            Residual::Device(r) => Rows::Device(obj.device_jacobian(p, r, h)?),
+        };
         Ok(Jacobian { rows, updates: 0 })
     }
 
-    /// `JᵀJ` and `−Jᵀr`: partial sums per chunk in parallel, added in chunk order, so the result does
-    /// not depend on how the threads shared the work (resumed studies are byte-identical).
-    fn normal_equations(&self, r: &[f64]) -> ([[f64; 6]; 6], [f64; 6]) {
-        let parts: Vec<[f64; 27]> = self
-            .rows
-            .par_chunks(CHUNK)
-            .zip(r.par_chunks(CHUNK))
-            .map(|(rows, r)| {
-                let mut a = [0.0f64; 27];
-                for (j, &x) in rows.iter().zip(r) {
-                    let mut n = 0;
-                    for p in 0..6 {
-                        for q in p..6 {
-                            a[n] += j[p] * j[q];
-                            n += 1;
-                        }
-                        a[21 + p] -= j[p] * x;
-                    }
-                }
-                a
-            })
-            .collect();
-        let mut acc = [0.0f64; 27];
-        for part in &parts {
-            for (x, y) in acc.iter_mut().zip(part) {
-                *x += y;
-            }
+    /// `JᵀJ` and `−Jᵀr`.
+    #[cfg_attr(not(feature = "gpu"), allow(unused_variables))]
+    fn normal_equations(&self, obj: &Objective, r: &Residual) -> Result<([[f64; 6]; 6], [f64; 6])> {
+        match (&self.rows, r) {
+            (Rows::Host(rows), Residual::Host(r)) => Ok(host_normal_equations(rows, r)),
+            #[cfg(feature = "gpu")]
+            (Rows::Device(j), Residual::Device(r)) => obj.device()?.normal_equations(j, r),
+            #[cfg(feature = "gpu")]
+            _ => Err(mixed()),
         }
-        // `acc` holds the upper triangle row by row: entry (p, q ≥ p) at p·(11 − p)/2 + q.
-        let jtj = std::array::from_fn(|p| {
-            std::array::from_fn(|q| {
-                let (a, b) = (p.min(q), p.max(q));
-                acc[a * (11 - a) / 2 + b]
-            })
-        });
-        (jtj, std::array::from_fn(|p| acc[21 + p]))
     }
 
     /// Broyden's update along `delta`, which changed the residual from `r` to `rq`.
-    fn secant_update(&mut self, delta: &[f64; 6], r: &[f64], rq: &[f64]) {
-        let dd: f64 = delta.iter().map(|x| x * x).sum();
-        if dd <= 0.0 {
-            return;
+    #[cfg_attr(not(feature = "gpu"), allow(unused_variables))]
+    fn secant_update(
+        &mut self,
+        obj: &Objective,
+        delta: &[f64; 6],
+        r: &Residual,
+        rq: &Residual,
+    ) -> Result<()> {
+        match (&mut self.rows, r, rq) {
+            (Rows::Host(rows), Residual::Host(r), Residual::Host(rq)) => {
+                host_secant_update(rows, delta, r, rq)
+            }
+            #[cfg(feature = "gpu")]
+            (Rows::Device(j), Residual::Device(r), Residual::Device(rq)) => {
+                obj.device()?.secant_update(j, delta, r, rq)?
+            }
+            #[cfg(feature = "gpu")]
+            _ => return Err(mixed()),
         }
-        let d = delta.map(|x| x / dd);
-        self.rows
-            .par_chunks_mut(CHUNK)
-            .zip(r.par_chunks(CHUNK).zip(rq.par_chunks(CHUNK)))
-            .for_each(|(rows, (r, rq))| {
-                for (j, (a, b)) in rows.iter_mut().zip(r.iter().zip(rq)) {
-                    let jd: f64 = (0..6).map(|k| j[k] * delta[k]).sum();
-                    let u = b - a - jd;
-                    for k in 0..6 {
-                        j[k] += u * d[k];
-                    }
-                }
-            });
         self.updates += 1;
+        Ok(())
     }
+}
+
+#[cfg(feature = "gpu")]
+fn mixed() -> crate::Error {
+    crate::Error::Internal("a Jacobian and a residual in different memories".into())
+}
+
+/// Forward differences of step `h` at `p` (residual `r`): six renders in parallel.
+fn host_differences(obj: &Objective, p: &[f64; 6], r: &[f64], h: f64) -> Result<Vec<[f64; 6]>> {
+    let cols: Vec<Vec<f64>> = (0..6)
+        .into_par_iter()
+        .map(|k| {
+            let mut q = *p;
+            q[k] += h;
+            let mut rk = Vec::new();
+            obj.evaluate(&q, Some(&mut rk))?;
+            Ok(rk)
+        })
+        .collect::<Result<_>>()?;
+    let mut rows = vec![[0.0; 6]; r.len()];
+    rows.par_chunks_mut(CHUNK)
+        .enumerate()
+        .for_each(|(c, chunk)| {
+            let i0 = c * CHUNK;
+            for (j, row) in chunk.iter_mut().enumerate() {
+                let i = i0 + j;
+                for k in 0..6 {
+                    row[k] = (cols[k][i] - r[i]) / h;
+                }
+            }
+        });
+    Ok(rows)
+}
+
+/// `JᵀJ` and `−Jᵀr`: partial sums per chunk in parallel, added in chunk order, so the result does
+/// not depend on how the threads shared the work (resumed studies are byte-identical).
+fn host_normal_equations(rows: &[[f64; 6]], r: &[f64]) -> ([[f64; 6]; 6], [f64; 6]) {
+    let parts: Vec<[f64; 27]> = rows
+        .par_chunks(CHUNK)
+        .zip(r.par_chunks(CHUNK))
+        .map(|(rows, r)| {
+            let mut a = [0.0f64; 27];
+            for (j, &x) in rows.iter().zip(r) {
+                let mut n = 0;
+                for p in 0..6 {
+                    for q in p..6 {
+                        a[n] += j[p] * j[q];
+                        n += 1;
+                    }
+                    a[21 + p] -= j[p] * x;
+                }
+            }
+            a
+        })
+        .collect();
+    let mut acc = [0.0f64; 27];
+    for part in &parts {
+        for (x, y) in acc.iter_mut().zip(part) {
+            *x += y;
+        }
+    }
+    // `acc` holds the upper triangle row by row: entry (p, q ≥ p) at p·(11 − p)/2 + q.
+    let jtj = std::array::from_fn(|p| {
+        std::array::from_fn(|q| {
+            let (a, b) = (p.min(q), p.max(q));
+            acc[a * (11 - a) / 2 + b]
+        })
+    });
+    (jtj, std::array::from_fn(|p| acc[21 + p]))
+}
+
+/// Broyden's update of `rows` along `delta`, which changed the residual from `r` to `rq`.
+fn host_secant_update(rows: &mut [[f64; 6]], delta: &[f64; 6], r: &[f64], rq: &[f64]) {
+    let dd: f64 = delta.iter().map(|x| x * x).sum();
+    if dd <= 0.0 {
+        return;
+    }
+    let d = delta.map(|x| x / dd);
+    rows.par_chunks_mut(CHUNK)
+        .zip(r.par_chunks(CHUNK).zip(rq.par_chunks(CHUNK)))
+        .for_each(|(rows, (r, rq))| {
+            for (j, (a, b)) in rows.iter_mut().zip(r.iter().zip(rq)) {
+                let jd: f64 = (0..6).map(|k| j[k] * delta[k]).sum();
+                let u = b - a - jd;
+                for k in 0..6 {
+                    j[k] += u * d[k];
+                }
+            }
+        });
 }
 
 /// Runs Levenberg–Marquardt on `obj` from `p0`.
 pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResult> {
     let mut p = p0;
-    let mut r = Vec::new();
-    let mut eval = obj.evaluate(&p, Some(&mut r))?;
+    let (mut eval, mut r) = obj.residual_at(&p)?;
     let mut lambda = 1e-3;
     let mut iterations = 0;
     let mut h = opts.h;
@@ -180,7 +235,7 @@ pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResul
                 Jacobian::by_differences(obj, &p, &r, h)?
             }
         };
-        let (jtj, jtr) = j.normal_equations(&r);
+        let (jtj, jtr) = j.normal_equations(obj, &r)?;
         let mut m = jtj;
         for (k, row) in m.iter_mut().enumerate() {
             row[k] += lambda * jtj[k][k].max(1e-12);
@@ -195,12 +250,11 @@ pub fn refine(obj: &Objective, p0: [f64; 6], opts: &LmOptions) -> Result<LmResul
         };
         let q: [f64; 6] = std::array::from_fn(|k| p[k] + delta[k]);
         let step_len = delta.iter().map(|x| x * x).sum::<f64>().sqrt();
-        let mut rq = Vec::new();
-        let eq = obj.evaluate(&q, Some(&mut rq))?;
+        let (eq, rq) = obj.residual_at(&q)?;
         let was_fresh = j.updates == 0;
         let mut j = j;
         if opts.broyden && eq.cost.is_finite() {
-            j.secant_update(&delta, &r, &rq);
+            j.secant_update(obj, &delta, &r, &rq)?;
         }
         if eq.cost.is_finite() && eq.cost < eval.cost {
             let rel = (eval.cost - eq.cost) / eval.cost;

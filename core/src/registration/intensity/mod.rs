@@ -9,10 +9,13 @@
 //! * `cmaes` (global stage at the coarsest level) and `lm` (Levenberg–Marquardt refinement per level);
 //! * `register`: the pipeline; `evaluate`: mTRE, starts uniform in initial mTRE, success and capture
 //!   range (van de Kraats et al. 2005); `anatomy`: phantom targets and fluoroscopy-like fixed images;
-//!   `problem`: the `P.json` file of `spinedrr register --intensity` and its `R.json` record.
+//!   `problem`: the `P.json` file of `spinedrr register --intensity` and its `R.json` record;
+//! * `device` (the gpu feature): a CT level's evaluation and the LM's products on the GPU.
 
 mod anatomy;
 mod cmaes;
+#[cfg(feature = "gpu")]
+mod device;
 mod evaluate;
 mod lm;
 mod objective;
@@ -32,7 +35,7 @@ pub use evaluate::{
     summarise,
 };
 pub use lm::{LmOptions, LmResult, refine};
-pub use objective::{Evaluation, MeshDrr, MovingDrr, Objective, pose_of};
+pub use objective::{Evaluation, MeshDrr, MovingDrr, Objective, Residual, pose_of};
 pub use problem::{LoadedIntensityProblem, run_intensity_problem};
 pub use pyramid::{binned_image, binned_view, subsampled_image, subsampled_view};
 pub use register::{

@@ -231,6 +231,14 @@ pub struct LevelView {
     eps: Vec<f64>,
 }
 
+/// A pose's stacked residual: in host memory, or (a CT level on the gpu backend) on the GPU, where the
+/// LM's products read it (`super::device`).
+pub enum Residual {
+    Host(Vec<f64>),
+    #[cfg(feature = "gpu")]
+    Device(super::device::DeviceResidual),
+}
+
 /// A similarity value and the least-squares cost of one pose.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Evaluation {
@@ -259,6 +267,10 @@ pub struct Objective<'a> {
     /// Evaluation buffers, one set taken per view being evaluated and put back afterwards, so the loop
     /// renders, bins and normalises into memory it already has.
     buffers: Mutex<Vec<Buffers>>,
+    /// A CT level on the gpu backend whose views share one size: evaluated on the GPU
+    /// ([`super::device`]), only scalars read back.
+    #[cfg(feature = "gpu")]
+    device: Option<super::device::DeviceLevel<'a>>,
 }
 
 impl<'a> Objective<'a> {
@@ -311,6 +323,8 @@ impl<'a> Objective<'a> {
         let supersample = supersample.max(1);
         let mut out = Vec::with_capacity(views.len());
         let mut summed = true;
+        #[cfg(feature = "gpu")]
+        let level_size = views.first().map_or((0, 0), |(_, f)| (f.width, f.height));
         for (view, fixed) in views {
             let fixed = gaussian_blur(&fixed, smooth_px);
             let f = FixedFeatures::new(sim, &fixed, &format!("views[{}].fixed", view.name))?;
@@ -353,7 +367,32 @@ impl<'a> Objective<'a> {
                 eps,
             });
         }
+        #[cfg(feature = "gpu")]
+        let device = match &moving {
+            LevelRenderer::Volume(v) => {
+                let v: &'a VolumeOnBackend = v;
+                match v.gpu() {
+                    Some(g) => {
+                        let views: Vec<_> = out
+                            .iter()
+                            .map(|lv| (&lv.view, &lv.fixed, lv.eps.as_slice()))
+                            .collect();
+                        super::device::DeviceLevel::new(
+                            g,
+                            &views,
+                            supersample,
+                            smooth_px,
+                            level_size,
+                        )?
+                    }
+                    None => None,
+                }
+            }
+            LevelRenderer::Mesh(_) => None,
+        };
         Ok(Objective {
+            #[cfg(feature = "gpu")]
+            device,
             moving,
             supersample,
             summed,
@@ -416,8 +455,112 @@ impl<'a> Objective<'a> {
         self.views.len()
     }
 
+    /// The objective with its similarity evaluated on the host even where the GPU could (a CT on the
+    /// gpu backend then renders there and the CPU bins, smooths and compares the images read back, as
+    /// for meshes): to compare the two.
+    pub fn on_host(self) -> Self {
+        #[cfg(feature = "gpu")]
+        {
+            let mut s = self;
+            s.device = None;
+            s
+        }
+        #[cfg(not(feature = "gpu"))]
+        self
+    }
+
+    /// Whether the level is evaluated on the GPU (a CT on the gpu backend): render, pyramid, smoothing,
+    /// similarity and the LM's products there, only scalars read back.
+    pub fn on_device(&self) -> bool {
+        #[cfg(feature = "gpu")]
+        if self.device.is_some() {
+            return true;
+        }
+        false
+    }
+
+    /// The views seen from `pose`: the camera moves instead of the anatomy.
+    #[cfg(feature = "gpu")]
+    fn moved_views(&self, pose: &RigidTransform) -> Vec<View> {
+        self.views
+            .iter()
+            .map(|lv| View {
+                world_to_camera: lv.view.world_to_camera.compose(pose),
+                ..lv.view.clone()
+            })
+            .collect()
+    }
+
+    /// Evaluates `p` and keeps its stacked residual where the level computes it.
+    pub fn residual_at(&self, p: &[f64; 6]) -> Result<(Evaluation, Residual)> {
+        #[cfg(feature = "gpu")]
+        if let Some(d) = &self.device {
+            let (e, r) = self.device_evaluate(d, p)?;
+            return Ok((e, Residual::Device(r)));
+        }
+        let mut r = Vec::new();
+        let e = self.evaluate(p, Some(&mut r))?;
+        Ok((e, Residual::Host(r)))
+    }
+
+    #[cfg(feature = "gpu")]
+    fn device_evaluate(
+        &self,
+        d: &super::device::DeviceLevel,
+        p: &[f64; 6],
+    ) -> Result<(Evaluation, super::device::DeviceResidual)> {
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        let (sums, r) = d.evaluate(&self.moved_views(&self.pose(p)))?;
+        let n = sums.similarity.len().max(1) as f64;
+        Ok((
+            Evaluation {
+                cost: sums.squared.iter().sum::<f64>() / n,
+                similarity: sums.similarity.iter().sum::<f64>() / n,
+                per_view: sums.similarity,
+            },
+            r,
+        ))
+    }
+
+    /// The GPU level, when the level is evaluated there.
+    #[cfg(feature = "gpu")]
+    pub(super) fn device(&self) -> Result<&super::device::DeviceLevel<'a>> {
+        self.device
+            .as_ref()
+            .ok_or_else(|| Error::Internal("a GPU residual of a level evaluated on the CPU".into()))
+    }
+
+    /// The forward-difference Jacobian of step `h` at `p` (residual `r`) on the GPU: the six poses
+    /// `p + h e_k` rendered and compared in one submission.
+    #[cfg(feature = "gpu")]
+    pub(super) fn device_jacobian(
+        &self,
+        p: &[f64; 6],
+        r: &super::device::DeviceResidual,
+        h: f64,
+    ) -> Result<super::device::DeviceJacobian> {
+        let d = self.device()?;
+        let columns: Vec<Vec<View>> = (0..6)
+            .map(|k| {
+                let mut q = *p;
+                q[k] += h;
+                self.moved_views(&self.pose(&q))
+            })
+            .collect();
+        self.evaluations.fetch_add(6, Ordering::Relaxed);
+        d.jacobian(&columns, r, h)
+    }
+
     /// Evaluates `p`; with `residual`, also writes the stacked residual `r_v / √V` of every view.
     pub fn evaluate(&self, p: &[f64; 6], residual: Option<&mut Vec<f64>>) -> Result<Evaluation> {
+        #[cfg(feature = "gpu")]
+        if let Some(d) = &self.device {
+            let (e, r) = self.device_evaluate(d, p)?;
+            if let Some(out) = residual {
+                *out = d.read_residual(&r)?;
+            }
+            return Ok(e);
+        }
         self.evaluations.fetch_add(1, Ordering::Relaxed);
         let pose = self.pose(p);
         let scale = 1.0 / (self.views.len() as f64).sqrt();

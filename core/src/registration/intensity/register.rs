@@ -159,6 +159,11 @@ impl Default for IntensityOptions {
     }
 }
 
+/// Where `obj`'s evaluations run (see [`StageReport::similarity_on`]).
+fn evaluated_on(obj: &Objective) -> &'static str {
+    if obj.on_device() { "gpu" } else { "cpu" }
+}
+
 /// What one stage of one level did.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct StageReport {
@@ -169,6 +174,10 @@ pub struct StageReport {
     pub iterations: usize,
     pub stop: &'static str,
     pub similarity: f64,
+    /// Where the level's evaluations ran: `gpu` (a CT on the gpu backend: render, pyramid, smoothing,
+    /// similarity and the LM's products on the GPU, only scalars read back) or `cpu` (the similarity on
+    /// the host, whatever rendered the DRRs).
+    pub similarity_on: &'static str,
     /// Wall time of the stage (s).
     pub seconds: f64,
 }
@@ -298,6 +307,7 @@ pub fn register_intensity(
                 iterations: cma.generations,
                 stop: cma.stop,
                 similarity: 1.0 - cma.best_cost / 2.0,
+                similarity_on: evaluated_on(&obj),
                 seconds: lap(&mut clock),
             });
         }
@@ -336,6 +346,7 @@ pub fn register_intensity(
             iterations: r.iterations,
             stop: r.stop,
             similarity: r.eval.similarity,
+            similarity_on: evaluated_on(&obj),
             seconds: lap(&mut clock),
         });
         pose = obj.pose(&r.p);

@@ -140,6 +140,51 @@ pub fn features(sim: Similarity, img: &ImageF32, out: &mut Vec<f64>) -> Result<L
     })
 }
 
+/// Where each feature of [`features`] comes from in a `w × h` image: its pixel `u + w·v` (for a
+/// gradient the first pixel of its 3 × 3 neighbourhood) in bits 0–29 and its kind in bits 30–31 — 0 the
+/// value, 1 the Sobel x response, 2 the Sobel y response — in the order [`features`] writes them (the
+/// GPU's feature pass, `device/level.wgsl`, reads them).
+#[cfg_attr(not(feature = "gpu"), allow(dead_code))]
+pub fn feature_sources(sim: Similarity, w: u32, h: u32) -> Result<Vec<u32>> {
+    let (wu, hu) = (w as usize, h as usize);
+    if wu * hu >= 1 << 30 {
+        return Err(Error::invalid(
+            "levels",
+            format!("a {w}×{h} px level is too large"),
+        ));
+    }
+    let px = |u: usize, v: usize| (u + wu * v) as u32;
+    Ok(match sim {
+        Similarity::Ncc => (0..wu * hu).map(|i| i as u32).collect(),
+        Similarity::GradientCorrelation | Similarity::GradientNcc => {
+            if wu < 3 || hu < 3 {
+                return Err(Error::invalid(
+                    "similarity",
+                    "gradient similarities need at least 3×3 pixels",
+                ));
+            }
+            let interior: Vec<u32> = (0..hu - 2)
+                .flat_map(|v| (0..wu - 2).map(move |u| px(u, v)))
+                .collect();
+            let x = interior.iter().map(|&p| p | 1 << 30);
+            let y = interior.iter().map(|&p| p | 2 << 30);
+            x.chain(y).collect()
+        }
+        Similarity::LocalNcc { patch_px } => {
+            let p = patch_px as usize;
+            let mut out = Vec::with_capacity(wu * hu);
+            for v0 in (0..hu).step_by(p) {
+                for u0 in (0..wu).step_by(p) {
+                    for v in v0..(v0 + p).min(hu) {
+                        out.extend((u0..(u0 + p).min(wu)).map(|u| px(u, v)));
+                    }
+                }
+            }
+            out
+        }
+    })
+}
+
 /// A block's normalisation `x̂ = (x − mean) · scale`, `scale = 1 / √(energy + eps)`, and its energy
 /// `‖x − x̄‖²`: the one place both [`normalise`] and [`FixedFeatures::residual`] take it from, so both
 /// compute the same numbers.
@@ -314,6 +359,39 @@ mod tests {
             // S = 1 − ½‖r‖² when every block is unit norm.
             let half_r2 = 0.5 * r.iter().map(|x| x * x).sum::<f64>();
             assert!((1.0 - half_r2 - got).abs() < 1e-12, "{sim:?}");
+        }
+    }
+
+    /// Each feature recomputed from its source code (value, or the Sobel formula on the 3 × 3
+    /// neighbourhood written out here) is the feature `features` wrote, for every similarity.
+    #[test]
+    fn feature_sources_name_each_feature_s_pixel_and_kind() {
+        let img = blob(23, 17, 10.0, 8.0);
+        let at = |u: usize, v: usize| f64::from(img.data[u + 23 * v]);
+        for name in ["ncc", "gc", "gncc", "lncc:5"] {
+            let sim = Similarity::parse(name).unwrap();
+            let mut x = Vec::new();
+            features(sim, &img, &mut x).unwrap();
+            let src = feature_sources(sim, 23, 17).unwrap();
+            assert_eq!(src.len(), x.len(), "{name}");
+            for (code, want) in src.iter().zip(&x) {
+                let p = (code & 0x3fff_ffff) as usize;
+                let (u, v) = (p % 23, p / 23);
+                let got = match code >> 30 {
+                    0 => at(u, v),
+                    1 => {
+                        (at(u + 2, v) - at(u, v))
+                            + 2.0 * (at(u + 2, v + 1) - at(u, v + 1))
+                            + (at(u + 2, v + 2) - at(u, v + 2))
+                    }
+                    _ => {
+                        (at(u, v + 2) - at(u, v))
+                            + 2.0 * (at(u + 1, v + 2) - at(u + 1, v))
+                            + (at(u + 2, v + 2) - at(u + 2, v))
+                    }
+                };
+                assert!((got - want).abs() < 1e-12, "{name}: {got} vs {want}");
+            }
         }
     }
 

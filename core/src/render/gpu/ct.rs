@@ -237,58 +237,8 @@ impl GpuCtRenderer {
             return Ok(Vec::new());
         };
         let (w, h) = (first.intrinsics.width, first.intrinsics.height);
-        if let Some(v) = views
-            .iter()
-            .find(|v| (v.intrinsics.width, v.intrinsics.height) != (w, h))
-        {
-            return Err(Error::invalid(
-                "views",
-                format!(
-                    "view '{}' is {}×{} px and view '{}' {w}×{h}: one GPU dispatch renders views of one \
-                     detector size",
-                    v.name, v.intrinsics.width, v.intrinsics.height, first.name
-                ),
-            ));
-        }
-        let n = views.len() as u32;
         let pixels = u64::from(w) * u64::from(h);
-        let out_bytes = 4 * pixels * u64::from(n);
-        // Only the pixels whose rays can meet the box are traced (as on the CPU): the union of the views'
-        // footprints; a masked level's box covers a small part of the detector.
-        let hi = [0, 1, 2].map(|a| self.lo[a] + self.dims[a] as usize - 1);
-        let window = views
-            .iter()
-            .filter_map(|v| footprint(&self.world_to_index, self.lo, hi, v))
-            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1), a.2.min(b.2), a.3.max(b.3)));
-        let Some((u0, u1, v0, v1)) = window else {
-            return Ok(views.iter().map(|_| ImageF32::zeros(w, h)).collect());
-        };
-        let window = [u0, v0, u1 + 1 - u0, v1 + 1 - v0].map(|x| x as u32);
-        let groups = [
-            window[2].div_ceil(WORKGROUP),
-            window[3].div_ceil(WORKGROUP),
-            n,
-        ];
-        let max_groups = self.ctx.max_workgroups();
-        if out_bytes > self.ctx.max_storage_binding() || groups.iter().any(|&g| g > max_groups) {
-            return Err(Error::invalid(
-                "views",
-                format!(
-                    "{n} view(s) of {w}×{h} px are more than one dispatch of GPU adapter {} takes \
-                     ({} bytes of output at most, {max_groups} workgroups a side): render fewer views at \
-                     a time",
-                    self.ctx.adapter_name(),
-                    self.ctx.max_storage_binding()
-                ),
-            ));
-        }
-        let rays: Vec<ViewRays> = views.iter().map(|v| self.view_rays(v)).collect();
-        let globals = Globals {
-            dims: [self.dims[0], self.dims[1], self.dims[2], n],
-            image: [w, h, 0, 0],
-            window,
-            h_max: [self.step_mm as f32, 0.0, 0.0, 0.0],
-        };
+        let out_bytes = 4 * pixels * views.len() as u64;
         let device = &self.ctx.device;
         let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
         if slot.as_ref().is_some_and(|b| b.bytes != out_bytes) {
@@ -318,6 +268,97 @@ impl GpuCtRenderer {
                 })?),
             };
         let (out, staging) = (&bufs.out, &bufs.staging);
+        let mut encoder = device.create_command_encoder(&Default::default());
+        self.encode_views(&mut encoder, views, out)?;
+        self.ctx.checked("rendering CT DRRs", || {
+            encoder.copy_buffer_to_buffer(out, 0, staging, 0, out_bytes);
+            self.ctx.queue.submit([encoder.finish()]);
+        })?;
+        let data = self.ctx.read_back::<f32>(staging, "the CT DRRs");
+        if data.is_err() {
+            // A buffer left mapped (or lost with the device) is not reused.
+            *slot = None;
+        }
+        let data = data?;
+        Ok(data
+            .chunks_exact(pixels as usize)
+            .map(|c| ImageF32 {
+                width: w,
+                height: h,
+                data: c.to_vec(),
+            })
+            .collect())
+    }
+
+    /// Records into `encoder` the DRRs of `views` (one detector size) into `out` (a storage buffer of at
+    /// least 4 bytes per pixel per view; view `k`'s pixels, rows first, from pixel `k·w·h`), nothing
+    /// read back: the registration loop's renders stay on the GPU.
+    pub(crate) fn encode_views(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        views: &[View],
+        out: &wgpu::Buffer,
+    ) -> Result<()> {
+        let Some(first) = views.first() else {
+            return Ok(());
+        };
+        let (w, h) = (first.intrinsics.width, first.intrinsics.height);
+        if let Some(v) = views
+            .iter()
+            .find(|v| (v.intrinsics.width, v.intrinsics.height) != (w, h))
+        {
+            return Err(Error::invalid(
+                "views",
+                format!(
+                    "view '{}' is {}×{} px and view '{}' {w}×{h}: one GPU dispatch renders views of one \
+                     detector size",
+                    v.name, v.intrinsics.width, v.intrinsics.height, first.name
+                ),
+            ));
+        }
+        let n = views.len() as u32;
+        let out_bytes = 4 * u64::from(w) * u64::from(h) * u64::from(n);
+        // Only the pixels whose rays can meet the box are traced (as on the CPU): the union of the views'
+        // footprints; a masked level's box covers a small part of the detector.
+        let hi = [0, 1, 2].map(|a| self.lo[a] + self.dims[a] as usize - 1);
+        let window = views
+            .iter()
+            .filter_map(|v| footprint(&self.world_to_index, self.lo, hi, v))
+            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1), a.2.min(b.2), a.3.max(b.3)));
+        let Some((u0, u1, v0, v1)) = window else {
+            encoder.clear_buffer(out, 0, Some(out_bytes));
+            return Ok(());
+        };
+        let window = [u0, v0, u1 + 1 - u0, v1 + 1 - v0].map(|x| x as u32);
+        let groups = [
+            window[2].div_ceil(WORKGROUP),
+            window[3].div_ceil(WORKGROUP),
+            n,
+        ];
+        let max_groups = self.ctx.max_workgroups();
+        if out_bytes > self.ctx.max_storage_binding()
+            || out_bytes > out.size()
+            || groups.iter().any(|&g| g > max_groups)
+        {
+            return Err(Error::invalid(
+                "views",
+                format!(
+                    "{n} view(s) of {w}×{h} px are more than one dispatch of GPU adapter {} takes \
+                     ({} bytes of output at most, {max_groups} workgroups a side): render fewer views at \
+                     a time",
+                    self.ctx.adapter_name(),
+                    self.ctx.max_storage_binding().min(out.size())
+                ),
+            ));
+        }
+        let rays: Vec<ViewRays> = views.iter().map(|v| self.view_rays(v)).collect();
+        let globals = Globals {
+            dims: [self.dims[0], self.dims[1], self.dims[2], n],
+            image: [w, h, 0, 0],
+            window,
+            h_max: [self.step_mm as f32, 0.0, 0.0, 0.0],
+        };
+        let device = &self.ctx.device;
         self.ctx.checked("rendering CT DRRs", || {
             let uniform = uniform_init(device, "ct globals", bytemuck::bytes_of(&globals));
             let view_buffer = storage_init(device, "ct views", bytemuck::cast_slice(&rays));
@@ -343,32 +384,18 @@ impl GpuCtRenderer {
                     },
                 ],
             });
-            let mut encoder = device.create_command_encoder(&Default::default());
             // The pixels outside the footprint stay 0 (a reused buffer holds the last render).
-            encoder.clear_buffer(out, 0, None);
-            {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.pipeline);
-                pass.set_bind_group(0, &bind, &[]);
-                pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
-            }
-            encoder.copy_buffer_to_buffer(out, 0, staging, 0, out_bytes);
-            self.ctx.queue.submit([encoder.finish()]);
-        })?;
-        let data = self.ctx.read_back::<f32>(staging, "the CT DRRs");
-        if data.is_err() {
-            // A buffer left mapped (or lost with the device) is not reused.
-            *slot = None;
-        }
-        let data = data?;
-        Ok(data
-            .chunks_exact(pixels as usize)
-            .map(|c| ImageF32 {
-                width: w,
-                height: h,
-                data: c.to_vec(),
-            })
-            .collect())
+            encoder.clear_buffer(out, 0, Some(out_bytes));
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+        })
+    }
+
+    /// The context the renderer's buffers live in.
+    pub(crate) fn context(&self) -> &Arc<GpuContext> {
+        &self.ctx
     }
 
     /// The shader's description of `view`'s rays in the clip box's index coordinates. The ray of pixel

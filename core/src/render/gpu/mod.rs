@@ -29,6 +29,8 @@ pub struct GpuContext {
     limits: wgpu::Limits,
     /// The device was opened with `SHADER_F64` (mesh vertices are then projected on the GPU).
     f64: bool,
+    /// Compiled shaders kept for the device's life, by name ([`GpuContext::cached`]).
+    cache: Mutex<Vec<(&'static str, Arc<dyn std::any::Any + Send + Sync>)>>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -102,7 +104,26 @@ impl GpuContext {
             info,
             limits,
             f64,
+            cache: Mutex::new(Vec::new()),
         }))
+    }
+
+    /// The value `make` built the first time `name` was asked for (compiled shaders that every
+    /// registration level shares), built inside an error scope: a failure is returned, not kept.
+    pub(crate) fn cached<T: Send + Sync + 'static>(
+        &self,
+        name: &'static str,
+        make: impl FnOnce(&wgpu::Device) -> T,
+    ) -> Result<Arc<T>> {
+        let mut cache = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some((_, v)) = cache.iter().find(|(n, _)| *n == name) {
+            return Arc::clone(v)
+                .downcast::<T>()
+                .map_err(|_| Error::Internal(format!("GPU cache entry {name} has another type")));
+        }
+        let value = Arc::new(self.checked(&format!("compiling {name}"), || make(&self.device))?);
+        cache.push((name, value.clone()));
+        Ok(value)
     }
 
     /// Whether shaders may compute in f64 (the adapter has `SHADER_F64`).

@@ -1,0 +1,26 @@
+//! The intensity registration's loop on the GPU for a CT anatomy on the gpu backend: per evaluation the
+//! moving DRRs, the pyramid's box average, the smoothing and the similarity run there ([`DeviceLevel`],
+//! `level.wgsl`), and so do the Levenberg–Marquardt products — the forward-difference Jacobian, `JᵀJ`,
+//! `Jᵀr` and Broyden's updates (`lm.rs`, `lm.wgsl`): the residuals never leave the GPU, and an evaluation
+//! reads back two numbers per block and view, a Jacobian's normal equations 27 per chunk of rows.
+//!
+//! Mesh DRRs are not evaluated here: the GPU's signed-depth sums leave a few pixels to the host
+//! (`render::thickness::gpu`), so a mesh level's image is finished on the CPU.
+
+mod level;
+mod lm;
+mod lm_kernels;
+
+pub use level::{DeviceLevel, DeviceResidual};
+pub use lm::DeviceJacobian;
+
+/// Invocations per workgroup of `level.wgsl` and `lm.wgsl`.
+const GROUP: u32 = 256;
+
+/// The dispatch of one invocation per element of `n`: workgroups `(x, y, 1)`, at most `max` a side
+/// (the shaders index `x + y · nwg.x · GROUP`).
+fn grid(n: u64, max: u32) -> [u32; 3] {
+    let groups = n.div_ceil(u64::from(GROUP)).max(1);
+    let x = groups.min(u64::from(max));
+    [x as u32, groups.div_ceil(x) as u32, 1]
+}
