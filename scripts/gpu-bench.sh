@@ -93,7 +93,7 @@ row "spinedrr L1–L5 mesh DRR (LAT), --backend gpu" "$ms" "${adapter:-no adapte
 IFS=$'\t' read -r ms _ < <(median_ms --ct "$CT" --view ap --spectrum 80)
 row "spinedrr spectral CT DRR (80 kV, 2 material channels + energy sum), CPU" "$ms" "$(uname -n)"
 IFS=$'\t' read -r ms adapter < <(median_ms --ct "$CT" --view ap --spectrum 80 --backend gpu)
-row "spinedrr spectral CT DRR, channels --backend gpu, energy sum on the host" "$ms" "${adapter:-no adapter}"
+row "spinedrr spectral CT DRR, --backend gpu (channels and energy sum)" "$ms" "${adapter:-no adapter}"
 IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat --soft-tissue --spectrum 80)
 row "spinedrr spectral L1–L5 + soft tissue (LAT, 80 kV, 3 channels), raster, CPU" "$ms" "$(uname -n)"
 IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --soft-tissue --spectrum 80 --backend gpu)

@@ -41,9 +41,10 @@ pub struct SpectralCtRenderer {
     kernel: EnergyKernel,
     renderers: Vec<VolumeRenderer>,
     implants: Option<Implants>,
-    /// The channels' renderers on the GPU (the gpu backend: [`Self::on_gpu`]), one per CT material.
+    /// The channels' renderers on the GPU (the gpu backend: [`Self::on_gpu`]), one per CT material, and
+    /// the energy sum there.
     #[cfg(feature = "gpu")]
-    gpu: Option<Vec<super::gpu::GpuCtRenderer>>,
+    gpu: Option<(Vec<super::gpu::GpuCtRenderer>, super::gpu::GpuEnergySum)>,
 }
 
 impl SpectralCtRenderer {
@@ -68,7 +69,8 @@ impl SpectralCtRenderer {
     }
 
     /// The same renderer with each CT material's channel rendered on the GPU of `ctx` (the same
-    /// Siddon or trilinear integral as on the CPU, to ~1e-5), the energy sum on the host. Implants are
+    /// Siddon or trilinear integral as on the CPU, to ~1e-5) and the energy sum there too (the CPU
+    /// kernel's log-sum-exp), one f32 per pixel read back. Implants are
     /// refused: they are cut out of the CT along each ray's paired crossings, which the GPU's signed-depth
     /// sums do not keep.
     #[cfg(feature = "gpu")]
@@ -76,31 +78,28 @@ impl SpectralCtRenderer {
         if self.implants.is_some() {
             return Err(implants_on_gpu());
         }
-        self.gpu = Some(
-            self.renderers
-                .iter()
-                .map(|r| super::gpu::GpuCtRenderer::new(Arc::clone(&ctx), r))
-                .collect::<Result<_>>()?,
-        );
+        let channels = self
+            .renderers
+            .iter()
+            .map(|r| super::gpu::GpuCtRenderer::new(Arc::clone(&ctx), r))
+            .collect::<Result<_>>()?;
+        let sum = super::gpu::GpuEnergySum::new(ctx, &self.kernel)?;
+        self.gpu = Some((channels, sum));
         Ok(self)
     }
 
     /// The GPU adapter the channels render on ([`Self::on_gpu`]), else `None`.
     pub fn gpu_adapter(&self) -> Option<String> {
         #[cfg(feature = "gpu")]
-        if let Some(g) = &self.gpu {
+        if let Some((g, _)) = &self.gpu {
             return g.first().map(super::gpu::GpuCtRenderer::adapter_name);
         }
         None
     }
 
-    /// Each CT material's mass-thickness map of `view`, on the GPU when [`Self::on_gpu`] moved them there.
-    fn channel_maps(&self, view: &View) -> Result<Vec<ImageF32>> {
-        #[cfg(feature = "gpu")]
-        if let Some(g) = &self.gpu {
-            return g.iter().map(|r| r.render(view)).collect();
-        }
-        Ok(self.renderers.iter().map(|r| r.render(view)).collect())
+    /// Each CT material's mass-thickness map of `view` (the CPU's renders).
+    fn channel_maps(&self, view: &View) -> Vec<ImageF32> {
+        self.renderers.iter().map(|r| r.render(view)).collect()
     }
 
     /// The same CT with `implants` (closed meshes, world mm, each of a material and density) in it,
@@ -211,8 +210,18 @@ impl SpectralCtRenderer {
 
     /// Renders `view`.
     pub fn render(&self, view: &View) -> Result<SpectralDrr> {
+        #[cfg(feature = "gpu")]
+        if let Some((channels, sum)) = &self.gpu {
+            let d = sum.render(channels, view)?;
+            return Ok(SpectralDrr {
+                line_integral: d.line_integral,
+                channels_ms: d.channels_ms,
+                energy_sum_ms: d.energy_sum_ms,
+                rays_unrepaired: 0,
+            });
+        }
         let t0 = Instant::now();
-        let mut maps = self.channel_maps(view)?;
+        let mut maps = self.channel_maps(view);
         if let Some(implants) = &self.implants {
             self.displace(implants, view, &mut maps)?;
             for (_, r) in &implants.channels {

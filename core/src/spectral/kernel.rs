@@ -49,6 +49,13 @@ impl EnergyKernel {
         }
     }
 
+    /// The layout the GPU's energy sum reads (`render/gpu/energy.wgsl`): channels, bins per channel
+    /// (padded), the table `t[c · padded + b]` and `−ln w_b`.
+    #[cfg_attr(not(feature = "gpu"), allow(dead_code))]
+    pub(crate) fn layout(&self) -> (usize, usize, &[f32], &[f32]) {
+        (self.channels, self.padded, &self.table, &self.neg_log_w)
+    }
+
     /// A scratch buffer for [`Self::line_integral`].
     pub fn scratch(&self) -> Vec<f32> {
         vec![0.0; self.padded]

@@ -269,7 +269,7 @@ impl GpuCtRenderer {
             };
         let (out, staging) = (&bufs.out, &bufs.staging);
         let mut encoder = device.create_command_encoder(&Default::default());
-        self.encode_views(&mut encoder, views, out)?;
+        self.encode_views(&mut encoder, views, out, 0)?;
         self.ctx.checked("rendering CT DRRs", || {
             encoder.copy_buffer_to_buffer(out, 0, staging, 0, out_bytes);
             self.ctx.queue.submit([encoder.finish()]);
@@ -290,14 +290,16 @@ impl GpuCtRenderer {
             .collect())
     }
 
-    /// Records into `encoder` the DRRs of `views` (one detector size) into `out` (a storage buffer of at
-    /// least 4 bytes per pixel per view; view `k`'s pixels, rows first, from pixel `k·w·h`), nothing
-    /// read back: the registration loop's renders stay on the GPU.
+    /// Records into `encoder` the DRRs of `views` (one detector size) into `out` from byte `offset` (a
+    /// multiple of 256; 4 bytes per pixel per view from there, view `k`'s pixels, rows first, from pixel
+    /// `k·w·h`), nothing read back: the registration loop's renders and a spectral DRR's channels stay
+    /// on the GPU.
     pub(crate) fn encode_views(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         views: &[View],
         out: &wgpu::Buffer,
+        offset: u64,
     ) -> Result<()> {
         let Some(first) = views.first() else {
             return Ok(());
@@ -326,7 +328,7 @@ impl GpuCtRenderer {
             .filter_map(|v| footprint(&self.world_to_index, self.lo, hi, v))
             .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1), a.2.min(b.2), a.3.max(b.3)));
         let Some((u0, u1, v0, v1)) = window else {
-            encoder.clear_buffer(out, 0, Some(out_bytes));
+            encoder.clear_buffer(out, offset, Some(out_bytes));
             return Ok(());
         };
         let window = [u0, v0, u1 + 1 - u0, v1 + 1 - v0].map(|x| x as u32);
@@ -337,7 +339,7 @@ impl GpuCtRenderer {
         ];
         let max_groups = self.ctx.max_workgroups();
         if out_bytes > self.ctx.max_storage_binding()
-            || out_bytes > out.size()
+            || offset + out_bytes > out.size()
             || groups.iter().any(|&g| g > max_groups)
         {
             return Err(Error::invalid(
@@ -347,7 +349,9 @@ impl GpuCtRenderer {
                      ({} bytes of output at most, {max_groups} workgroups a side): render fewer views at \
                      a time",
                     self.ctx.adapter_name(),
-                    self.ctx.max_storage_binding().min(out.size())
+                    self.ctx
+                        .max_storage_binding()
+                        .min(out.size().saturating_sub(offset))
                 ),
             ));
         }
@@ -380,12 +384,16 @@ impl GpuCtRenderer {
                     },
                     wgpu::BindGroupEntry {
                         binding: 3,
-                        resource: out.as_entire_binding(),
+                        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                            buffer: out,
+                            offset,
+                            size: wgpu::BufferSize::new(out_bytes),
+                        }),
                     },
                 ],
             });
             // The pixels outside the footprint stay 0 (a reused buffer holds the last render).
-            encoder.clear_buffer(out, 0, Some(out_bytes));
+            encoder.clear_buffer(out, offset, Some(out_bytes));
             let mut pass = encoder.begin_compute_pass(&Default::default());
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &bind, &[]);

@@ -5,10 +5,12 @@
 //!
 //! [`GpuContext`] is the device (one per process is enough: it is shared through an `Arc`);
 //! [`GpuCtRenderer`] renders CT DRRs (exact Siddon and trilinear) of a [`super::volume::VolumeRenderer`]'s
-//! μ grid. Every wgpu call that can fail is checked inside an error scope, so a refused buffer, a shader
+//! μ grid; [`GpuEnergySum`] finishes a spectral CT DRR from its channels' renders; [`GpuMeshRenderer`]
+//! sums mesh DRRs. (The intensity registration's loop on the GPU is `registration::intensity::device`.) Every wgpu call that can fail is checked inside an error scope, so a refused buffer, a shader
 //! the driver cannot compile or a lost device is an [`Error`], never a panic.
 
 mod ct;
+mod energy;
 mod mesh;
 mod mesh_frame;
 mod project;
@@ -16,6 +18,7 @@ mod project;
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 
 pub use ct::GpuCtRenderer;
+pub use energy::{GpuEnergySum, GpuSpectralDrr};
 pub(crate) use mesh::GpuFrame;
 pub use mesh::GpuMeshRenderer;
 
@@ -296,6 +299,21 @@ pub(crate) fn compute_pipeline(
         entry_point: Some(entry),
         compilation_options: Default::default(),
         cache: None,
+    })
+}
+
+/// An uninitialised buffer of `bytes` (at least 16) with `usage`.
+pub(crate) fn buffer(
+    device: &wgpu::Device,
+    label: &str,
+    bytes: u64,
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: bytes.max(16),
+        usage,
+        mapped_at_creation: false,
     })
 }
 

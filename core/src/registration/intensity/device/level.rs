@@ -13,7 +13,7 @@ use super::lm_kernels::LmKernels;
 use crate::geometry::View;
 use crate::registration::intensity::similarity::{FixedFeatures, feature_sources};
 use crate::render::gpu::{
-    GpuContext, GpuCtRenderer, UNIFORM, WRITE, buffer_layout, compute_pipeline, storage_init,
+    self, GpuContext, GpuCtRenderer, UNIFORM, WRITE, buffer_layout, compute_pipeline, storage_init,
     uniform_init,
 };
 use crate::{Error, Result};
@@ -190,14 +190,7 @@ impl<'a> DeviceLevel<'a> {
         let device = &ctx.device;
         let (scratch, uniform) =
             ctx.checked("preparing the registration level on the GPU", || {
-                let buffer = |label, bytes: u64, usage| {
-                    device.create_buffer(&wgpu::BufferDescriptor {
-                        label: Some(label),
-                        size: bytes.max(16),
-                        usage,
-                        mapped_at_creation: false,
-                    })
-                };
+                let buffer = |label, bytes, usage| gpu::buffer(device, label, bytes, usage);
                 let storage = wgpu::BufferUsages::STORAGE;
                 let sums_bytes = 8 * n_views * nb as u64;
                 let scratch = Scratch {
@@ -269,12 +262,12 @@ impl<'a> DeviceLevel<'a> {
 
     /// A buffer of `values` residual values.
     pub(super) fn residual_buffer(&self, label: &str, values: u64) -> wgpu::Buffer {
-        self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size: 4 * values.max(4),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        })
+        gpu::buffer(
+            &self.ctx.device,
+            label,
+            4 * values,
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        )
     }
 
     /// Records the evaluation of the moved views `moved` (one per view, the views `new` was given seen
@@ -287,7 +280,8 @@ impl<'a> DeviceLevel<'a> {
         residual: &wgpu::Buffer,
         offset: u64,
     ) -> Result<()> {
-        self.renderer.encode_views(encoder, moved, &scratch.raw)?;
+        self.renderer
+            .encode_views(encoder, moved, &scratch.raw, 0)?;
         let device = &self.ctx.device;
         fn whole(b: &wgpu::Buffer, binding: u32) -> wgpu::BindGroupEntry<'_> {
             wgpu::BindGroupEntry {
@@ -403,12 +397,12 @@ impl<'a> DeviceLevel<'a> {
     pub fn read_residual(&self, r: &DeviceResidual) -> Result<Vec<f64>> {
         let bytes = 4 * self.residuals();
         let staging = self.ctx.checked("reading a residual", || {
-            let staging = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("residual read back"),
-                size: bytes.max(16),
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
+            let staging = gpu::buffer(
+                &self.ctx.device,
+                "residual read back",
+                bytes,
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            );
             let mut encoder = self.ctx.device.create_command_encoder(&Default::default());
             encoder.copy_buffer_to_buffer(&r.buffer, 0, &staging, 0, bytes);
             self.ctx.queue.submit([encoder.finish()]);

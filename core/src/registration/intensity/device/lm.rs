@@ -10,7 +10,7 @@ use super::level::{DeviceLevel, DeviceResidual};
 use super::lm_kernels::LmKernels;
 use crate::Result;
 use crate::geometry::View;
-use crate::render::gpu::uniform_init;
+use crate::render::gpu::{self, uniform_init};
 
 /// `Params` in lm.wgsl.
 #[repr(C)]
@@ -132,12 +132,12 @@ impl DeviceLevel<'_> {
         let staging = self
             .ctx
             .checked("allocating the normal equations' read-back", || {
-                self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some("normal equations read back"),
-                    size: bytes,
-                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
-                })
+                gpu::buffer(
+                    &self.ctx.device,
+                    "normal equations read back",
+                    bytes,
+                    wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                )
             })?;
         let params = self.params(0, 0.0, &[0.0; 6], &[0.0; 6]);
         let max = u64::from(self.ctx.max_workgroups());
