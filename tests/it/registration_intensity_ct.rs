@@ -18,14 +18,18 @@ use spinedrr::registration::intensity::{
     register_intensity, start_at_mtre, subsample,
 };
 use spinedrr::render::volume::{VolumeRenderOptions, VolumeRenderer};
+use spinedrr::render::{Backend, VolumeOnBackend};
 
 use rayon::prelude::*;
 
 const TRUTH: RigidTransform = RigidTransform::IDENTITY;
 const L3_TOTALSEG: u16 = 29;
 
-#[test]
-fn a_masked_ct_level_registers_at_the_true_k() {
+/// The phantom's L3 as a 1-mm synthetic CT masked to its label, its AP and LAT DRRs through the
+/// 750-mm-SID C-arm binned by 2 (512²) as the fixed images (CPU renders), the level's surface points
+/// (2000 at most) as targets; the moving DRR on `backend` (the CPU's renderer, or with
+/// [`Backend::Gpu`] its GPU copy, which also runs the loop there).
+pub(crate) fn l3_problem(backend: Backend) -> IntensityProblem {
     let phantom = crate::common::phantom(&PhantomOptions {
         levels: vec![Level::L3],
         voxel_mm: 1.0,
@@ -62,21 +66,17 @@ fn a_masked_ct_level_registers_at_the_true_k() {
             }
         })
         .collect();
-    let problem = IntensityProblem {
-        moving: MovingDrr::Volume(Arc::new(renderer.into())),
+    IntensityProblem {
+        moving: MovingDrr::Volume(Arc::new(VolumeOnBackend::new(renderer, backend).unwrap())),
         views,
         targets,
-    };
-    // Bins 8, 4, 2 of this 512² detector (the default schedule's 16, 8, 4 of the full one, one level
-    // shorter); for a volume the finest level bins, with 2 × 2 rays per pixel by default.
-    let opts = IntensityOptions {
-        levels: vec![8, 4, 2],
-        ..IntensityOptions::default()
-    };
+    }
+}
+
+/// `n` starts uniform in initial mTRE up to 10 mm, drawn in order from seed 5.
+pub(crate) fn starts(problem: &IntensityProblem, n: usize) -> Vec<RigidTransform> {
     let mut rng = SplitMix64::new(5);
-    let n = 40;
-    // Starts drawn in order, registered in parallel (independent and deterministic each).
-    let starts: Vec<RigidTransform> = (0..n)
+    (0..n)
         .map(|_| {
             let m = 10.0 * rng.uniform();
             start_at_mtre(
@@ -88,7 +88,20 @@ fn a_masked_ct_level_registers_at_the_true_k() {
                 &mut rng,
             )
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn a_masked_ct_level_registers_at_the_true_k() {
+    let problem = l3_problem(Backend::Raster);
+    // Bins 8, 4, 2 of this 512² detector (the default schedule's 16, 8, 4 of the full one, one level
+    // shorter); for a volume the finest level bins, with 2 × 2 rays per pixel by default.
+    let opts = IntensityOptions {
+        levels: vec![8, 4, 2],
+        ..IntensityOptions::default()
+    };
+    // Starts drawn in order, registered in parallel (independent and deterministic each).
+    let starts = starts(&problem, 40);
     let finals: Vec<f64> = starts
         .par_iter()
         .enumerate()
