@@ -139,6 +139,28 @@ row "spinedrr AP+LAT intensity registration (L3, NCC), raster, CPU" "$ms (mTRE $
 IFS=$'\t' read -r ms adapter mtre < <(registration_ms gpu)
 row "spinedrr AP+LAT intensity registration, --backend gpu" "$ms (mTRE $mtre mm)" "${adapter:-no adapter}"
 
+# The same registration of L3 as a CT (the phantom voxelised at 1 mm, the level masked by its label): the
+# fixed images are its CPU Siddon DRRs at the true pose (the CT kept in the phantom's world coordinates,
+# where the registration's CT anatomy lives); with --backend gpu the whole loop runs on the GPU
+# (render, pyramid, similarity and the LM's products; R.json's stages say so).
+"$BIN" phantom --levels L3 --no-discs --ct "$OUT/l3_ct.nii.gz" --ct-voxel-mm 1.0 \
+  --labels-out "$OUT/l3_seg.nii.gz" --out "$OUT/l3_phantom" 2>/dev/null >/dev/null
+for n in ap lat; do
+  "$BIN" render --ct "$OUT/l3_ct.nii.gz" --seg "$OUT/l3_seg.nii.gz" --label L3 --placement keep --view "$n" \
+    --out "$OUT/$n.tiff" 2>/dev/null >/dev/null
+done
+python3 - "$OUT" <<'PY'
+import json, sys
+out = sys.argv[1]
+p = json.load(open(f"{out}/problem.json"))
+p["anatomy"] = {"ct": "l3_ct.nii.gz", "seg": "l3_seg.nii.gz", "label": "L3"}
+json.dump(p, open(f"{out}/problem.json", "w"))
+PY
+IFS=$'\t' read -r ms _ mtre < <(registration_ms raster)
+row "spinedrr AP+LAT intensity registration (L3 CT, NCC), CPU" "$ms (mTRE $mtre mm)" "$(uname -n)"
+IFS=$'\t' read -r ms adapter mtre < <(registration_ms gpu)
+row "spinedrr AP+LAT intensity registration (L3 CT), --backend gpu (whole loop)" "$ms (mTRE $mtre mm)" "${adapter:-no adapter}"
+
 PYTHON="${PYTHON:-python3}"
 if "$PYTHON" -c "import nanodrr, torch; assert torch.cuda.is_available()" 2>/dev/null; then
   "$PYTHON" - "$CT" <<'EOF'

@@ -80,7 +80,8 @@ pub struct Args {
     /// only, and a mesh that intersects itself counts twice where it overlaps), within ~1e-4 mm of the
     /// raster, with the same masks; a spectral mesh DRR (--spectrum, implants, screws) renders its
     /// per-material channels on the GPU and sums the energies on the host. A CT (`--ct`) renders on the
-    /// CPU unless `gpu` is given, the same Siddon or trilinear integral to ~1e-5.
+    /// CPU unless `gpu` is given, the same Siddon or trilinear integral to ~1e-5; a spectral CT DRR
+    /// renders its channels and sums the energies on the GPU.
     #[arg(long, value_enum, value_name = "BACKEND")]
     backend: Option<Backend>,
     /// Write silhouette masks per object and per structure (meshes and phantom only).
