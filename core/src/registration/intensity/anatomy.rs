@@ -4,7 +4,7 @@
 use glam::DVec3;
 
 use super::evaluate::subsample;
-use super::objective::{MeshDrr, MovingDrr};
+use super::moving::{MeshDrr, MovingDrr};
 use crate::anatomy::{Level, Phantom};
 use crate::geometry::{RigidTransform, View};
 use crate::io::{ImageF32, XrayModel};

@@ -2,8 +2,8 @@
 //! registration; rotation about the vertebra centre), with DRRs rendered through the **assumed** K
 //! matched to fixed images of one view or several (similarities summed over views).
 //!
-//! * `objective`: the moving DRR (the camera moves, not the anatomy: nothing is rebuilt per evaluation)
-//!   and the least-squares form of a level's similarity;
+//! * `moving`: the moving DRR (the camera moves, not the anatomy: nothing is rebuilt per evaluation);
+//! * `objective`: the least-squares form of a level's similarity;
 //! * `similarity`: NCC, gradient correlation, gradient NCC and patch-wise NCC as normalised residuals;
 //! * `pyramid`: binned detectors and their K;
 //! * `cmaes` (global stage at the coarsest level) and `lm` (Levenberg–Marquardt refinement per level);
@@ -18,6 +18,7 @@ mod cmaes;
 mod device;
 mod evaluate;
 mod lm;
+mod moving;
 mod objective;
 mod problem;
 mod pyramid;
@@ -35,7 +36,8 @@ pub use evaluate::{
     summarise,
 };
 pub use lm::{LmOptions, LmResult, refine};
-pub use objective::{Evaluation, MeshDrr, MovingDrr, Objective, Residual, pose_of};
+pub use moving::{MeshDrr, MovingDrr};
+pub use objective::{Evaluation, Objective, Residual, pose_of};
 pub use problem::{LoadedIntensityProblem, run_intensity_problem};
 pub use pyramid::{binned_image, binned_view, subsampled_image, subsampled_view};
 pub use register::{

@@ -20,7 +20,7 @@ use serde_json::{Value, json};
 
 use super::anatomy::{MovingScope, level_targets, phantom_moving};
 use super::evaluate::{mtre_mm, projected_tre_px, subsample};
-use super::objective::{MeshDrr, MovingDrr};
+use super::moving::{MeshDrr, MovingDrr};
 use super::register::{IntensityOptions, IntensityProblem, IntensityView, register_intensity};
 use super::similarity::Similarity;
 use crate::anatomy::ct::{SurfaceOptions, VoxelMask, label_surface, read_ct, read_labels};

@@ -8,7 +8,8 @@ use glam::DVec3;
 
 use super::cmaes::{CmaesOptions, minimize};
 use super::lm::{LmOptions, refine};
-use super::objective::{MovingDrr, Objective};
+use super::moving::MovingDrr;
+use super::objective::Objective;
 use super::pyramid::{binned_image, binned_view, subsampled_image, subsampled_view};
 use super::similarity::Similarity;
 use crate::geometry::{RigidTransform, View};
