@@ -59,6 +59,8 @@ pub struct DeviceLevel<'a> {
     kernels: Arc<LevelKernels>,
     pub(super) lm: Arc<LmKernels>,
     uniform: wgpu::Buffer,
+    /// A 16-byte buffer bound where an `lm.wgsl` pass leaves a binding unused.
+    pub(super) unused: wgpu::Buffer,
     /// raw, img, tmp, feat, src, blocks, fixed, sums, taps (bindings 1–7, 9, 10).
     scratch: Mutex<Scratch>,
 }
@@ -188,7 +190,7 @@ impl<'a> DeviceLevel<'a> {
         })?;
         let lm = ctx.cached("the registration's LM shader", LmKernels::new)?;
         let device = &ctx.device;
-        let (scratch, uniform) =
+        let (scratch, uniform, unused) =
             ctx.checked("preparing the registration level on the GPU", || {
                 let buffer = |label, bytes, usage| gpu::buffer(device, label, bytes, usage);
                 let storage = wgpu::BufferUsages::STORAGE;
@@ -232,7 +234,8 @@ impl<'a> DeviceLevel<'a> {
                     ],
                 };
                 let uniform = uniform_init(device, "level params", bytemuck::bytes_of(&params));
-                (scratch, uniform)
+                let unused = buffer("unused", 16, storage);
+                (scratch, uniform, unused)
             })?;
         Ok(Some(DeviceLevel {
             ctx,
@@ -251,6 +254,7 @@ impl<'a> DeviceLevel<'a> {
             kernels,
             lm,
             uniform,
+            unused,
             scratch: Mutex::new(scratch),
         }))
     }

@@ -107,13 +107,12 @@ impl DeviceLevel<'_> {
         let jac = self.residual_buffer("jacobian", 6 * self.residuals());
         let params = self.params(stride, (1.0 / h) as f32, &[0.0; 6], &[0.0; 6]);
         let g = grid(self.residuals(), self.ctx.max_workgroups());
-        let scratch = self.residual_buffer("unused", 4);
         self.lm_pass(
             "forming the Jacobian",
             |k| &k.jacobian,
             g,
             &params,
-            [&r.buffer, &cols, &jac, &scratch],
+            [&r.buffer, &cols, &jac, &self.unused],
             None,
         )?;
         Ok(DeviceJacobian { buffer: jac })
@@ -142,13 +141,12 @@ impl DeviceLevel<'_> {
         let params = self.params(0, 0.0, &[0.0; 6], &[0.0; 6]);
         let max = u64::from(self.ctx.max_workgroups());
         let groups = [chunks.min(max) as u32, chunks.div_ceil(max) as u32, 1];
-        let scratch = self.residual_buffer("unused", 4);
         self.lm_pass(
             "forming the normal equations",
             |k| &k.normal,
             groups,
             &params,
-            [&r.buffer, &scratch, &j.buffer, &partials],
+            [&r.buffer, &self.unused, &j.buffer, &partials],
             Some((&partials, &staging, bytes)),
         )?;
         let parts: Vec<f32> = self.ctx.read_back(&staging, "the normal equations")?;
@@ -182,13 +180,12 @@ impl DeviceLevel<'_> {
         }
         let params = self.params(0, 0.0, delta, &delta.map(|x| x / dd));
         let g = grid(self.residuals(), self.ctx.max_workgroups());
-        let scratch = self.residual_buffer("unused", 4);
         self.lm_pass(
             "updating the Jacobian",
             |k| &k.secant,
             g,
             &params,
-            [&r.buffer, &rq.buffer, &j.buffer, &scratch],
+            [&r.buffer, &rq.buffer, &j.buffer, &self.unused],
             None,
         )
     }
