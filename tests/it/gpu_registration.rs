@@ -190,6 +190,12 @@ fn the_gpu_loop_evaluates_and_refines_like_the_cpu_loop() {
         refine(&cpu, p0, &lm).unwrap(),
         refine(&gpu, p0, &lm).unwrap(),
     );
+    // The Jacobian's six poses in one dispatch or one after another: the same arithmetic per view, so
+    // the same refinement to the bit.
+    let sequential = objective(&gpu_moving).columns_one_by_one();
+    let s = refine(&sequential, p0, &lm).unwrap();
+    assert_eq!(s.p, g.p);
+    assert_eq!(sequential.evaluations(), gpu.evaluations());
     let (pc, pg) = (cpu.pose(&c.p), gpu.pose(&g.p));
     let between = mtre_mm(&pc, &pg, &targets);
     let (off, gpu_off) = (

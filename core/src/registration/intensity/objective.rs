@@ -294,6 +294,22 @@ impl<'a> Objective<'a> {
         self
     }
 
+    /// The objective with a GPU level's Jacobian evaluated pose after pose (six dispatches of each pass)
+    /// instead of in one dispatch, as a level too large for the adapter to hold six poses' views is: to
+    /// compare the two.
+    pub fn columns_one_by_one(self) -> Self {
+        #[cfg(feature = "gpu")]
+        {
+            let mut s = self;
+            if let Some(d) = &mut s.device {
+                d.columns_one_by_one();
+            }
+            s
+        }
+        #[cfg(not(feature = "gpu"))]
+        self
+    }
+
     /// Whether the level is evaluated on the GPU (a CT on the gpu backend): render, pyramid, smoothing,
     /// similarity and the LM's products there, only scalars read back.
     pub fn on_device(&self) -> bool {

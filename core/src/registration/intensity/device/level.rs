@@ -18,6 +18,9 @@ use crate::render::gpu::{
 };
 use crate::{Error, Result};
 
+/// The poses a Jacobian's forward differences evaluate.
+pub(super) const COLUMNS: u64 = 6;
+
 /// `Params` in level.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -25,6 +28,7 @@ struct Params {
     size: [u32; 4],
     counts: [u32; 4],
     scale: [f32; 4],
+    poses: [u32; 4],
 }
 
 /// `Block` in level.wgsl.
@@ -58,7 +62,12 @@ pub struct DeviceLevel<'a> {
     radius: u32,
     kernels: Arc<LevelKernels>,
     pub(super) lm: Arc<LmKernels>,
+    /// The parameters of one pose's evaluation, and of a Jacobian's six at once ([`COLUMNS`]).
     uniform: wgpu::Buffer,
+    uniform_columns: wgpu::Buffer,
+    /// The scratch buffers hold [`COLUMNS`] poses' views (one dispatch renders a Jacobian's six poses),
+    /// unless that would pass the adapter's binding limit (then they are evaluated one after another).
+    batch_columns: bool,
     /// A 16-byte buffer bound where an `lm.wgsl` pass leaves a binding unused.
     pub(super) unused: wgpu::Buffer,
     /// raw, img, tmp, feat, src, blocks, fixed, sums, taps (bindings 1–7, 9, 10).
@@ -154,11 +163,18 @@ impl<'a> DeviceLevel<'a> {
             vec![1.0, 0.0]
         };
         let ctx = Arc::clone(renderer.context());
-        let n_views = views.len() as u64;
+        // The largest buffer `poses` poses' views need: their rays, or their features.
+        let largest = |poses: u64| {
+            let n_views = views.len() as u64 * poses;
+            let raw_px = u64::from(w) * u64::from(h) * n_views * u64::from(ss) * u64::from(ss);
+            4 * raw_px.max(f as u64 * n_views)
+        };
+        let batch_columns = largest(COLUMNS) <= ctx.max_storage_binding();
+        let n_views = views.len() as u64 * if batch_columns { COLUMNS } else { 1 };
         let level_px = u64::from(w) * u64::from(h) * n_views;
         let raw_px = level_px * u64::from(ss) * u64::from(ss);
         let feat_n = f as u64 * n_views;
-        let largest = 4 * raw_px.max(feat_n);
+        let largest = largest(1);
         if largest > ctx.max_storage_binding() {
             return Err(Error::invalid(
                 "levels",
@@ -223,8 +239,8 @@ impl<'a> DeviceLevel<'a> {
                     ),
                     taps: storage_init(device, "gaussian taps", bytemuck::cast_slice(&taps)),
                 };
-                let params = Params {
-                    size: [w, h, ss, views.len() as u32],
+                let params = |poses: u32| Params {
+                    size: [w, h, ss, views.len() as u32 * poses],
                     counts: [f as u32, nb as u32, (taps.len() / 4) as u32, 0],
                     scale: [
                         (1.0 / (views.len() as f64).sqrt()) as f32,
@@ -232,8 +248,12 @@ impl<'a> DeviceLevel<'a> {
                         0.0,
                         0.0,
                     ],
+                    poses: [views.len() as u32, 0, 0, 0],
                 };
-                let uniform = uniform_init(device, "level params", bytemuck::bytes_of(&params));
+                let uniform = |poses| {
+                    uniform_init(device, "level params", bytemuck::bytes_of(&params(poses)))
+                };
+                let uniform = (uniform(1), uniform(COLUMNS as u32));
                 let unused = buffer("unused", 16, storage);
                 (scratch, uniform, unused)
             })?;
@@ -253,10 +273,17 @@ impl<'a> DeviceLevel<'a> {
             },
             kernels,
             lm,
-            uniform,
+            uniform: uniform.0,
+            uniform_columns: uniform.1,
+            batch_columns,
             unused,
             scratch: Mutex::new(scratch),
         }))
+    }
+
+    /// Evaluates a Jacobian's poses one after another, as a level too large to hold them at once does.
+    pub fn columns_one_by_one(&mut self) {
+        self.batch_columns = false;
     }
 
     /// Residuals per evaluation (every view's features).
@@ -274,8 +301,9 @@ impl<'a> DeviceLevel<'a> {
         )
     }
 
-    /// Records the evaluation of the moved views `moved` (one per view, the views `new` was given seen
-    /// from the pose) into `encoder`, its residual into `residual` from byte `offset`.
+    /// Records the evaluation of the moved views `moved` (the views `new` was given seen from one pose, or
+    /// from [`COLUMNS`] poses one after another) into `encoder`, its residual into `residual` from byte
+    /// `offset` (the poses' residuals one after another).
     fn encode(
         &self,
         encoder: &mut wgpu::CommandEncoder,
@@ -284,6 +312,17 @@ impl<'a> DeviceLevel<'a> {
         residual: &wgpu::Buffer,
         offset: u64,
     ) -> Result<()> {
+        let n_views = moved.len() as u32;
+        let uniform = if n_views == self.views {
+            &self.uniform
+        } else if self.batch_columns && n_views == self.views * COLUMNS as u32 {
+            &self.uniform_columns
+        } else {
+            return Err(Error::Internal(format!(
+                "{n_views} views for a level of {} per pose",
+                self.views
+            )));
+        };
         self.renderer
             .encode_views(encoder, moved, &scratch.raw, 0)?;
         let device = &self.ctx.device;
@@ -299,7 +338,7 @@ impl<'a> DeviceLevel<'a> {
                     label: Some("registration level"),
                     layout: &self.kernels.layout,
                     entries: &[
-                        whole(&self.uniform, 0),
+                        whole(uniform, 0),
                         whole(&scratch.raw, 1),
                         whole(&scratch.img, 2),
                         whole(&scratch.tmp, 3),
@@ -312,7 +351,9 @@ impl<'a> DeviceLevel<'a> {
                             resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
                                 buffer: residual,
                                 offset,
-                                size: wgpu::BufferSize::new(4 * self.residuals()),
+                                size: wgpu::BufferSize::new(
+                                    4 * u64::from(self.features) * u64::from(n_views),
+                                ),
                             }),
                         },
                         whole(&scratch.sums, 9),
@@ -320,7 +361,7 @@ impl<'a> DeviceLevel<'a> {
                     ],
                 });
                 let max = self.ctx.max_workgroups();
-                let pixels = u64::from(self.w) * u64::from(self.h) * u64::from(self.views);
+                let pixels = u64::from(self.w) * u64::from(self.h) * u64::from(n_views);
                 let mut passes: Vec<(&wgpu::ComputePipeline, [u32; 3])> = Vec::new();
                 if self.ss > 1 {
                     passes.push((&self.kernels.bin, grid(pixels, max)));
@@ -329,11 +370,14 @@ impl<'a> DeviceLevel<'a> {
                     passes.push((&self.kernels.blur_rows, grid(pixels, max)));
                     passes.push((&self.kernels.blur_cols, grid(pixels, max)));
                 }
-                passes.push((&self.kernels.features, grid(self.residuals(), max)));
+                passes.push((
+                    &self.kernels.features,
+                    grid(u64::from(self.features) * u64::from(n_views), max),
+                ));
                 let nb = self.blocks.max(1);
                 passes.push((
                     &self.kernels.block_sums,
-                    [nb.min(max), nb.div_ceil(max), self.views],
+                    [nb.min(max), nb.div_ceil(max), n_views],
                 ));
                 if self.ss == 1 {
                     // The rays are the level's pixels.
@@ -378,23 +422,30 @@ impl<'a> DeviceLevel<'a> {
         ))
     }
 
-    /// Records the evaluations of `columns` (sets of moved views) into one buffer, each
-    /// `stride` values after the last, and submits them; nothing is read back.
-    pub(super) fn evaluate_columns(
-        &self,
-        columns: &[Vec<View>],
-        stride: u64,
-    ) -> Result<wgpu::Buffer> {
+    /// Evaluates `columns` (the moved views of [`COLUMNS`] poses) into one buffer, the poses' residuals
+    /// `stride` values apart (returned with it), and submits them; nothing is read back. One dispatch of
+    /// the CT shader and of each pass renders and compares all of them where the scratch buffers hold
+    /// them, else one pose after another (each residual then starts on a 256-byte boundary, a storage
+    /// binding's offset alignment).
+    pub(super) fn evaluate_columns(&self, columns: &[Vec<View>]) -> Result<(wgpu::Buffer, u64)> {
+        let n = self.residuals();
+        let batch = self.batch_columns && columns.len() == COLUMNS as usize;
+        let stride = if batch { n } else { n.div_ceil(64) * 64 };
         let out = self.residual_buffer("difference columns", stride * columns.len() as u64);
         let scratch = self.scratch.lock().unwrap_or_else(PoisonError::into_inner);
         let mut encoder = self.ctx.device.create_command_encoder(&Default::default());
-        for (k, moved) in columns.iter().enumerate() {
-            self.encode(&mut encoder, &scratch, moved, &out, 4 * stride * k as u64)?;
+        if batch {
+            let all: Vec<View> = columns.iter().flatten().cloned().collect();
+            self.encode(&mut encoder, &scratch, &all, &out, 0)?;
+        } else {
+            for (k, moved) in columns.iter().enumerate() {
+                self.encode(&mut encoder, &scratch, moved, &out, 4 * stride * k as u64)?;
+            }
         }
         self.ctx.checked("evaluating the difference columns", || {
             self.ctx.queue.submit([encoder.finish()]);
         })?;
-        Ok(out)
+        Ok((out, stride))
     }
 
     /// The residual's values (a copy to the host: tests compare them with the CPU's).

@@ -22,6 +22,9 @@ struct Params {
     counts: vec4<u32>,
     // 1/√V (the stacked residual's scale), 1/ss², 0, 0.
     scale: vec4<f32>,
+    // The views of one pose, V (x): a dispatch may evaluate several poses (a Jacobian's six differences),
+    // size.w = V × poses views, pose after pose, each with the fixed images and blocks of its view mod V.
+    poses: vec4<u32>,
 }
 
 // One block of one view: its features [start, start + len), √w and the moving normalisation's ε.
@@ -229,8 +232,10 @@ fn block_sums(
     }
     let t = lid.x;
     let view = wid.z;
-    let blk = blocks[view * nb + b];
+    let own = view % P.poses.x;
+    let blk = blocks[own * nb + b];
     let off = view * P.counts.x + blk.start;
+    let fixed_off = own * P.counts.x + blk.start;
     var s = vec2<f32>(0.0, 0.0);
     for (var k = t; k < blk.len; k += GROUP) {
         s = kahan(s, feat[off + k]);
@@ -258,7 +263,7 @@ fn block_sums(
     var rr = vec2<f32>(0.0, 0.0);
     for (var k = t; k < blk.len; k += GROUP) {
         let a = (opaque(feat[off + k] - m_hi) - m_lo) * scale;
-        let fb = fixed[off + k];
+        let fb = fixed[fixed_off + k];
         dot = kahan(dot, a * fb);
         let r = blk.sw * (a - fb);
         rr = kahan(rr, r * r);

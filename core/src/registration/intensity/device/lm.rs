@@ -101,9 +101,7 @@ impl DeviceLevel<'_> {
         r: &DeviceResidual,
         h: f64,
     ) -> Result<DeviceJacobian> {
-        // Each column starts on a 256-byte boundary (a storage binding's offset alignment).
-        let stride = self.residuals().div_ceil(64) * 64;
-        let cols = self.evaluate_columns(columns, stride)?;
+        let (cols, stride) = self.evaluate_columns(columns)?;
         let jac = self.residual_buffer("jacobian", 6 * self.residuals());
         let params = self.params(stride, (1.0 / h) as f32, &[0.0; 6], &[0.0; 6]);
         let g = grid(self.residuals(), self.ctx.max_workgroups());

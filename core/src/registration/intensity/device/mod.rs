@@ -1,6 +1,7 @@
 //! The intensity registration's loop on the GPU for a CT anatomy on the gpu backend: per evaluation the
 //! moving DRRs, the pyramid's box average, the smoothing and the similarity run there ([`DeviceLevel`],
-//! `level.wgsl`), and so do the Levenberg–Marquardt products — the forward-difference Jacobian, `JᵀJ`,
+//! `level.wgsl`), and so do the Levenberg–Marquardt products — the forward-difference Jacobian (its six
+//! poses in one dispatch of each shader where the buffers can hold them), `JᵀJ`,
 //! `Jᵀr` and Broyden's updates (`lm.rs`, `lm.wgsl`): the residuals never leave the GPU, and an evaluation
 //! reads back two numbers per block and view, a Jacobian's normal equations 27 per chunk of rows.
 //!
