@@ -97,7 +97,7 @@ row "spinedrr spectral CT DRR, --backend gpu (channels and energy sum)" "$ms" "$
 IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat --soft-tissue --spectrum 80)
 row "spinedrr spectral L1–L5 + soft tissue (LAT, 80 kV, 3 channels), raster, CPU" "$ms" "$(uname -n)"
 IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --soft-tissue --spectrum 80 --backend gpu)
-row "spinedrr spectral L1–L5 + soft tissue (LAT), channels --backend gpu" "$ms" "${adapter:-no adapter}"
+row "spinedrr spectral L1–L5 + soft tissue (LAT), --backend gpu (channels, energy sum)" "$ms" "${adapter:-no adapter}"
 IFS=$'\t' read -r ms _ < <(median_ms --phantom L1-L5 --view lat --masks)
 row "spinedrr L1–L5 mesh DRR with masks (LAT), raster, CPU" "$ms" "$(uname -n)"
 IFS=$'\t' read -r ms adapter < <(median_ms --phantom L1-L5 --view lat --masks --backend gpu)

@@ -58,9 +58,9 @@ pub fn spectrum<'py>(
 /// mapping of landmark names to points (mm) whose ``PREFIXpedicle_entry`` / ``PREFIXpedicle_tip`` pairs
 /// each take a titanium pedicle screw (``--screws-at``). A CT's implants are in its file's world and
 /// move with its placement. Implants displace whatever they occupy. ``backend``: ``raster``, ``embree``,
-/// ``bvh`` or ``gpu`` (the material channels of meshes or a CT render on the GPU; a CT's energy sum runs
-/// there too, a mesh DRR's on the host; implants are refused there: they are cut out along paired
-/// crossings, which the GPU does not keep).
+/// ``bvh`` or ``gpu`` (the material channels of meshes or a CT render on the GPU and the energy sum runs
+/// there too; implants are refused there: they are cut out along paired crossings, which the GPU does not
+/// keep).
 /// Returns ``(image, spectral)``: ``−ln(I/I0)`` float32 H × W and the sidecar's ``spectral`` record.
 /// Meshes partly inside another raise a ``RuntimeWarning``.
 #[pyfunction]

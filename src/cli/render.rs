@@ -78,9 +78,9 @@ pub struct Args {
     /// or DX12; Mesa's software Vulkan, lavapipe, where there is none); the sidecar names the adapter.
     /// Meshes on the GPU are the raster's signed-depth sums (exit − entry depths per pixel; closed meshes
     /// only, and a mesh that intersects itself counts twice where it overlaps), within ~1e-4 mm of the
-    /// raster, with the same masks; a spectral mesh DRR (--spectrum, implants, screws) renders its
-    /// per-material channels on the GPU and sums the energies on the host. A CT (`--ct`) renders on the
-    /// CPU unless `gpu` is given, the same Siddon or trilinear integral to ~1e-5; a spectral CT DRR
+    /// raster, with the same masks; a spectral mesh DRR (--spectrum; implants and screws are refused)
+    /// renders its per-material channels on the GPU and sums the energies there. A CT (`--ct`) renders on
+    /// the CPU unless `gpu` is given, the same Siddon or trilinear integral to ~1e-5; a spectral CT DRR
     /// renders its channels and sums the energies on the GPU.
     #[arg(long, value_enum, value_name = "BACKEND")]
     backend: Option<Backend>,

@@ -296,7 +296,8 @@ fn cli_backend_gpu_renders_ct_and_refuses_what_it_cannot() {
 /// renders of the two CT materials' density grids), 80 kV behind 2.5 mm Al: within 1e-6 of the peak
 /// (WGSL's exp and log are within a few ulp), 0 where the rays miss the CT, and finite where every energy
 /// bin underflows (densities 500 times the CT's: the log-sum-exp). A detector of 37² px puts the second
-/// channel's map at a stride that is not the image's size.
+/// channel's map at a stride that is not the image's size. The same maps uploaded from the host (as a
+/// spectral mesh DRR's channels are) give the same image bit for bit.
 #[test]
 fn the_gpu_energy_sum_is_the_cpu_kernel_s_on_the_same_channels() {
     use spinedrr::render::energy_sum;
@@ -326,6 +327,8 @@ fn the_gpu_energy_sum_is_the_cpu_kernel_s_on_the_same_channels() {
             let maps: Vec<ImageF32> = renderers.iter().map(|r| r.render(&view).unwrap()).collect();
             let want = energy_sum(&kernel, &maps);
             let got = sum.render(&renderers, &view).unwrap();
+            // The same maps uploaded from the host (a spectral mesh DRR's path): the same sum, bit for bit.
+            assert_eq!(sum.sum_maps(&maps).unwrap().data, got.line_integral.data);
             let peak = want.max();
             let worst = crate::render_models::worst_difference(&want, &got.line_integral);
             // Densities 500 times the CT's: line integrals past 87, where every bin's exp(−y) underflows.

@@ -81,9 +81,9 @@ fn cli_backend_gpu_renders_meshes_like_the_raster() {
     open.triangles.truncate(10);
     spinedrr::anatomy::meshio::write_mesh(&dir.path().join("open.stl"), &open).unwrap();
     let open_stl = d("open.stl");
-    // A spectral DRR: its channels (cortical, cancellous bone, soft tissue) render on the GPU and the
-    // energy sum on the host, to the raster's image within the line integrals' 1e-5; the sidecar and the
-    // spectral summary name the adapter.
+    // A spectral DRR: its channels (cortical, cancellous bone, soft tissue) render on the GPU, are
+    // finished on the host and summed over the energies on the GPU, to the raster's image within the line
+    // integrals' 1e-5; the sidecar and the spectral summary name the adapter and where the sum ran.
     let spectral = |backend: &str| {
         let out = d(&format!("spectral_{backend}.tiff"));
         let (ok, err) = crate::common::Spinedrr::new()
@@ -110,6 +110,10 @@ fn cli_backend_gpu_renders_meshes_like_the_raster() {
     let adapter = crate::gpu_ct::gpu().adapter_name();
     assert_eq!(side["details"]["gpu_adapter"], adapter.as_str(), "{side}");
     assert_eq!(side["details"]["spectral"]["gpu_adapter"], adapter.as_str());
+    assert_eq!(
+        side["details"]["spectral"]["passes"],
+        "3 channel renders, then the energy sum on the GPU"
+    );
     // Implants are cut out of what they displace, which signed-depth sums cannot do: refused by name,
     // and so is an open mesh.
     for (extra, want) in [

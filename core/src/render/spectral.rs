@@ -175,6 +175,10 @@ pub struct SpectralRenderer {
     pub channels: Vec<Channel>,
     kernel: EnergyKernel,
     passes: Passes,
+    /// The gpu backend's energy sum: the channels (finished on the host, see
+    /// `render::thickness::gpu`) are uploaded and summed on the GPU.
+    #[cfg(feature = "gpu")]
+    gpu_sum: Option<super::gpu::GpuEnergySum>,
 }
 
 enum Passes {
@@ -218,11 +222,22 @@ impl SpectralRenderer {
             }
             Passes::Channels(v)
         };
+        let kernel = model.kernel(&scene.channels);
+        #[cfg(feature = "gpu")]
+        let gpu_sum = match (&passes, backend) {
+            (Passes::Channels(_), Backend::Gpu) => Some(super::gpu::GpuEnergySum::new(
+                super::gpu::GpuContext::shared()?,
+                &kernel,
+            )?),
+            _ => None,
+        };
         Ok(SpectralRenderer {
-            kernel: model.kernel(&scene.channels),
+            kernel,
             model,
             channels: scene.channels.clone(),
             passes,
+            #[cfg(feature = "gpu")]
+            gpu_sum,
         })
     }
 
@@ -259,7 +274,7 @@ impl SpectralRenderer {
                 let t1 = Instant::now();
                 let maps: Vec<ImageF32> =
                     maps.into_iter().map(|m| m.unwrap_or_else(blank)).collect();
-                let line_integral = energy_sum(&self.kernel, &maps);
+                let line_integral = self.energy_sum(&maps)?;
                 Ok(SpectralDrr {
                     line_integral,
                     channels_ms,
@@ -268,6 +283,24 @@ impl SpectralRenderer {
                 })
             }
         }
+    }
+
+    /// Whether the energy sum runs on the GPU.
+    fn gpu_sums(&self) -> bool {
+        #[cfg(feature = "gpu")]
+        if self.gpu_sum.is_some() {
+            return true;
+        }
+        false
+    }
+
+    /// The energy sum of `maps`: on the GPU with the gpu backend, else the CPU kernel.
+    fn energy_sum(&self, maps: &[ImageF32]) -> Result<ImageF32> {
+        #[cfg(feature = "gpu")]
+        if let Some(sum) = &self.gpu_sum {
+            return sum.sum_maps(maps);
+        }
+        Ok(energy_sum(&self.kernel, maps))
     }
 
     /// The GPU adapter the channel renders run on (the gpu backend), else `None`.
@@ -288,6 +321,12 @@ impl SpectralRenderer {
         }
         s["passes"] = json!(match &self.passes {
             Passes::Monochromatic(_) => "one render at the single energy".to_string(),
+            Passes::Channels(v) if self.gpu_sums() => {
+                format!(
+                    "{} channel renders, then the energy sum on the GPU",
+                    v.len()
+                )
+            }
             Passes::Channels(v) => format!("{} channel renders, then the energy sum", v.len()),
         });
         s

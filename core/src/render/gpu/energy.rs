@@ -1,7 +1,7 @@
-//! A spectral CT DRR finished on the GPU (`energy.wgsl`): each CT material's channel rendered by its
-//! [`GpuCtRenderer`] into one buffer, then the energy sum of every pixel there — the CPU kernel's
-//! log-sum-exp ([`crate::spectral::EnergyKernel`]) — so one f32 per pixel comes back instead of one per
-//! channel, and the host does no per-pixel work.
+//! A spectral DRR's energy sum on the GPU (`energy.wgsl`): the CPU kernel's log-sum-exp
+//! ([`crate::spectral::EnergyKernel`]) per pixel. A CT's channels are rendered by their
+//! [`GpuCtRenderer`]s into its buffer, so one f32 per pixel comes back instead of one per channel and the
+//! host does no per-pixel work; a mesh DRR's channels, finished on the host, are uploaded to it.
 
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant;
@@ -40,6 +40,8 @@ pub struct GpuEnergySum {
 
 struct Buffers {
     pixels: u64,
+    /// Values from one channel's map to the next's (a multiple of 64).
+    stride: u64,
     maps: wgpu::Buffer,
     out: wgpu::Buffer,
     staging: wgpu::Buffer,
@@ -100,63 +102,17 @@ impl GpuEnergySum {
         }
         let t0 = Instant::now();
         let (w, h) = (view.intrinsics.width, view.intrinsics.height);
-        let pixels = u64::from(w) * u64::from(h);
-        // Each channel's map starts on a 256-byte boundary (a storage binding's offset alignment).
-        let stride = pixels.div_ceil(64) * 64;
-        let device = &self.ctx.device;
-        let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
-        if slot.as_ref().is_some_and(|b| b.pixels != pixels) {
-            *slot = None;
-        }
-        let bufs = match &mut *slot {
-            Some(b) => b,
-            empty => {
-                let maps_bytes = 4 * stride * self.channels as u64;
-                if maps_bytes > self.ctx.max_storage_binding() {
-                    return Err(Error::invalid(
-                        "view",
-                        format!(
-                            "{} channel maps of {w}×{h} px are more than GPU adapter {} binds in one \
-                             buffer: render on the CPU",
-                            self.channels,
-                            self.ctx.adapter_name()
-                        ),
-                    ));
-                }
-                let storage = wgpu::BufferUsages::STORAGE;
-                empty.insert(
-                    self.ctx
-                        .checked("allocating the spectral DRR's buffers", || Buffers {
-                            pixels,
-                            maps: buffer(
-                                device,
-                                "channel maps",
-                                maps_bytes,
-                                storage | wgpu::BufferUsages::COPY_DST,
-                            ),
-                            out: buffer(
-                                device,
-                                "spectral DRR",
-                                4 * pixels,
-                                storage | wgpu::BufferUsages::COPY_SRC,
-                            ),
-                            staging: buffer(
-                                device,
-                                "spectral DRR read back",
-                                4 * pixels,
-                                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                            ),
-                        })?,
-                )
-            }
+        let mut slot = self.buffers(w, h)?;
+        let Some(bufs) = slot.as_ref() else {
+            return Err(Error::Internal("no spectral buffers".into()));
         };
-        let mut encoder = device.create_command_encoder(&Default::default());
+        let mut encoder = self.ctx.device.create_command_encoder(&Default::default());
         for (c, r) in channels.iter().enumerate() {
             r.encode_views(
                 &mut encoder,
                 std::slice::from_ref(view),
                 &bufs.maps,
-                4 * stride * c as u64,
+                4 * bufs.stride * c as u64,
             )?;
         }
         self.ctx.checked("rendering the spectral channels", || {
@@ -165,17 +121,115 @@ impl GpuEnergySum {
         self.ctx.wait("rendering the spectral channels")?;
         let channels_ms = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
+        let line_integral = self.finish(&mut slot, w, h)?;
+        Ok(GpuSpectralDrr {
+            line_integral,
+            channels_ms,
+            energy_sum_ms: t1.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// The energy sum of channel maps rendered elsewhere (a spectral mesh DRR's, finished on the host),
+    /// uploaded, summed on the GPU and read back.
+    pub fn sum_maps(&self, maps: &[ImageF32]) -> Result<ImageF32> {
+        let Some(first) = maps.first() else {
+            return Err(Error::Internal("no channel maps".into()));
+        };
+        let (w, h) = (first.width, first.height);
+        if maps.len() != self.channels || maps.iter().any(|m| (m.width, m.height) != (w, h)) {
+            return Err(Error::Internal(format!(
+                "{} channel maps (of one size) for an energy kernel of {} channels",
+                maps.len(),
+                self.channels
+            )));
+        }
+        let mut slot = self.buffers(w, h)?;
+        let Some(bufs) = slot.as_ref() else {
+            return Err(Error::Internal("no spectral buffers".into()));
+        };
+        self.ctx.checked("uploading the channel maps", || {
+            for (c, m) in maps.iter().enumerate() {
+                self.ctx.queue.write_buffer(
+                    &bufs.maps,
+                    4 * bufs.stride * c as u64,
+                    bytemuck::cast_slice(&m.data),
+                );
+            }
+        })?;
+        self.finish(&mut slot, w, h)
+    }
+
+    /// The buffers of a `w × h` render (the last render's when of that size).
+    fn buffers(&self, w: u32, h: u32) -> Result<std::sync::MutexGuard<'_, Option<Buffers>>> {
+        let pixels = u64::from(w) * u64::from(h);
+        // Each channel's map starts on a 256-byte boundary (a storage binding's offset alignment).
+        let stride = pixels.div_ceil(64) * 64;
+        let device = &self.ctx.device;
+        let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
+        if slot.as_ref().is_some_and(|b| b.pixels != pixels) {
+            *slot = None;
+        }
+        if slot.is_none() {
+            let maps_bytes = 4 * stride * self.channels as u64;
+            if maps_bytes > self.ctx.max_storage_binding() {
+                return Err(Error::invalid(
+                    "view",
+                    format!(
+                        "{} channel maps of {w}×{h} px are more than GPU adapter {} binds in one \
+                         buffer: render on the CPU",
+                        self.channels,
+                        self.ctx.adapter_name()
+                    ),
+                ));
+            }
+            let storage = wgpu::BufferUsages::STORAGE;
+            *slot = Some(
+                self.ctx
+                    .checked("allocating the spectral DRR's buffers", || Buffers {
+                        pixels,
+                        stride,
+                        maps: buffer(
+                            device,
+                            "channel maps",
+                            maps_bytes,
+                            storage | wgpu::BufferUsages::COPY_DST,
+                        ),
+                        out: buffer(
+                            device,
+                            "spectral DRR",
+                            4 * pixels,
+                            storage | wgpu::BufferUsages::COPY_SRC,
+                        ),
+                        staging: buffer(
+                            device,
+                            "spectral DRR read back",
+                            4 * pixels,
+                            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                        ),
+                    })?,
+            );
+        }
+        Ok(slot)
+    }
+
+    /// Sums the energies of the maps in `slot`'s buffers and reads the `w × h` image back.
+    fn finish(&self, slot: &mut Option<Buffers>, w: u32, h: u32) -> Result<ImageF32> {
+        let Some(bufs) = slot.as_ref() else {
+            return Err(Error::Internal("no spectral buffers".into()));
+        };
+        let pixels = bufs.pixels;
         let params = Params {
             counts: [
                 pixels as u32,
                 self.channels as u32,
                 self.padded as u32,
-                stride as u32,
+                bufs.stride as u32,
             ],
         };
         let groups = pixels.div_ceil(256).max(1);
         let max = u64::from(self.ctx.max_workgroups());
         let grid = [groups.min(max) as u32, groups.div_ceil(max) as u32];
+        let device = &self.ctx.device;
         self.ctx.checked("summing the energies", || {
             let uniform = uniform_init(device, "energy params", bytemuck::bytes_of(&params));
             let bind = bind_buffers(
@@ -207,14 +261,10 @@ impl GpuEnergySum {
             // A buffer left mapped (or lost with the device) is not reused.
             *slot = None;
         }
-        Ok(GpuSpectralDrr {
-            line_integral: ImageF32 {
-                width: w,
-                height: h,
-                data: data?,
-            },
-            channels_ms,
-            energy_sum_ms: t1.elapsed().as_secs_f64() * 1e3,
+        Ok(ImageF32 {
+            width: w,
+            height: h,
+            data: data?,
         })
     }
 }
