@@ -324,39 +324,20 @@ fn intensity_registration_on_the_gpu_matches_the_raster() {
         serde_json::to_vec_pretty(&problem).unwrap(),
     )
     .unwrap();
-    let register = |backend: &str| {
-        let out = d.join(format!("{backend}.json"));
-        let (ok, err) = crate::common::run(&[
-            "register",
-            "--intensity",
-            "--backend",
-            backend,
-            "--problem",
-            &d.join("p.json").display().to_string(),
-            "--out",
-            &out.display().to_string(),
-        ]);
-        assert!(ok, "{backend}: {err}");
-        serde_json::from_slice::<serde_json::Value>(&std::fs::read(out).unwrap()).unwrap()
-    };
+    use crate::gpu_registration::{register_cli, result_pose, stages_on};
+    let register = |backend: &str| register_cli(d, backend);
     let (cpu, gpu) = (register("raster"), register("gpu"));
     assert_eq!(gpu["backend"], "gpu");
     assert_eq!(cpu["backend"], "raster");
     // Mesh levels are finished and compared on the host (the GPU's sums leave pixels to it).
     for r in [&cpu, &gpu] {
-        for s in r["stages"].as_array().unwrap() {
-            assert_eq!(s["similarity_on"], "cpu", "{r}");
-        }
+        assert!(stages_on(r).iter().all(|s| s == "cpu"), "{r}");
     }
     assert_eq!(
         gpu["gpu_adapter"].as_str().unwrap_or_default(),
         crate::gpu_ct::gpu().adapter_name()
     );
-    let pose = |r: &serde_json::Value| {
-        let rows: [[f64; 3]; 3] = serde_json::from_value(r["R"].clone()).unwrap();
-        let t: [f64; 3] = serde_json::from_value(r["t"].clone()).unwrap();
-        RigidTransform::from_rt(rows, t, "R.json").unwrap()
-    };
+    let pose = result_pose;
     // The model's corners and the ball's centre (the body is a 40 × 24 × 30 mm box).
     let targets = crate::gpu_registration::targets();
     let between = spinedrr::registration::intensity::mtre_mm(&pose(&cpu), &pose(&gpu), &targets);
@@ -414,14 +395,7 @@ fn intensity_registration_on_the_gpu_matches_the_raster() {
     let (cpu, gpu) = (register("raster"), register("gpu"));
     assert_eq!(gpu["backend"], "gpu", "{gpu}");
     // The CT's loop ran on the GPU (render, similarity and the LM's products), the CPU's on the CPU.
-    let on = |r: &serde_json::Value| -> Vec<String> {
-        r["stages"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|s| s["similarity_on"].as_str().unwrap().to_string())
-            .collect()
-    };
+    let on = stages_on;
     assert!(
         on(&gpu).iter().all(|s| s == "gpu") && !on(&gpu).is_empty(),
         "{gpu}"

@@ -53,6 +53,37 @@ fn body() -> VolumeRenderer {
     VolumeRenderer::new(&ct, &VolumeRenderOptions::default(), Some(&mask)).unwrap()
 }
 
+/// `spinedrr register --intensity --backend BACKEND --problem DIR/p.json`: its R.json (written to
+/// `DIR/BACKEND.json`), the run asserted to succeed.
+pub(crate) fn register_cli(dir: &std::path::Path, backend: &str) -> serde_json::Value {
+    let out = dir.join(format!("{backend}.json"));
+    let (ok, err) = crate::common::Spinedrr::new()
+        .args(["register", "--intensity", "--backend", backend, "--problem"])
+        .arg(dir.join("p.json"))
+        .arg("--out")
+        .arg(&out)
+        .outcome();
+    assert!(ok, "{backend}: {err}");
+    serde_json::from_slice(&std::fs::read(out).unwrap()).unwrap()
+}
+
+/// The pose an R.json records.
+pub(crate) fn result_pose(r: &serde_json::Value) -> RigidTransform {
+    let rows: [[f64; 3]; 3] = serde_json::from_value(r["R"].clone()).unwrap();
+    let t: [f64; 3] = serde_json::from_value(r["t"].clone()).unwrap();
+    RigidTransform::from_rt(rows, t, "R.json").unwrap()
+}
+
+/// Where each stage of an R.json ran (`similarity_on`).
+pub(crate) fn stages_on(r: &serde_json::Value) -> Vec<String> {
+    r["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["similarity_on"].as_str().unwrap().to_string())
+        .collect()
+}
+
 /// The model's corners and the ball's centre.
 pub(crate) fn targets() -> Vec<DVec3> {
     (0..8)

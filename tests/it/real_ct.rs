@@ -460,37 +460,17 @@ fn real_ct_l1_registers_with_the_gpu_loop_like_the_cpu() {
         serde_json::to_vec_pretty(&problem).unwrap(),
     )
     .unwrap();
-    let register = |backend: &str| {
-        let out = d.join(format!("{backend}.json"));
-        let (ok, err) = Spinedrr::new()
-            .args(["register", "--intensity", "--backend", backend, "--problem"])
-            .arg(d.join("p.json"))
-            .arg("--out")
-            .arg(&out)
-            .outcome();
-        assert!(ok, "{backend}: {err}");
-        serde_json::from_slice::<serde_json::Value>(&std::fs::read(out).unwrap()).unwrap()
-    };
-    let (cpu, gpu) = (register("raster"), register("gpu"));
-    let stages_on = |r: &serde_json::Value| -> Vec<String> {
-        r["stages"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|s| s["similarity_on"].as_str().unwrap().to_string())
-            .collect()
-    };
+    use crate::gpu_registration::{register_cli, result_pose, stages_on};
+    let (cpu, gpu) = (register_cli(d, "raster"), register_cli(d, "gpu"));
     assert!(stages_on(&gpu).iter().all(|s| s == "gpu"), "{gpu}");
     assert!(stages_on(&cpu).iter().all(|s| s == "cpu"), "{cpu}");
-    let pose = |r: &serde_json::Value| {
-        let rows: [[f64; 3]; 3] = serde_json::from_value(r["R"].clone()).unwrap();
-        let t: [f64; 3] = serde_json::from_value(r["t"].clone()).unwrap();
-        RigidTransform::from_rt(rows, t, "R.json").unwrap()
-    };
     let labels = read_labels(&seg).unwrap();
     let surface = label_surface(&labels, 31, &SurfaceOptions::default()).unwrap();
-    let between =
-        spinedrr::registration::intensity::mtre_mm(&pose(&cpu), &pose(&gpu), &surface.vertices);
+    let between = spinedrr::registration::intensity::mtre_mm(
+        &result_pose(&cpu),
+        &result_pose(&gpu),
+        &surface.vertices,
+    );
     let (mc, mg) = (
         cpu["mtre_mm"].as_f64().unwrap(),
         gpu["mtre_mm"].as_f64().unwrap(),

@@ -147,10 +147,7 @@ impl LevelRenderer<'_> {
         out: &mut ImageF32,
         summed: bool,
     ) -> Result<()> {
-        let moved = View {
-            world_to_camera: view.world_to_camera.compose(pose),
-            ..view.clone()
-        };
+        let moved = seen_from(view, pose);
         match self {
             LevelRenderer::Mesh(r) if summed => {
                 r.render_line_integral_summed_into(&moved, out)?;
@@ -185,5 +182,13 @@ impl LevelRenderer<'_> {
                 .iter()
                 .zip(&paired.data)
                 .all(|(a, b)| (a - b).abs() <= tol))
+    }
+}
+
+/// `view` seen by the anatomy at `pose` (model → world): the camera moves instead of the anatomy.
+pub(super) fn seen_from(view: &View, pose: &RigidTransform) -> View {
+    View {
+        world_to_camera: view.world_to_camera.compose(pose),
+        ..view.clone()
     }
 }

@@ -325,10 +325,7 @@ impl<'a> Objective<'a> {
     fn moved_views(&self, pose: &RigidTransform) -> Vec<View> {
         self.views
             .iter()
-            .map(|lv| View {
-                world_to_camera: lv.view.world_to_camera.compose(pose),
-                ..lv.view.clone()
-            })
+            .map(|lv| super::moving::seen_from(&lv.view, pose))
             .collect()
     }
 
