@@ -228,13 +228,102 @@ fn an_open_mesh_is_refused_by_the_gpu_backend() {
     };
     let err = err.to_string();
     assert!(err.contains("lid-less") && err.contains("closed"), "{err}");
-    // An implant is cut out of what it displaces (paired crossings): refused too.
+}
+
+/// The phantom's L1–L5 with two titanium-like pedicle screws per level as implants (μ = 4 per mm, so
+/// a screw's path counts 4 mm per mm and displaces the bone it occupies): the gpu backend pairs every
+/// pixel a screw may cover on the host, so its images, depths and silhouettes are the CPU raster's; the
+/// CPU's paired render with implants differs from the same meshes summed without them (the test sees
+/// the displacement), and every screw pixel is among the host's.
+#[test]
+fn gpu_mesh_drrs_with_implants_equal_the_cpu_raster() {
+    let phantom = crate::common::phantom(&PhantomOptions {
+        levels: parse_levels("L1-L5").unwrap(),
+        ..PhantomOptions::default()
+    })
+    .unwrap();
+    let mut screws = Vec::new();
+    for targets in phantom.pedicle_targets() {
+        for side in ["left", "right"] {
+            let at = |what: &str| targets.points[&format!("{side}_pedicle_{what}")];
+            screws.push(spinedrr::anatomy::screw::PlannedScrew {
+                name: format!("{}_screw_{side}", targets.level),
+                entry: at("entry"),
+                tip: at("tip"),
+            });
+        }
+    }
+    let implants: Vec<SceneMesh> = spinedrr::render::screw_implants(&screws)
+        .unwrap()
+        .into_iter()
+        .map(|(object, mesh, _)| SceneMesh {
+            mesh,
+            mu_per_mm: 4.0,
+            object,
+        })
+        .collect();
+    let bone = phantom_mm().meshes;
+    let flags: Vec<bool> = (0..bone.len() + implants.len())
+        .map(|i| i >= bone.len())
+        .collect();
+    let all: Vec<SceneMesh> = bone.into_iter().chain(implants.iter().cloned()).collect();
+    let summed = RenderScene::new(all.clone()).unwrap();
+    let scene = summed.clone().with_implants(flags).unwrap();
+    let cpu = Backend::Raster.renderer(scene.clone()).unwrap();
+    let gpu = Backend::Gpu.renderer(scene).unwrap();
+    let not_displaced = Backend::Raster.renderer(summed).unwrap();
+    let screws_alone = Backend::Raster
+        .renderer(RenderScene::new(implants).unwrap())
+        .unwrap();
+    let opts = ThicknessOptions::default();
+    for view in carm_views(2) {
+        let c = cpu.render(&view, &opts).unwrap();
+        let g = gpu.render(&view, &opts).unwrap();
+        let plain = not_displaced.render(&view, &opts).unwrap();
+        let d = worst_difference(&c.line_integral, &plain.line_integral);
+        assert!(d > 1.0, "{}: the screws displace {d} mm of bone", view.name);
+        let d = worst_difference(&c.line_integral, &g.line_integral);
+        assert!(d <= 1e-4, "{}: path lengths differ by {d} mm", view.name);
+        let d = worst_difference(c.depth.as_ref().unwrap(), g.depth.as_ref().unwrap());
+        assert!(d <= 2e-4, "{}: depths differ by {d} mm", view.name);
+        let bad = mask_differences(&c, &g);
+        assert!(
+            bad.is_empty(),
+            "{}: silhouettes differ at {bad:?}",
+            view.name
+        );
+        assert_eq!(c.stats.rays_traced, g.stats.rays_traced, "{}", view.name);
+        // Every pixel a screw covers is paired on the host.
+        let screw_pixels = screws_alone
+            .render(&view, &ThicknessOptions::image_only())
+            .unwrap()
+            .line_integral
+            .data
+            .iter()
+            .filter(|&&x| x > 0.0)
+            .count() as u64;
+        let on_cpu = g.stats.gpu_rays_on_cpu.expect("rendered on the GPU");
+        assert!(
+            screw_pixels > 100 && on_cpu >= screw_pixels,
+            "{}: {on_cpu} pixels on the host, {screw_pixels} under a screw",
+            view.name
+        );
+        assert_eq!(c.stats.gpu_rays_on_cpu, None);
+    }
+}
+
+/// An implant covering most of a 256² view (a sphere of radius 11 mm inside one of 12 mm): its ~40 000
+/// pixels, each with at least four candidate triangles (the two spheres' front and back), are more than
+/// the host's lists first hold (2¹⁷ entries); the renderer grows them and stays on the GPU, with the
+/// CPU raster's image (the implant's μ replaces the bone's where it is).
+#[test]
+fn an_implant_over_most_of_the_view_grows_the_host_lists() {
     let scene = RenderScene::new(
-        [("bone", 12.0), ("screw", 3.0)]
+        [("bone", 12.0, 0.5), ("implant", 11.0, 3.0)]
             .into_iter()
-            .map(|(name, r)| SceneMesh {
-                mesh: std::sync::Arc::new(TriMesh::icosphere(name, DVec3::ZERO, r, 2)),
-                mu_per_mm: 0.05,
+            .map(|(name, r, mu)| SceneMesh {
+                mesh: std::sync::Arc::new(TriMesh::icosphere(name, DVec3::ZERO, r, 4)),
+                mu_per_mm: mu,
                 object: name.into(),
             })
             .collect(),
@@ -242,10 +331,21 @@ fn an_open_mesh_is_refused_by_the_gpu_backend() {
     .unwrap()
     .with_implants(vec![false, true])
     .unwrap();
-    let Err(err) = Backend::Gpu.renderer(scene) else {
-        panic!("implants must be refused");
-    };
-    assert!(err.to_string().contains("implant"), "{err}");
+    let cpu = Backend::Raster.renderer(scene.clone()).unwrap();
+    let gpu = Backend::Gpu.renderer(scene).unwrap();
+    let view = view_from(DVec3::ZERO, DVec3::new(0.0, 0.0, 300.0), 256);
+    let opts = ThicknessOptions::image_only();
+    let c = cpu.render(&view, &opts).unwrap();
+    for _ in 0..2 {
+        let g = gpu.render(&view, &opts).unwrap();
+        let d = worst_difference(&c.line_integral, &g.line_integral);
+        assert!(d <= 1e-4, "{d}");
+        let on_cpu = g.stats.gpu_rays_on_cpu.expect("rendered on the GPU");
+        assert!(on_cpu > (1 << 17) / 4, "{on_cpu} pixels on the host");
+    }
+    // At the centre: 2 × 1 mm of bone and 22 mm of implant.
+    let centre = c.line_integral.data[128 * 256 + 128];
+    assert!((centre - (2.0 * 0.5 + 22.0 * 3.0)).abs() < 0.05, "{centre}");
 }
 
 /// Eight nested spheres (more meshes along a central ray than a pixel has slots for its silhouettes:

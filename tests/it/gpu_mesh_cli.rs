@@ -83,55 +83,70 @@ fn cli_backend_gpu_renders_meshes_like_the_raster() {
     let open_stl = d("open.stl");
     // A spectral DRR: its channels (cortical, cancellous bone, soft tissue) render on the GPU, are
     // finished on the host and summed over the energies on the GPU, to the raster's image within the line
-    // integrals' 1e-5; the sidecar and the spectral summary name the adapter and where the sum ran.
-    let spectral = |backend: &str| {
-        let out = d(&format!("spectral_{backend}.tiff"));
+    // integrals' 1e-5; the sidecar and the spectral summary name the adapter and where the sum ran. With
+    // the level's two titanium screws (implants: every pixel a screw may cover is paired on the host, so
+    // the screws displace the bone as on the CPU) a fourth channel, the same image within 1e-5.
+    let spectral = |backend: &str, name: &str, extra: &[&str]| {
+        let out = d(&format!("{name}_{backend}.tiff"));
         let (ok, err) = crate::common::Spinedrr::new()
-            .args([
-                "render",
-                "--phantom",
-                "L3",
-                "--soft-tissue",
-                "--spectrum",
-                "80",
-            ])
+            .args(["render", "--phantom", "L3", "--spectrum", "80"])
+            .args(extra)
             .args(["--geometry", &d("small.toml"), "--backend", backend])
             .args(["--out", &out])
             .outcome();
         assert!(ok, "{backend}: {err}");
         spinedrr::io::read_tiff_f32(std::path::Path::new(&out)).unwrap()
     };
-    let (c, g) = (spectral("raster"), spectral("gpu"));
-    assert!(c.max() > 0.5, "{}", c.max());
-    let worst = worst_difference(&c, &g);
-    assert!(worst <= 1e-5 * c.max(), "spectral: {worst} of {}", c.max());
-    let side: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d("spectral_gpu.json")).unwrap()).unwrap();
     let adapter = crate::gpu_ct::gpu().adapter_name();
-    assert_eq!(side["details"]["gpu_adapter"], adapter.as_str(), "{side}");
-    assert_eq!(side["details"]["spectral"]["gpu_adapter"], adapter.as_str());
-    assert_eq!(
-        side["details"]["spectral"]["passes"],
-        "3 channel renders, then the energy sum on the GPU"
-    );
-    // Implants are cut out of what they displace, which signed-depth sums cannot do: refused by name,
-    // and so is an open mesh.
-    for (extra, want) in [
-        (
-            vec!["--phantom", "L3", "--spectrum", "80", "--screws"],
-            "implant",
-        ),
-        (vec!["--mesh", &open_stl, "--mu-default", "0.02"], "closed"),
+    for (name, extra, channel) in [
+        ("spectral", "--soft-tissue", "soft_tissue"),
+        ("screws", "--screws", "titanium"),
     ] {
-        let (ok, err) = crate::common::Spinedrr::new()
-            .args(["render", "--geometry", &d("small.toml"), "--backend", "gpu"])
-            .args(&extra)
-            .args(["--out", &d("refused.tiff")])
-            .outcome();
-        assert!(!ok && err.contains(want), "{extra:?}: {err}");
-        assert!(!err.contains("panicked"), "{err}");
-        assert!(!dir.path().join("refused.tiff").exists());
+        let (c, g) = (
+            spectral("raster", name, &[extra]),
+            spectral("gpu", name, &[extra]),
+        );
+        assert!(c.max() > 0.5, "{name}: {}", c.max());
+        let worst = worst_difference(&c, &g);
+        assert!(worst <= 1e-5 * c.max(), "{name}: {worst} of {}", c.max());
+        let side: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d(&format!("{name}_gpu.json"))).unwrap())
+                .unwrap();
+        assert_eq!(side["details"]["gpu_adapter"], adapter.as_str(), "{side}");
+        assert_eq!(side["details"]["spectral"]["gpu_adapter"], adapter.as_str());
+        let channels = side["details"]["spectral"]["channels"].as_array().unwrap();
+        assert!(
+            channels.iter().any(|c| c == channel),
+            "{name}: {channels:?}"
+        );
+        // As many channel renders as the raster's, the sum on the GPU.
+        let raster: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(d(&format!("{name}_raster.json"))).unwrap(),
+        )
+        .unwrap();
+        let cpu_passes = raster["details"]["spectral"]["passes"].as_str().unwrap();
+        assert!(cpu_passes.ends_with("channel renders, then the energy sum"));
+        assert_eq!(
+            side["details"]["spectral"]["passes"],
+            format!("{cpu_passes} on the GPU")
+        );
     }
+    // The screws displace bone: the image with them is not the image without them plus their own
+    // attenuation (which a sum of their meshes would give).
+    let (with, without) = (
+        spectral("gpu", "screws", &["--screws"]),
+        spectral("gpu", "bare", &[]),
+    );
+    assert!(worst_difference(&with, &without) > 0.1);
+    // An open mesh's signed sums mean nothing: refused by name.
+    let (ok, err) = crate::common::Spinedrr::new()
+        .args(["render", "--geometry", &d("small.toml"), "--backend", "gpu"])
+        .args(["--mesh", &open_stl, "--mu-default", "0.02"])
+        .args(["--out", &d("refused.tiff")])
+        .outcome();
+    assert!(!ok && err.contains("closed"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!dir.path().join("refused.tiff").exists());
     // No Vulkan driver at all: the error says what to install, nothing is written.
     let (ok, err) = crate::common::Spinedrr::new()
         .args([

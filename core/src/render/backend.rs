@@ -77,8 +77,8 @@ fn raster_fallback(scene: &RenderScene) -> Box<dyn HitTracer> {
     }
 }
 
-/// A gpu-backend renderer of `scene`: refused for open meshes, whose signed sums mean nothing, and for
-/// implants (pairing cuts them out of the bone they displace; a sum cannot).
+/// A gpu-backend renderer of `scene`: refused for open meshes, whose signed sums mean nothing. An
+/// implant's pixels (pairing cuts it out of the bone it displaces; a sum cannot) are paired on the host.
 #[cfg(feature = "gpu")]
 fn gpu_renderer(scene: RenderScene) -> Result<ThicknessRenderer> {
     use super::gpu::{GpuContext, GpuMeshRenderer};
@@ -90,13 +90,6 @@ fn gpu_renderer(scene: RenderScene) -> Result<ThicknessRenderer> {
                 "gpu sums signed depths, which needs closed meshes, and mesh '{open}' is open (or \
                  not consistently wound): render it with raster, embree or bvh, which pair crossings"
             ),
-        ));
-    }
-    if scene.has_implants() {
-        return Err(Error::invalid(
-            "backend",
-            "gpu sums signed depths, and an implant must be cut out of what it displaces, which needs \
-             paired crossings: render implants with raster, embree or bvh",
         ));
     }
     let gpu = GpuMeshRenderer::new(GpuContext::shared()?, &scene)?;

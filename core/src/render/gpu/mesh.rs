@@ -18,6 +18,7 @@
 //! them in. `scale` is a power of two chosen per view so that no pixel's total can overflow: a ray's
 //! depth chords through one mesh add up to at most the mesh's depth extent in that view.
 
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use bytemuck::{Pod, Zeroable};
@@ -46,7 +47,9 @@ const WORKGROUP: u32 = 64;
 const CHORD_MARGIN_MM: f64 = 1e-4;
 
 /// Entries of `collect`'s list of (pixel, triangle) pairs the host evaluates (8 bytes each), and of
-/// `finish`'s list of the host's pixels: a view with more falls back to the CPU raster.
+/// `finish`'s list of the host's pixels, at first: a view that needs more renders again with lists of
+/// what it wanted (kept for the next view), and falls back to the CPU raster only past what one buffer
+/// of the adapter holds.
 const LIST_CAPACITY: u32 = 1 << 17;
 
 /// `Globals` in mesh.wgsl.
@@ -83,6 +86,8 @@ pub struct GpuMeshRenderer {
     pub(super) project: Option<Projector>,
     /// Each mesh's bounding box (world frame).
     bounds: Vec<Option<(DVec3, DVec3)>>,
+    /// The entries of the lists of pixels for the host (grown when a view needs more).
+    capacity: AtomicU32,
     /// The vertex, accumulator and read-back buffers, reused by the next render of the same size; held
     /// for a whole render, so renders from several threads take turns.
     buffers: Mutex<Option<FrameBuffers>>,
@@ -108,13 +113,15 @@ impl GpuMeshRenderer {
             vertex_start.push(vertices);
             triangle_start.push(tris.len());
             let first = vertices as u32;
+            // An implant's pixels are paired by the host (mesh.wgsl's `rasterise`).
+            let implant = u32::from(scene.implants.get(g).copied().unwrap_or(false));
             for (k, t) in m.mesh.triangles.iter().enumerate() {
                 let label = u32::from(m.mesh.label(k) as u8);
                 tris.push([
                     first + t[0],
                     first + t[1],
                     first + t[2],
-                    g as u32 | label << 16,
+                    g as u32 | label << 16 | implant << 24,
                 ]);
             }
             vertices += m.mesh.vertices.len();
@@ -206,6 +213,7 @@ impl GpuMeshRenderer {
             finish,
             project,
             bounds: scene.meshes.iter().map(|m| m.mesh.bounds()).collect(),
+            capacity: AtomicU32::new(LIST_CAPACITY),
             buffers: Mutex::new(None),
         })
     }
@@ -226,9 +234,9 @@ impl GpuMeshRenderer {
     /// pixel it can on the GPU (`finish` in mesh.wgsl): its line integral and, with `full`, its
     /// silhouettes and nearest depth; only those and the pixels left to the host, with their candidate
     /// triangles, come back ([`GpuFrame`]). `None` when a vertex lies at or behind the source plane (no
-    /// finite projection: the CPU raster traces such a view, and so does the caller) or when more
-    /// pixels than [`LIST_CAPACITY`] entries can hold need the host: the caller renders the view on the
-    /// CPU.
+    /// finite projection: the CPU raster traces such a view, and so does the caller) or when the
+    /// host's pixels need more list entries than one buffer of the adapter holds: the caller renders
+    /// the view on the CPU.
     pub(crate) fn rasterise(
         &self,
         scene: &RenderScene,
@@ -366,96 +374,112 @@ impl GpuMeshRenderer {
         }
         let (rx, ry) = PixelDirs::new(intr).rows();
         let row = |r: [f64; 3]| [r[0] as f32, r[1] as f32, r[2] as f32, 0.0];
-        let globals = Globals {
-            image: [w, h, self.triangles, stride],
-            scale: [
-                scale as f32,
-                chord_scale as f32,
-                MIN_SILHOUETTE_CHORD_MM as f32,
-                0.0,
-            ],
-            list: [LIST_CAPACITY, chord_band[0], chord_band[1], 0],
-            ray_x: row(rx),
-            ray_y: row(ry),
-        };
-        let sizes = FrameSizes {
-            verts: (32 * self.vertices as u64).max(32),
-            acc: acc_bytes,
-            list: 4 * (1 + 2 * u64::from(LIST_CAPACITY)),
-            host: 4 * (4 + u64::from(LIST_CAPACITY)),
-            image: 4 * u64::from(w) * u64::from(h),
-            extra: if full {
-                16 * u64::from(w) * u64::from(h)
-            } else {
-                16
-            },
-        };
-        let device = &self.ctx.device;
-        let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
-        if slot.as_ref().is_some_and(|b| b.sizes != sizes) {
-            *slot = None;
-        }
-        let bufs = match &mut *slot {
-            Some(b) => b,
-            empty => empty.insert(self.ctx.checked("allocating the mesh DRR's buffers", || {
-                FrameBuffers::new(device, sizes)
-            })?),
-        };
-        self.ctx.checked("rendering a mesh DRR", || {
-            if !verts.is_empty() {
-                self.ctx
-                    .queue
-                    .write_buffer(&bufs.verts, 0, bytemuck::cast_slice(&verts));
-            }
-            let uniform = uniform_init(device, "mesh globals", bytemuck::bytes_of(&globals));
-            let bind = bind_buffers(
-                device,
-                "mesh",
-                &self.layout,
-                &[
-                    &uniform,
-                    &bufs.verts,
-                    &self.tris,
-                    &self.meshes,
-                    &bufs.acc,
-                    &bufs.list,
-                    &bufs.host,
-                    &bufs.image,
-                    &bufs.extra,
+        // The lists start at LIST_CAPACITY entries and grow to what a view wanted (once per render,
+        // kept for the next), as far as one buffer of the adapter holds; beyond that the CPU renders it.
+        let max_capacity = ((self.ctx.max_storage_binding() / 4 - 1) / 2).min(u64::from(u32::MAX));
+        let mut grown = false;
+        let back = loop {
+            let capacity = self.capacity.load(Ordering::Relaxed);
+            let globals = Globals {
+                image: [w, h, self.triangles, stride],
+                scale: [
+                    scale as f32,
+                    chord_scale as f32,
+                    MIN_SILHOUETTE_CHORD_MM as f32,
+                    0.0,
                 ],
-            );
-            let mut encoder = device.create_command_encoder(&Default::default());
-            // The sums start at 0 (a reused buffer holds the last render).
-            encoder.clear_buffer(&bufs.acc, 0, None);
-            encoder.clear_buffer(&bufs.list, 0, Some(4));
-            encoder.clear_buffer(&bufs.host, 0, Some(16));
-            if let (true, Some(p)) = (on_gpu, &self.project) {
-                p.encode(&self.ctx, &mut encoder, view, &z_ref, &bufs.verts);
-            }
-            // `collect` reads what every invocation of `rasterise` added, and `finish` each pixel's
-            // totals.
-            let passes = [
-                (&self.pipeline, grid),
-                (&self.collect, grid),
-                (&self.finish, pixel_grid),
-            ];
-            for (pipeline, grid) in &passes {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(pipeline);
-                pass.set_bind_group(0, &bind, &[]);
-                pass.dispatch_workgroups(grid[0], grid[1], 1);
-            }
-            bufs.copy_out(&mut encoder, full);
-            self.ctx.queue.submit([encoder.finish()]);
-        })?;
-        let back = match bufs.read(&self.ctx, full, LIST_CAPACITY) {
-            Ok(Some(b)) => b,
-            // More pixels than the lists hold: the CPU raster renders the view.
-            Ok(None) => return Ok(None),
-            Err(e) => {
-                // A buffer left mapped (or lost with the device) is not reused.
+                list: [capacity, chord_band[0], chord_band[1], 0],
+                ray_x: row(rx),
+                ray_y: row(ry),
+            };
+            let sizes = FrameSizes {
+                verts: (32 * self.vertices as u64).max(32),
+                acc: acc_bytes,
+                list: 4 * (1 + 2 * u64::from(capacity)),
+                host: 4 * (4 + u64::from(capacity)),
+                image: 4 * u64::from(w) * u64::from(h),
+                extra: if full {
+                    16 * u64::from(w) * u64::from(h)
+                } else {
+                    16
+                },
+            };
+            let device = &self.ctx.device;
+            let mut slot = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
+            if slot.as_ref().is_some_and(|b| b.sizes != sizes) {
                 *slot = None;
-                return Err(e);
+            }
+            let bufs = match &mut *slot {
+                Some(b) => b,
+                empty => {
+                    empty.insert(self.ctx.checked("allocating the mesh DRR's buffers", || {
+                        FrameBuffers::new(device, sizes)
+                    })?)
+                }
+            };
+            self.ctx.checked("rendering a mesh DRR", || {
+                if !verts.is_empty() {
+                    self.ctx
+                        .queue
+                        .write_buffer(&bufs.verts, 0, bytemuck::cast_slice(&verts));
+                }
+                let uniform = uniform_init(device, "mesh globals", bytemuck::bytes_of(&globals));
+                let bind = bind_buffers(
+                    device,
+                    "mesh",
+                    &self.layout,
+                    &[
+                        &uniform,
+                        &bufs.verts,
+                        &self.tris,
+                        &self.meshes,
+                        &bufs.acc,
+                        &bufs.list,
+                        &bufs.host,
+                        &bufs.image,
+                        &bufs.extra,
+                    ],
+                );
+                let mut encoder = device.create_command_encoder(&Default::default());
+                // The sums start at 0 (a reused buffer holds the last render).
+                encoder.clear_buffer(&bufs.acc, 0, None);
+                encoder.clear_buffer(&bufs.list, 0, Some(4));
+                encoder.clear_buffer(&bufs.host, 0, Some(16));
+                if let (true, Some(p)) = (on_gpu, &self.project) {
+                    p.encode(&self.ctx, &mut encoder, view, &z_ref, &bufs.verts);
+                }
+                // `collect` reads what every invocation of `rasterise` added, and `finish` each pixel's
+                // totals.
+                let passes = [
+                    (&self.pipeline, grid),
+                    (&self.collect, grid),
+                    (&self.finish, pixel_grid),
+                ];
+                for (pipeline, grid) in &passes {
+                    let mut pass = encoder.begin_compute_pass(&Default::default());
+                    pass.set_pipeline(pipeline);
+                    pass.set_bind_group(0, &bind, &[]);
+                    pass.dispatch_workgroups(grid[0], grid[1], 1);
+                }
+                bufs.copy_out(&mut encoder, full);
+                self.ctx.queue.submit([encoder.finish()]);
+            })?;
+            match bufs.read(&self.ctx, full, capacity) {
+                Ok(Ok(b)) => break b,
+                // More pixels for the host than the lists hold: once, larger lists; then the CPU raster.
+                Ok(Err(wanted)) => {
+                    let larger = u64::from(wanted).next_power_of_two().min(max_capacity) as u32;
+                    if grown || larger < wanted {
+                        return Ok(None);
+                    }
+                    self.capacity.fetch_max(larger, Ordering::Relaxed);
+                    grown = true;
+                }
+                Err(e) => {
+                    // A buffer left mapped (or lost with the device) is not reused.
+                    *slot = None;
+                    return Err(e);
+                }
             }
         };
         let mut pairs: Vec<[u32; 2]> = back.pairs.chunks_exact(2).map(|p| [p[0], p[1]]).collect();

@@ -14,8 +14,10 @@
 // from its lower-numbered vertex, so the two triangles sharing it compute exactly opposite values
 // (watertight, with the CPU's tie rule for a pixel exactly on it). The offset of a pixel from a vertex,
 // (p − a_hi) − a_lo, is exact to ~1e-7 px, so the GPU's coverage can differ from the CPU's only for a
-// pixel centre within that of an edge. Such pixels, and the unbalanced ones, are not left to the sum:
+// pixel centre within that of an edge. Such pixels, the unbalanced ones and those an implant may cover
+// (an implant displaces the other meshes where it is, which a sum cannot tell) are not left to the sum:
 // `rasterise` flags every pixel centre within NEAR_PX of an edge of a triangle it lies in (or on), and
+// every pixel centre inside an implant's triangle grown by NEAR_PX, and
 // `collect` lists, for every flagged or unbalanced pixel, the triangles whose edges it lies within
 // NEAR_PX of or inside; the host evaluates those pixels with the CPU raster's own f64 edge functions and
 // pairs their crossings, so they are the CPU raster's values exactly. That also covers a ray through an
@@ -47,7 +49,8 @@ struct Globals {
 @group(0) @binding(0) var<uniform> G: Globals;
 // Per vertex, two entries: (u_hi, v_hi, u_lo, v_lo) and (z, z − z_ref, 0, 0).
 @group(0) @binding(1) var<storage, read> verts: array<vec4<f32>>;
-// Per triangle: its vertices (global indices) and its mesh (low 16 bits) and structure label (next 8).
+// Per triangle: its vertices (global indices) and its mesh (low 16 bits), structure label (next 8) and
+// whether its mesh is an implant (bit 24).
 @group(0) @binding(2) var<storage, read> tris: array<vec4<u32>>;
 // Per mesh: μ (bits), object index.
 @group(0) @binding(3) var<storage, read> meshes: array<vec2<u32>>;
@@ -211,6 +214,7 @@ fn rasterise(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     }
     let g = tris[t].w & 0xffffu;
     let label = (tris[t].w >> 16u) & 0xffu;
+    let implant = ((tris[t].w >> 24u) & 1u) != 0u;
     let mu = bitcast<f32>(meshes[g].x);
     let s = select(1, -1, r.entry);
     let weight = f32(s) * mu * G.scale.x;
@@ -223,7 +227,10 @@ fn rasterise(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
             let e = edges(r, u, v);
             let pix = (v * w + u) * stride;
             let near = near_edge(r, e);
-            if near.x && near.y {
+            // An implant displaces what it occupies: the length of every other mesh inside it is not
+            // counted, which a sum cannot tell. Every pixel it may cover goes to the host, which pairs
+            // its crossings as the CPU does.
+            if near.x && (near.y || implant) {
                 atomicOr(&acc[pix + 3u], HOST);
             }
             var inside = true;

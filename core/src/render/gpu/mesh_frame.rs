@@ -123,13 +123,19 @@ impl FrameBuffers {
 
     /// Reads back what the render left once the queue's work is done: the lists' counts first, then
     /// only the entries they hold (a second copy), so a render's read-back is its finished pixels and
-    /// its lists' entries, not the lists' capacity. `None` when a list overflowed `capacity`.
-    pub fn read(&self, ctx: &GpuContext, full: bool, capacity: u32) -> Result<Option<ReadBack>> {
+    /// its lists' entries, not the lists' capacity. `Err(entries)` when a list overflowed `capacity`:
+    /// the entries the longer list wanted.
+    pub fn read(
+        &self,
+        ctx: &GpuContext,
+        full: bool,
+        capacity: u32,
+    ) -> Result<std::result::Result<ReadBack, u32>> {
         let header = ctx.read_back::<u32>(&self.header_staging, "the mesh DRR's list counts")?;
         let half = (HEADER_BYTES / 8) as usize;
         let (n_pairs, n_host) = (header[0], header[half]);
         if n_pairs > capacity || n_host > capacity {
-            return Ok(None);
+            return Ok(Err(n_pairs.max(n_host)));
         }
         let (pair_bytes, host_bytes) = (8 * u64::from(n_pairs), 4 * u64::from(n_host));
         if pair_bytes + host_bytes > 0 {
@@ -160,7 +166,7 @@ impl FrameBuffers {
         let mut pixels: Vec<u32> =
             ctx.read_back_first(&self.host_staging, host_bytes, "the mesh DRR's host pixels")?;
         pixels.sort_unstable();
-        Ok(Some(ReadBack {
+        Ok(Ok(ReadBack {
             pairs,
             finished: Finished {
                 image,

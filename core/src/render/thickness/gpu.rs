@@ -1,7 +1,7 @@
 //! A thickness render on the GPU backend: the GPU's signed-depth sums
 //! (`render::gpu::GpuMeshRenderer`) turned into the renderer's outputs, and the few pixels the sums
-//! cannot give (crossings that do not balance, a centre near an edge) evaluated on the CPU exactly as
-//! the CPU raster evaluates them.
+//! cannot give (crossings that do not balance, a centre near an edge, a ray an implant may meet: an
+//! implant displaces what it occupies) evaluated on the CPU exactly as the CPU raster evaluates them.
 //!
 //! Without the `gpu` feature, [`GpuRaster`] has no values, so the renderer's code has no `cfg`.
 
@@ -109,6 +109,7 @@ impl GpuRaster {
         let mut stats = RenderStats {
             rays_traced: u64::from(done.rays),
             hits: done.hits,
+            gpu_rays_on_cpu: Some(done.pixels.len() as u64),
             ..RenderStats::default()
         };
         for (i, ray, s) in rays {

@@ -284,8 +284,9 @@ impl ThicknessRenderer {
     /// ones (see `raster::summed`): several times faster, and the same image wherever a ray's crossings
     /// alternate entry and exit, which they do in closed meshes that do not intersect themselves. Rays
     /// that lost or doubled a crossing at a vertex are traced and paired as in the paired render. A
-    /// scene with an open mesh, a renderer that traces, or a view that cannot be projected falls back to
-    /// the paired render. A self-intersecting mesh is summed where it overlaps itself (counted twice):
+    /// scene with an open mesh or an implant (which displaces what it occupies: a sum cannot tell), a
+    /// renderer that traces, or a view that cannot be projected falls back to the paired render (the gpu
+    /// backend pairs an implant's pixels on the host). A self-intersecting mesh is summed where it overlaps itself (counted twice):
     /// callers that cannot rule that out compare one summed render with a paired one first.
     pub fn render_line_integral_summed_into(
         &self,
@@ -297,7 +298,9 @@ impl ThicknessRenderer {
         }
         let start = Instant::now();
         let raster = match &self.gather {
-            Gather::Raster { .. } if self.scene.open_meshes.is_empty() => {
+            Gather::Raster { .. }
+                if self.scene.open_meshes.is_empty() && !self.scene.has_implants() =>
+            {
                 view.intrinsics.validate()?;
                 RasterView::new(&self.scene, view, RASTER_BAND_ROWS)
             }

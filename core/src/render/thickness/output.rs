@@ -15,6 +15,10 @@ pub struct RenderStats {
     pub hits: u64,
     pub rays_repaired: u64,
     pub rays_unrepaired: u64,
+    /// A view the gpu backend rendered: the pixels evaluated on the CPU (those the GPU's sums cannot
+    /// give, and every pixel an implant may cover); absent for CPU renders.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gpu_rays_on_cpu: Option<u64>,
     pub render_ms: f64,
 }
 
@@ -25,6 +29,10 @@ impl RenderStats {
         self.hits += o.hits;
         self.rays_repaired += o.rays_repaired;
         self.rays_unrepaired += o.rays_unrepaired;
+        self.gpu_rays_on_cpu = match (self.gpu_rays_on_cpu, o.gpu_rays_on_cpu) {
+            (None, None) => None,
+            (a, b) => Some(a.unwrap_or(0) + b.unwrap_or(0)),
+        };
         self
     }
 }
