@@ -425,7 +425,7 @@ pub fn render_spectral(
             view.intrinsics.validate()?;
             let r = spinedrr::render::SpectralCtRenderer::new(&renderer, &ct.values, model)?
                 .with_implants(&moved, backend)?;
-            // On the gpu backend the material channels render there (implants were refused above).
+            // On the gpu backend the material channels render there (and the implants' meshes: `backend`).
             let r = if backend == Backend::Gpu {
                 r.on_gpu(spinedrr::render::gpu::GpuContext::shared()?)?
             } else {

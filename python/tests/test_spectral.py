@@ -176,7 +176,8 @@ def test_python_spectral_render_equals_the_cli(cli, tmp_path, coarse):
 
 def test_python_spectral_gpu_render_equals_the_cli_and_the_raster(cli, tmp_path, coarse):
     """``backend="gpu"`` (lavapipe in CI): the channels on the GPU, the energy sum on the host — the CLI's
-    `--backend gpu` image bit for bit, the raster's within 1e-5 of its maximum; implants are refused."""
+    `--backend gpu` image bit for bit, the raster's within 1e-5 of its maximum; with the level's screws
+    (implants: the pixels they may cover are paired on the host) the same, and unlike the image without them."""
     geometry, carm = coarse
     view = carm.view("lat")
     img, spectral = spinedrr.render_spectral(view, "80", phantom="L3", backend="gpu")
@@ -188,14 +189,19 @@ def test_python_spectral_gpu_render_equals_the_cli_and_the_raster(cli, tmp_path,
     assert "gpu_adapter" not in cpu_spectral
     assert cpu.max() > 0.5
     assert np.abs(img - cpu).max() <= 1e-5 * cpu.max()
-    with pytest.raises(ValueError, match="implant"):
-        spinedrr.render_spectral(view, "80", phantom="L3", screws=True, backend="gpu")
+    screwed, _ = spinedrr.render_spectral(view, "80", phantom="L3", screws=True, backend="gpu")
+    ref = cli.render(tmp_path / "s.tiff", "--phantom", "L3", "--geometry", geometry, "--view", "lat",
+                     "--spectrum", "80", "--screws", "--backend", "gpu")
+    np.testing.assert_array_equal(screwed, ref)
+    cpu_screwed, _ = spinedrr.render_spectral(view, "80", phantom="L3", screws=True)
+    assert np.abs(screwed - cpu_screwed).max() <= 1e-5 * cpu_screwed.max()
+    assert np.abs(screwed - img).max() > 0.1
 
 
 def test_python_spectral_ct_on_the_gpu_equals_the_cli_and_the_cpu(cli, tmp_path, coarse, phantom_dir):
     """A CT's spectral DRR with ``backend="gpu"``: its material channels on the GPU — the CLI's
-    `--ct … --spectrum --backend gpu` bit for bit, the CPU's within 1e-5 of its peak; with an implant it is
-    refused (the CT is cut along paired crossings, which the GPU does not keep)."""
+    `--ct … --spectrum --backend gpu` bit for bit, the CPU's within 1e-5 of its peak; with a planned screw
+    (cut out of the GPU's channels on the host along its paired crossings) the same."""
     nib = pytest.importorskip("nibabel")
     geometry, carm = coarse
     view = carm.view("lat")
@@ -211,8 +217,16 @@ def test_python_spectral_ct_on_the_gpu_equals_the_cli_and_the_cpu(cli, tmp_path,
     assert cpu.max() > 0.5
     assert np.abs(got - cpu).max() <= 1e-5 * cpu.max()
     plan = {"left_pedicle_entry": [18.0, -32.0, 1.0], "left_pedicle_tip": [8.0, 4.0, 0.0]}
-    with pytest.raises(ValueError, match="implant"):
-        spinedrr.render_spectral(view, "80", ct=hu, affine=img.affine, screws_at=plan, backend="gpu")
+    screwed, _ = spinedrr.render_spectral(view, "80", ct=hu, affine=img.affine, screws_at=plan,
+                                          backend="gpu")
+    plan_path = tmp_path / "plan.json"
+    plan_path.write_text(json.dumps([{"level": "L3", "landmarks": plan}]))
+    ref = cli.render(tmp_path / "cts.tiff", "--ct", ct_path, "--geometry", geometry, "--view", "lat",
+                     "--spectrum", "80", "--screws-at", plan_path, "--backend", "gpu")
+    np.testing.assert_array_equal(screwed, ref)
+    cpu_screwed, _ = spinedrr.render_spectral(view, "80", ct=hu, affine=img.affine, screws_at=plan)
+    assert np.abs(screwed - cpu_screwed).max() <= 1e-5 * cpu_screwed.max()
+    assert np.abs(screwed - got).max() > 0.1
 
 
 def test_python_spectral_ct_and_posed_implants_equal_the_cli(cli, tmp_path, coarse, phantom_dir):

@@ -225,14 +225,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             &a.spectral.implant,
             a.spectral.screws_at.as_deref(),
         )?;
-        let implants = super::render_ct::CtImplants {
-            meshes: implants
-                .into_iter()
-                .map(|(_, m, material)| (m, material))
-                .collect(),
-            placed,
-            backend: Backend::Raster,
-        };
         let gpu = match a.backend {
             None => false,
             Some(Backend::Gpu) => true,
@@ -241,6 +233,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                  with --backend gpu",
                 Backend::name(b)
             ),
+        };
+        // On the gpu backend the implants' meshes render there too.
+        let implants = super::render_ct::CtImplants {
+            meshes: implants
+                .into_iter()
+                .map(|(_, m, material)| (m, material))
+                .collect(),
+            placed,
+            backend: if gpu { Backend::Gpu } else { Backend::Raster },
         };
         return super::render_ct::run_ct(&a.ct, &run, model, implants, gpu);
     }

@@ -81,13 +81,6 @@ pub fn run_ct(
     implants: CtImplants,
     gpu: bool,
 ) -> anyhow::Result<()> {
-    if gpu && !implants.meshes.is_empty() {
-        bail!(
-            "--backend gpu renders a CT's DRR and its spectral channels, but an implant (--implant, \
-             --screws-at) is cut out of the CT along each ray's paired crossings, which the GPU does not \
-             keep: render a CT with implants on the CPU (leave --backend out)"
-        );
-    }
     let Some(ct_path) = &a.ct else {
         bail!("--ct is required for a CT render");
     };

@@ -70,14 +70,11 @@ impl SpectralCtRenderer {
 
     /// The same renderer with each CT material's channel rendered on the GPU of `ctx` (the same
     /// Siddon or trilinear integral as on the CPU, to ~1e-5) and the energy sum there too (the CPU
-    /// kernel's log-sum-exp), one f32 per pixel read back. Implants are
-    /// refused: they are cut out of the CT along each ray's paired crossings, which the GPU's signed-depth
-    /// sums do not keep.
+    /// kernel's log-sum-exp), one f32 per pixel read back. With implants ([`Self::with_implants`], before
+    /// or after), the channels come back to the host, which cuts the implants out of them along each
+    /// covered ray's paired crossings (as on the CPU), and the maps go back up for the sum.
     #[cfg(feature = "gpu")]
     pub fn on_gpu(mut self, ctx: Arc<super::gpu::GpuContext>) -> Result<Self> {
-        if self.implants.is_some() {
-            return Err(implants_on_gpu());
-        }
         let channels = self
             .renderers
             .iter()
@@ -97,9 +94,13 @@ impl SpectralCtRenderer {
         None
     }
 
-    /// Each CT material's mass-thickness map of `view` (the CPU's renders).
-    fn channel_maps(&self, view: &View) -> Vec<ImageF32> {
-        self.renderers.iter().map(|r| r.render(view)).collect()
+    /// Each CT material's mass-thickness map of `view` (on the GPU with [`Self::on_gpu`]).
+    fn channel_maps(&self, view: &View) -> Result<Vec<ImageF32>> {
+        #[cfg(feature = "gpu")]
+        if let Some((channels, _)) = &self.gpu {
+            return channels.iter().map(|c| c.render(view)).collect();
+        }
+        Ok(self.renderers.iter().map(|r| r.render(view)).collect())
     }
 
     /// The same CT with `implants` (closed meshes, world mm, each of a material and density) in it,
@@ -111,9 +112,6 @@ impl SpectralCtRenderer {
     ) -> Result<Self> {
         if implants.is_empty() {
             return Ok(self);
-        }
-        if self.gpu_adapter().is_some() {
-            return Err(implants_on_gpu());
         }
         let mut channels: Vec<(Channel, ThicknessRenderer)> = Vec::new();
         let mut labels: Vec<String> = Vec::new();
@@ -155,6 +153,13 @@ impl SpectralCtRenderer {
         all.extend(channels.iter().map(|(c, _)| *c));
         self.kernel = self.model.kernel(&all);
         self.channels = all;
+        // On the GPU already: the energy sum over the implants' channels too.
+        #[cfg(feature = "gpu")]
+        if let Some((renderers, sum)) = &mut self.gpu
+            && let Some(first) = renderers.first()
+        {
+            *sum = super::gpu::GpuEnergySum::new(Arc::clone(first.context()), &self.kernel)?;
+        }
         self.implants = Some(Implants {
             channels,
             union,
@@ -211,7 +216,9 @@ impl SpectralCtRenderer {
     /// Renders `view`.
     pub fn render(&self, view: &View) -> Result<SpectralDrr> {
         #[cfg(feature = "gpu")]
-        if let Some((channels, sum)) = &self.gpu {
+        if let Some((channels, sum)) = &self.gpu
+            && self.implants.is_none()
+        {
             let d = sum.render(channels, view)?;
             return Ok(SpectralDrr {
                 line_integral: d.line_integral,
@@ -221,7 +228,7 @@ impl SpectralCtRenderer {
             });
         }
         let t0 = Instant::now();
-        let mut maps = self.channel_maps(view);
+        let mut maps = self.channel_maps(view)?;
         if let Some(implants) = &self.implants {
             self.displace(implants, view, &mut maps)?;
             for (_, r) in &implants.channels {
@@ -233,6 +240,12 @@ impl SpectralCtRenderer {
         }
         let channels_ms = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
+        #[cfg(feature = "gpu")]
+        let line_integral = match &self.gpu {
+            Some((_, sum)) => sum.sum_maps(&maps)?,
+            None => energy_sum(&self.kernel, &maps),
+        };
+        #[cfg(not(feature = "gpu"))]
         let line_integral = energy_sum(&self.kernel, &maps);
         Ok(SpectralDrr {
             line_integral,
@@ -259,10 +272,17 @@ impl SpectralCtRenderer {
         }
         if let Some(i) = &self.implants {
             s["implants"] = serde_json::json!(i.described);
-            s["implant_displacement"] = serde_json::json!(
-                "each CT material's Siddon integral over the union of the implants' inside intervals of \
-                 every ray is subtracted (exact)"
-            );
+            let mut how =
+                "each CT material's Siddon integral over the union of the implants' inside \
+                           intervals of every ray is subtracted (exact)"
+                    .to_string();
+            if self.gpu_adapter().is_some() {
+                how.push_str(
+                    "; the CT's channels rendered on the GPU, the implants cut out of them on the host, \
+                     the implants' channels and the energy sum on the GPU",
+                );
+            }
+            s["implant_displacement"] = how.into();
         }
         s["hu_conversion"] = serde_json::json!(
             "HU <= 100: soft tissue at 1 + HU/1000 g/cm3; 100-1500 HU: soft tissue (1.10 g/cm3) and cortical \
@@ -271,14 +291,6 @@ impl SpectralCtRenderer {
         );
         s
     }
-}
-/// Why a CT with implants does not render on the GPU (with them or after them, in either order).
-fn implants_on_gpu() -> crate::Error {
-    crate::Error::invalid(
-        "backend",
-        "gpu renders a spectral CT's material channels, but implants are cut out of the CT along each \
-         ray's paired crossings, which the GPU does not keep: render a CT with implants on the CPU",
-    )
 }
 
 /// `implants` (given in a CT file's world, like its landmarks) moved by `motion`, the CT's placement, so
