@@ -5,8 +5,8 @@
 //! `T(p) = [Y ↦ exp([ω]×)(Y − c) + c + t] ∘ T₀`, with `ρ` the RMS radius of the target points about
 //! the centre (so a unit of rotation parameter moves the targets by about 1 mm).
 
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -92,8 +92,8 @@ pub struct Objective<'a> {
     /// Evaluation buffers, one set taken per view being evaluated and put back afterwards, so the loop
     /// renders, bins and normalises into memory it already has.
     buffers: Mutex<Vec<Buffers>>,
-    /// A CT level on the gpu backend whose views share one size: evaluated on the GPU
-    /// ([`super::device`]), only scalars read back.
+    /// A level on the gpu backend (a CT, or meshes) whose views share one size: evaluated on the GPU
+    /// ([`super::device`]), only scalars read back (and, for meshes, the host's few pixels).
     #[cfg(feature = "gpu")]
     device: Option<super::device::DeviceLevel<'a>>,
 }
@@ -193,27 +193,28 @@ impl<'a> Objective<'a> {
             });
         }
         #[cfg(feature = "gpu")]
-        let device = match &moving {
-            LevelRenderer::Volume(v) => {
-                let v: &'a VolumeOnBackend = v;
-                match v.gpu() {
-                    Some(g) => {
-                        let views: Vec<_> = out
-                            .iter()
-                            .map(|lv| (&lv.view, &lv.fixed, lv.eps.as_slice()))
-                            .collect();
-                        super::device::DeviceLevel::new(
-                            g,
-                            &views,
-                            supersample,
-                            smooth_px,
-                            level_size,
-                        )?
-                    }
-                    None => None,
+        let device = {
+            use super::device::{DeviceLevel, Source};
+            let source = match &moving {
+                LevelRenderer::Volume(v) => {
+                    let v: &'a VolumeOnBackend = v;
+                    v.gpu().map(Source::Ct)
                 }
+                LevelRenderer::Mesh(r) => r.gpu_context().map(|_| Source::Mesh {
+                    renderer: Arc::clone(r),
+                    summed,
+                }),
+            };
+            match source {
+                Some(source) => {
+                    let views: Vec<_> = out
+                        .iter()
+                        .map(|lv| (&lv.view, &lv.fixed, lv.eps.as_slice()))
+                        .collect();
+                    DeviceLevel::new(source, &views, supersample, smooth_px, level_size)?
+                }
+                None => None,
             }
-            LevelRenderer::Mesh(_) => None,
         };
         Ok(Objective {
             #[cfg(feature = "gpu")]
@@ -280,9 +281,9 @@ impl<'a> Objective<'a> {
         self.views.len()
     }
 
-    /// The objective with its similarity evaluated on the host even where the GPU could (a CT on the
-    /// gpu backend then renders there and the CPU bins, smooths and compares the images read back, as
-    /// for meshes): to compare the two.
+    /// The objective with its similarity evaluated on the host even where the GPU could (a CT or meshes
+    /// on the gpu backend then render there and the CPU bins, smooths and compares the images read
+    /// back): to compare the two.
     pub fn on_host(self) -> Self {
         #[cfg(feature = "gpu")]
         {
@@ -310,7 +311,7 @@ impl<'a> Objective<'a> {
         self
     }
 
-    /// Whether the level is evaluated on the GPU (a CT on the gpu backend): render, pyramid, smoothing,
+    /// Whether the level is evaluated on the GPU (the gpu backend): render, pyramid, smoothing,
     /// similarity and the LM's products there, only scalars read back.
     pub fn on_device(&self) -> bool {
         #[cfg(feature = "gpu")]

@@ -175,9 +175,10 @@ pub struct StageReport {
     pub iterations: usize,
     pub stop: &'static str,
     pub similarity: f64,
-    /// Where the level's evaluations ran: `gpu` (a CT on the gpu backend: render, pyramid, smoothing,
-    /// similarity and the LM's products on the GPU, only scalars read back) or `cpu` (the similarity on
-    /// the host, whatever rendered the DRRs).
+    /// Where the level's evaluations ran: `gpu` (a CT or meshes on the gpu backend: render, pyramid,
+    /// smoothing, similarity and the LM's products on the GPU, only scalars read back — and for meshes
+    /// the host's few pixels, evaluated and written into the image on the GPU) or `cpu` (the similarity
+    /// on the host, whatever rendered the DRRs).
     pub similarity_on: &'static str,
     /// Wall time of the stage (s).
     pub seconds: f64,

@@ -225,6 +225,11 @@ impl GpuMeshRenderer {
         (g, t - self.triangle_start[g])
     }
 
+    /// The device the renders run on.
+    pub(crate) fn context(&self) -> &Arc<GpuContext> {
+        &self.ctx
+    }
+
     /// The adapter the renders run on.
     pub fn adapter_name(&self) -> String {
         self.ctx.adapter_name()
@@ -242,6 +247,31 @@ impl GpuMeshRenderer {
         scene: &RenderScene,
         view: &View,
         full: bool,
+    ) -> Result<Option<GpuFrame>> {
+        self.frame(scene, view, full, None)
+    }
+
+    /// [`Self::rasterise`]'s line integral (no depth or silhouettes) left on the GPU: the finished image
+    /// (0 at the host's pixels) is copied into `image` from byte `offset` (a buffer with `COPY_DST`) and
+    /// only the lists come back ([`GpuFrame::finished`]'s image is empty); the host's values go up with
+    /// [`super::scatter::scatter`].
+    pub(crate) fn rasterise_onto(
+        &self,
+        scene: &RenderScene,
+        view: &View,
+        image: &wgpu::Buffer,
+        offset: u64,
+    ) -> Result<Option<GpuFrame>> {
+        self.frame(scene, view, false, Some((image, offset)))
+    }
+
+    /// [`Self::rasterise`], its image read back or (`onto`) copied into a GPU buffer at a byte offset.
+    fn frame(
+        &self,
+        scene: &RenderScene,
+        view: &View,
+        full: bool,
+        onto: Option<(&wgpu::Buffer, u64)>,
     ) -> Result<Option<GpuFrame>> {
         let intr = &view.intrinsics;
         let (w, h) = (intr.width, intr.height);
@@ -461,10 +491,13 @@ impl GpuMeshRenderer {
                     pass.set_bind_group(0, &bind, &[]);
                     pass.dispatch_workgroups(grid[0], grid[1], 1);
                 }
-                bufs.copy_out(&mut encoder, full);
+                bufs.copy_out(&mut encoder, full, onto.is_none());
+                if let Some((image, offset)) = onto {
+                    encoder.copy_buffer_to_buffer(&bufs.image, 0, image, offset, sizes.image);
+                }
                 self.ctx.queue.submit([encoder.finish()]);
             })?;
-            match bufs.read(&self.ctx, full, capacity) {
+            match bufs.read(&self.ctx, full, capacity, onto.is_none()) {
                 Ok(Ok(b)) => break b,
                 // More pixels for the host than the lists hold: once, larger lists; then the CPU raster.
                 Ok(Err(wanted)) => {

@@ -25,7 +25,7 @@ pub(crate) struct GpuFrame {
 /// A view's line integrals as mesh.wgsl's `finish` left them: every pixel the sums give, 0 elsewhere,
 /// and the pixels the host evaluates.
 pub(crate) struct Finished {
-    /// Line integrals (μ·mm), row-major.
+    /// Line integrals (μ·mm), row-major (empty when the image stayed on the GPU).
     pub image: Vec<f32>,
     /// With depth or masks, four words per pixel: the nearest silhouette crossing's depth (f32 bits,
     /// +inf when none), the object bits (low word, high word) and the structure bits; else empty.
@@ -110,12 +110,14 @@ impl FrameBuffers {
     }
 
     /// Records the copies of what a render leaves that come back whatever it holds: the lists'
-    /// counts, `finish`'s image and (with `full`) its depth and silhouettes.
-    pub fn copy_out(&self, encoder: &mut wgpu::CommandEncoder, full: bool) {
+    /// counts, (with `image`) `finish`'s image and (with `full`) its depth and silhouettes.
+    pub fn copy_out(&self, encoder: &mut wgpu::CommandEncoder, full: bool, image: bool) {
         let half = HEADER_BYTES / 2;
         encoder.copy_buffer_to_buffer(&self.list, 0, &self.header_staging, 0, half);
         encoder.copy_buffer_to_buffer(&self.host, 0, &self.header_staging, half, half);
-        encoder.copy_buffer_to_buffer(&self.image, 0, &self.image_staging, 0, self.sizes.image);
+        if image {
+            encoder.copy_buffer_to_buffer(&self.image, 0, &self.image_staging, 0, self.sizes.image);
+        }
         if full {
             encoder.copy_buffer_to_buffer(&self.extra, 0, &self.extra_staging, 0, self.sizes.extra);
         }
@@ -124,12 +126,13 @@ impl FrameBuffers {
     /// Reads back what the render left once the queue's work is done: the lists' counts first, then
     /// only the entries they hold (a second copy), so a render's read-back is its finished pixels and
     /// its lists' entries, not the lists' capacity. `Err(entries)` when a list overflowed `capacity`:
-    /// the entries the longer list wanted.
+    /// the entries the longer list wanted. Without `image`, the image stays on the GPU (empty here).
     pub fn read(
         &self,
         ctx: &GpuContext,
         full: bool,
         capacity: u32,
+        image: bool,
     ) -> Result<std::result::Result<ReadBack, u32>> {
         let header = ctx.read_back::<u32>(&self.header_staging, "the mesh DRR's list counts")?;
         let half = (HEADER_BYTES / 8) as usize;
@@ -157,7 +160,11 @@ impl FrameBuffers {
             })?;
         }
         let pairs = ctx.read_back_first(&self.list_staging, pair_bytes, "the mesh DRR's pixels")?;
-        let image = ctx.read_back::<f32>(&self.image_staging, "the mesh DRR")?;
+        let image = if image {
+            ctx.read_back::<f32>(&self.image_staging, "the mesh DRR")?
+        } else {
+            Vec::new()
+        };
         let extra = if full {
             ctx.read_back::<u32>(&self.extra_staging, "the mesh DRR's depth and silhouettes")?
         } else {

@@ -14,6 +14,7 @@ mod energy;
 mod mesh;
 mod mesh_frame;
 mod project;
+mod scatter;
 
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 
@@ -21,6 +22,7 @@ pub use ct::GpuCtRenderer;
 pub use energy::{GpuEnergySum, GpuSpectralDrr};
 pub(crate) use mesh::GpuFrame;
 pub use mesh::GpuMeshRenderer;
+pub(crate) use scatter::scatter;
 
 use crate::{Error, Result};
 

@@ -74,9 +74,7 @@ impl GpuRaster {
         let Some(frame) = self.0.rasterise(&r.scene, view, opts.masks || opts.depth)? else {
             return Ok(None);
         };
-        let host = HostPixels::new(self, r, view, &frame, opts);
         let done = &frame.finished;
-        let w = view.intrinsics.width as usize;
         // The GPU's pixels: the line integral, and with depth or masks its silhouettes and depth.
         out.li.copy_from_slice(&done.image);
         // `extra`: per pixel the depth (f32 bits, +inf: none), the object bits (two words) and the
@@ -95,7 +93,72 @@ impl GpuRaster {
                 (*o, *s) = (u64::from(e[1]) | u64::from(e[2]) << 32, e[3]);
             });
         }
-        // The host's pixels, evaluated in parallel.
+        let (rays, mut stats) = self.host_pixels(r, view, &frame, opts);
+        for (i, ray) in rays {
+            let Some((ray, depth_per_t)) = ray else {
+                continue;
+            };
+            out.li[i] = ray.line_integral as f32;
+            if let Some(d) = out.depth.get_mut(i)
+                && ray.first_t.is_finite()
+            {
+                *d = (ray.first_t * depth_per_t) as f32;
+            }
+            if let (Some(o), Some(s)) = (out.obj.get_mut(i), out.st.get_mut(i)) {
+                (*o, *s) = (ray.object_bits, ray.structure_bits);
+            }
+        }
+        stats.render_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(Some(stats))
+    }
+
+    /// [`Self::render`]'s line integral left on the GPU, in the f32 image at byte `offset` of `image`:
+    /// the GPU's finished pixels copied there, the host's evaluated and scattered in (only the lists come
+    /// back). `None` when the GPU cannot take the view.
+    pub(super) fn line_integral_onto(
+        &self,
+        r: &ThicknessRenderer,
+        view: &View,
+        image: &wgpu::Buffer,
+        offset: u64,
+    ) -> Result<Option<RenderStats>> {
+        let start = std::time::Instant::now();
+        let Some(frame) = self.0.rasterise_onto(&r.scene, view, image, offset)? else {
+            return Ok(None);
+        };
+        let (rays, mut stats) = self.host_pixels(r, view, &frame, &ThicknessOptions::image_only());
+        let values: Vec<(u32, f32)> = rays
+            .into_iter()
+            .map(|(i, ray)| {
+                (
+                    i as u32,
+                    ray.map_or(0.0, |(ray, _)| ray.line_integral as f32),
+                )
+            })
+            .collect();
+        crate::render::gpu::scatter(self.0.context(), image, offset, &values)?;
+        stats.render_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(Some(stats))
+    }
+
+    /// The host's pixels of `frame`, evaluated in parallel (each with its ray and camera depth per unit
+    /// of `t`, `None` when culled), and the render's counters.
+    #[allow(clippy::type_complexity)]
+    fn host_pixels(
+        &self,
+        r: &ThicknessRenderer,
+        view: &View,
+        frame: &crate::render::gpu::GpuFrame,
+        opts: &ThicknessOptions,
+    ) -> (
+        Vec<(usize, Option<(crate::render::pairing::RayIntegral, f64)>)>,
+        RenderStats,
+    ) {
+        use rayon::prelude::*;
+
+        let host = HostPixels::new(self, r, view, frame, opts);
+        let done = &frame.finished;
+        let w = view.intrinsics.width as usize;
         let rays: Vec<_> = done
             .pixels
             .par_iter()
@@ -112,28 +175,56 @@ impl GpuRaster {
             gpu_rays_on_cpu: Some(done.pixels.len() as u64),
             ..RenderStats::default()
         };
-        for (i, ray, s) in rays {
-            stats = stats.add(s);
-            let Some((ray, depth_per_t)) = ray else {
-                continue;
-            };
-            out.li[i] = ray.line_integral as f32;
-            if let Some(d) = out.depth.get_mut(i)
-                && ray.first_t.is_finite()
-            {
-                *d = (ray.first_t * depth_per_t) as f32;
-            }
-            if let (Some(o), Some(s)) = (out.obj.get_mut(i), out.st.get_mut(i)) {
-                (*o, *s) = (ray.object_bits, ray.structure_bits);
-            }
-        }
+        let rays = rays
+            .into_iter()
+            .map(|(i, ray, s)| {
+                stats = stats.add(s);
+                (i, ray)
+            })
+            .collect();
         // Every ray not traced was culled (untouched, or near an edge but inside no triangle).
         let pixels = (w * view.intrinsics.height as usize) as u64;
         stats.rays_culled = pixels - stats.rays_traced;
-        Ok(Some(RenderStats {
-            render_ms: start.elapsed().as_secs_f64() * 1e3,
-            ..stats
-        }))
+        (rays, stats)
+    }
+}
+
+#[cfg(feature = "gpu")]
+impl ThicknessRenderer {
+    /// The GPU device of a gpu-backend renderer, else `None`.
+    pub(crate) fn gpu_context(&self) -> Option<&std::sync::Arc<crate::render::gpu::GpuContext>> {
+        match &self.gather {
+            super::Gather::Raster { gpu: Some(g), .. } => Some(g.0.context()),
+            _ => None,
+        }
+    }
+
+    /// The line integral of `view` into the f32 image at byte `offset` of `image` on this renderer's
+    /// GPU (a registration level evaluated there): with `summed`, the GPU's signed sums with the host's
+    /// pixels scattered in, as [`ThicknessRenderer::render_line_integral_summed_into`] gives them; else,
+    /// and for a view the GPU cannot take, the CPU's paired render, uploaded.
+    pub(crate) fn line_integral_onto_gpu(
+        &self,
+        view: &View,
+        image: &wgpu::Buffer,
+        offset: u64,
+        summed: bool,
+    ) -> Result<RenderStats> {
+        let super::Gather::Raster { gpu: Some(g), .. } = &self.gather else {
+            return Err(crate::Error::Internal(
+                "a GPU image from a renderer without the gpu backend".into(),
+            ));
+        };
+        view.intrinsics.validate()?;
+        if summed && let Some(stats) = g.line_integral_onto(self, view, image, offset)? {
+            return Ok(stats);
+        }
+        let mut out = crate::io::ImageF32::zeros(0, 0);
+        let stats = self.render_line_integral_into(view, &mut out)?;
+        g.0.context()
+            .queue
+            .write_buffer(image, offset, bytemuck::cast_slice(&out.data));
+        Ok(stats)
     }
 }
 

@@ -1,5 +1,6 @@
-//! One resolution level's evaluation on the GPU (`level.wgsl`): the CT's moving DRRs of every view in one
-//! dispatch of the CT shader, box-averaged to the level, smoothed, turned into features and compared
+//! One resolution level's evaluation on the GPU (`level.wgsl`): the moving DRRs of every view (a CT's in
+//! one dispatch of the CT shader, meshes' view by view: [`Source`]), box-averaged to the level, smoothed,
+//! turned into features and compared
 //! block by block with the fixed images' normalised features. The residual stays on the GPU; each
 //! block's weighted correlation and squared residual (two f32 per block and view) are all an evaluation
 //! reads back.
@@ -10,11 +11,11 @@ use bytemuck::{Pod, Zeroable};
 
 use super::grid;
 use super::lm_kernels::LmKernels;
+use super::source::Source;
 use crate::geometry::View;
 use crate::registration::intensity::similarity::{FixedFeatures, feature_sources};
 use crate::render::gpu::{
-    self, GpuContext, GpuCtRenderer, UNIFORM, WRITE, buffer_layout, compute_pipeline, storage_init,
-    uniform_init,
+    self, GpuContext, UNIFORM, WRITE, buffer_layout, compute_pipeline, storage_init, uniform_init,
 };
 use crate::{Error, Result};
 
@@ -49,7 +50,7 @@ pub struct DeviceResidual {
 /// What one level of one problem needs on the GPU (see the module docs).
 pub struct DeviceLevel<'a> {
     pub(super) ctx: Arc<GpuContext>,
-    renderer: &'a GpuCtRenderer,
+    source: Source<'a>,
     /// Level width and height, rays per level pixel along each axis, views, features per view, blocks
     /// per view.
     w: u32,
@@ -108,7 +109,7 @@ impl<'a> DeviceLevel<'a> {
     /// features and the moving normalisation's ε), smoothed by `smooth_px`, or `None` when the views
     /// differ in size (one dispatch renders one detector size: the CPU evaluates such a level).
     pub fn new(
-        renderer: &'a GpuCtRenderer,
+        source: Source<'a>,
         views: &[(&View, &FixedFeatures, &[f64])],
         ss: u32,
         smooth_px: f64,
@@ -162,7 +163,7 @@ impl<'a> DeviceLevel<'a> {
         } else {
             vec![1.0, 0.0]
         };
-        let ctx = Arc::clone(renderer.context());
+        let ctx = Arc::clone(source.context()?);
         // The largest buffer `poses` poses' views need: their rays, or their features.
         let largest = |poses: u64| {
             let n_views = views.len() as u64 * poses;
@@ -259,7 +260,7 @@ impl<'a> DeviceLevel<'a> {
             })?;
         Ok(Some(DeviceLevel {
             ctx,
-            renderer,
+            source,
             w,
             h,
             ss,
@@ -323,8 +324,8 @@ impl<'a> DeviceLevel<'a> {
                 self.views
             )));
         };
-        self.renderer
-            .encode_views(encoder, moved, &scratch.raw, 0)?;
+        self.source
+            .render(&self.ctx, encoder, moved, &scratch.raw)?;
         let device = &self.ctx.device;
         fn whole(b: &wgpu::Buffer, binding: u32) -> wgpu::BindGroupEntry<'_> {
             wgpu::BindGroupEntry {

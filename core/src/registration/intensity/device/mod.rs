@@ -1,19 +1,22 @@
-//! The intensity registration's loop on the GPU for a CT anatomy on the gpu backend: per evaluation the
+//! The intensity registration's loop on the GPU for an anatomy on the gpu backend: per evaluation the
 //! moving DRRs, the pyramid's box average, the smoothing and the similarity run there ([`DeviceLevel`],
 //! `level.wgsl`), and so do the Levenberg–Marquardt products — the forward-difference Jacobian (its six
 //! poses in one dispatch of each shader where the buffers can hold them), `JᵀJ`,
 //! `Jᵀr` and Broyden's updates (`lm.rs`, `lm.wgsl`): the residuals never leave the GPU, and an evaluation
 //! reads back two numbers per block and view, a Jacobian's normal equations 27 per chunk of rows.
 //!
-//! Mesh DRRs are not evaluated here: the GPU's signed-depth sums leave a few pixels to the host
-//! (`render::thickness::gpu`), so a mesh level's image is finished on the CPU.
+//! A CT's DRRs render in the level's own dispatches; mesh DRRs leave a few pixels to the host
+//! (`render::thickness::gpu`), which evaluates them and writes them into the image on the GPU, so for
+//! meshes the lists of those pixels come back and their values go up, never the images ([`Source`]).
 
 mod level;
 mod lm;
 mod lm_kernels;
+mod source;
 
 pub use level::{DeviceLevel, DeviceResidual};
 pub use lm::DeviceJacobian;
+pub use source::Source;
 
 /// Invocations per workgroup of `level.wgsl` and `lm.wgsl`.
 const GROUP: u32 = 256;
