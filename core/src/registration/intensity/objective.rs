@@ -5,8 +5,8 @@
 //! `T(p) = [Y ↦ exp([ω]×)(Y − c) + c + t] ∘ T₀`, with `ρ` the RMS radius of the target points about
 //! the centre (so a unit of rotation parameter moves the targets by about 1 mm).
 
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -201,7 +201,7 @@ impl<'a> Objective<'a> {
                     v.gpu().map(Source::Ct)
                 }
                 LevelRenderer::Mesh(r) => r.gpu_context().map(|_| Source::Mesh {
-                    renderer: Arc::clone(r),
+                    renderer: std::sync::Arc::clone(r),
                     summed,
                 }),
             };

@@ -22,12 +22,11 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use bytemuck::{Pod, Zeroable};
-use glam::DVec3;
-use rayon::prelude::*;
 
 pub(crate) use super::mesh_frame::GpuFrame;
 use super::mesh_frame::{FrameBuffers, FrameSizes};
 use super::mesh_frame::{WORDS_ALL, WORDS_SUM};
+use super::mesh_view::{SceneLayout, ViewSetup};
 use super::project::Projector;
 use super::{
     GpuContext, READ, UNIFORM, WRITE, bind_buffers, buffer_layout, compute_pipeline, storage_init,
@@ -35,16 +34,12 @@ use super::{
 };
 use crate::geometry::View;
 use crate::render::pairing::MIN_SILHOUETTE_CHORD_MM;
-use crate::render::raster::{MIN_DEPTH_MM, PixelDirs};
+use crate::render::raster::PixelDirs;
 use crate::render::scene::RenderScene;
 use crate::{Error, Result};
 
 /// Invocations per workgroup (`@workgroup_size(64, 1, 1)` in mesh.wgsl).
 const WORKGROUP: u32 = 64;
-
-/// How far from the silhouette threshold (mm) a chord summed on the GPU can be from the CPU's: the
-/// pixel is then evaluated by the host (the GPU's depths are within ~1e-5 mm of the CPU's).
-const CHORD_MARGIN_MM: f64 = 1e-4;
 
 /// Entries of `collect`'s list of (pixel, triangle) pairs the host evaluates (8 bytes each), and of
 /// `finish`'s list of the host's pixels, at first: a view that needs more renders again with lists of
@@ -72,10 +67,10 @@ struct Globals {
 pub struct GpuMeshRenderer {
     ctx: Arc<GpuContext>,
     triangles: u32,
-    /// First global vertex and first global triangle of each mesh, and the total vertices.
-    vertex_start: Vec<usize>,
+    /// Where each mesh's vertices start, and their boxes.
+    scene_layout: SceneLayout,
+    /// First global triangle of each mesh.
     triangle_start: Vec<usize>,
-    vertices: usize,
     tris: wgpu::Buffer,
     meshes: wgpu::Buffer,
     layout: wgpu::BindGroupLayout,
@@ -84,8 +79,6 @@ pub struct GpuMeshRenderer {
     finish: wgpu::ComputePipeline,
     /// Projects the vertices on the GPU (an adapter with `SHADER_F64`); else the host projects them.
     pub(super) project: Option<Projector>,
-    /// Each mesh's bounding box (world frame).
-    bounds: Vec<Option<(DVec3, DVec3)>>,
     /// The entries of the lists of pixels for the host (grown when a view needs more).
     capacity: AtomicU32,
     /// The vertex, accumulator and read-back buffers, reused by the next render of the same size; held
@@ -202,9 +195,12 @@ impl GpuMeshRenderer {
         Ok(GpuMeshRenderer {
             ctx,
             triangles: tris.len() as u32,
-            vertex_start,
+            scene_layout: SceneLayout {
+                vertex_start,
+                vertices,
+                bounds: scene.meshes.iter().map(|m| m.mesh.bounds()).collect(),
+            },
             triangle_start,
-            vertices,
             tris: tris_buf,
             meshes: meshes_buf,
             layout,
@@ -212,7 +208,6 @@ impl GpuMeshRenderer {
             collect,
             finish,
             project,
-            bounds: scene.meshes.iter().map(|m| m.mesh.bounds()).collect(),
             capacity: AtomicU32::new(LIST_CAPACITY),
             buffers: Mutex::new(None),
         })
@@ -275,109 +270,17 @@ impl GpuMeshRenderer {
     ) -> Result<Option<GpuFrame>> {
         let intr = &view.intrinsics;
         let (w, h) = (intr.width, intr.height);
-        // Per mesh its reference depth (its bounding box's centre) and its depth extent; per vertex,
-        // when the host projects, (u_hi, v_hi, u_lo, v_lo), (z, z − z_ref, 0, 0).
-        let z_ref: Vec<f64> = self
-            .bounds
-            .iter()
-            .map(|b| b.map_or(0.0, |(a, b)| view.depth(0.5 * (a + b))))
-            .collect();
-        // The GPU projects when it computes in f64 and every bounding box lies in front of the source
-        // plane (then so does every vertex: depth is linear, the box convex).
-        let corners = |(a, b): (DVec3, DVec3)| {
-            (0..8).map(move |c| {
-                let pick = |bit: usize, lo: f64, hi: f64| if c >> bit & 1 == 0 { lo } else { hi };
-                view.depth(DVec3::new(
-                    pick(0, a.x, b.x),
-                    pick(1, a.y, b.y),
-                    pick(2, a.z, b.z),
-                ))
-            })
+        let Some(ViewSetup {
+            z_ref,
+            on_gpu,
+            verts,
+            scale,
+            chord_scale,
+            chord_band,
+        }) = self.scene_layout.setup(scene, view, self.project.is_some())
+        else {
+            return Ok(None);
         };
-        let on_gpu = self.project.is_some()
-            && self
-                .bounds
-                .iter()
-                .flatten()
-                .all(|&b| corners(b).all(|z| z > MIN_DEPTH_MM));
-        let mut verts = if on_gpu {
-            Vec::new()
-        } else {
-            vec![[0f32; 4]; 2 * self.vertices]
-        };
-        let mut extent = Vec::with_capacity(scene.meshes.len());
-        for (g, m) in scene.meshes.iter().enumerate() {
-            if on_gpu {
-                // The box's depth range bounds the vertices'.
-                let (lo, hi) = self.bounds[g].map_or((0.0, 0.0), |b| {
-                    corners(b).fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), z| {
-                        (lo.min(z), hi.max(z))
-                    })
-                });
-                extent.push(hi - lo);
-                continue;
-            }
-            let start = self.vertex_start[g];
-            let n = m.mesh.vertices.len();
-            let out = &mut verts[2 * start..2 * (start + n)];
-            let z_ref = z_ref[g];
-            let (lo, hi, ok) = out
-                .par_chunks_mut(2)
-                .zip(m.mesh.vertices.par_iter())
-                .with_min_len(4096)
-                .map(|(o, &p)| {
-                    let c = view.world_to_camera.apply(p);
-                    let px = intr.project_camera(c);
-                    let (u_hi, u_lo) = split(px.x);
-                    let (v_hi, v_lo) = split(px.y);
-                    let dz = c.z - z_ref;
-                    o[0] = [u_hi, v_hi, u_lo, v_lo];
-                    o[1] = [c.z as f32, dz as f32, 0.0, 0.0];
-                    (dz, dz, c.z > MIN_DEPTH_MM && px.is_finite())
-                })
-                .reduce(
-                    || (f64::INFINITY, f64::NEG_INFINITY, true),
-                    |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2),
-                );
-            if !ok {
-                return Ok(None);
-            }
-            extent.push(if hi >= lo { hi - lo } else { 0.0 });
-        }
-        // A power of two that keeps `bound` below 2³⁰ units.
-        let scale_for = |bound: f64| {
-            (f64::from(1u32 << 30) / (bound * (1.0 + 1e-6) + 1e-30))
-                .log2()
-                .floor()
-                .exp2()
-                .clamp(2f64.powi(-100), 2f64.powi(100))
-        };
-        // Every pixel's total |Σ ± μ·depth| is at most Σ μ·extent, a mesh's chord at most its extent.
-        let scale = scale_for(
-            scene
-                .meshes
-                .iter()
-                .zip(&extent)
-                .map(|(m, e)| m.mu_per_mm.abs() * e)
-                .sum(),
-        );
-        let chord_scale = scale_for(extent.iter().fold(0.0, |a: f64, &b| a.max(b)));
-        // The chords (depth, mm) within rounding of the silhouette threshold (ray length, mm): a ray's
-        // length per mm of depth is |K⁻¹ (u, v, 1)| ≥ 1, at most its value at the farthest corner.
-        let path_max = [
-            (0.0, 0.0),
-            (f64::from(w), 0.0),
-            (0.0, f64::from(h)),
-            (f64::from(w), f64::from(h)),
-        ]
-        .map(|(u, v)| intr.back_project(u, v).length())
-        .into_iter()
-        .fold(1.0, f64::max);
-        let chord_band = [
-            (MIN_SILHOUETTE_CHORD_MM / path_max - CHORD_MARGIN_MM) * chord_scale,
-            (MIN_SILHOUETTE_CHORD_MM + CHORD_MARGIN_MM) * chord_scale,
-        ]
-        .map(|c| (c.round() as i32).cast_unsigned());
         let stride = if full { WORDS_ALL } else { WORDS_SUM };
         let acc_bytes = 4 * u64::from(w) * u64::from(h) * u64::from(stride);
         let max_groups = self.ctx.max_workgroups();
@@ -423,7 +326,7 @@ impl GpuMeshRenderer {
                 ray_y: row(ry),
             };
             let sizes = FrameSizes {
-                verts: (32 * self.vertices as u64).max(32),
+                verts: (32 * self.scene_layout.vertices as u64).max(32),
                 acc: acc_bytes,
                 list: 4 * (1 + 2 * u64::from(capacity)),
                 host: 4 * (4 + u64::from(capacity)),
@@ -522,10 +425,4 @@ impl GpuMeshRenderer {
             pairs,
         }))
     }
-}
-
-/// `v` as `hi + lo` in f32 (hi the nearest f32, lo the rest rounded).
-fn split(v: f64) -> (f32, f32) {
-    let hi = v as f32;
-    (hi, (v - f64::from(hi)) as f32)
 }

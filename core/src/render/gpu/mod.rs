@@ -13,6 +13,7 @@ mod ct;
 mod energy;
 mod mesh;
 mod mesh_frame;
+mod mesh_view;
 mod project;
 mod scatter;
 
