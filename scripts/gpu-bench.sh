@@ -105,7 +105,8 @@ row "spinedrr L1–L5 mesh DRR with masks (LAT), --backend gpu" "$ms" "${adapter
 
 # One AP+LAT intensity registration of the phantom's L3 (its fixed images rendered at the true pose; NCC,
 # the default levels, from 2 mm and 2° off): `register --intensity`'s own "seconds" (after the problem is
-# built), and its mTRE.
+# built), and its mTRE. With --backend gpu the loop runs on the GPU: each view summed and finished by the
+# mesh shader, the host's few pixels written into it there, the level compared there (R.json's stages).
 for n in ap lat; do
   "$BIN" render --phantom L3 --view "$n" --out "$OUT/$n.tiff" 2>/dev/null
 done
@@ -137,7 +138,7 @@ PY
 IFS=$'\t' read -r ms _ mtre < <(registration_ms raster)
 row "spinedrr AP+LAT intensity registration (L3, NCC), raster, CPU" "$ms (mTRE $mtre mm)" "$(uname -n)"
 IFS=$'\t' read -r ms adapter mtre < <(registration_ms gpu)
-row "spinedrr AP+LAT intensity registration, --backend gpu" "$ms (mTRE $mtre mm)" "${adapter:-no adapter}"
+row "spinedrr AP+LAT intensity registration (L3), --backend gpu (loop on the GPU)" "$ms (mTRE $mtre mm)" "${adapter:-no adapter}"
 
 # The same registration of L3 as a CT (the phantom voxelised at 1 mm, the level masked by its label): the
 # fixed images are its CPU Siddon DRRs at the true pose (the CT kept in the phantom's world coordinates,
