@@ -160,6 +160,92 @@ fn the_gpu_loop_evaluates_and_refines_mesh_levels_like_the_cpu_loop() {
     loops_agree(&moving(Backend::Raster), &moving(Backend::Gpu));
 }
 
+/// A mesh that overlaps itself (two boxes in one mesh): its signed sums count the overlap twice, so the
+/// objective does not trust them, and the GPU's level takes the CPU's paired renders, uploaded — the
+/// same costs and residuals as the host's comparison of those renders.
+#[test]
+fn a_self_overlapping_mesh_is_compared_on_the_gpu_from_paired_renders() {
+    use spinedrr::anatomy::TriMesh;
+    use spinedrr::registration::intensity::MeshDrr;
+    use spinedrr::render::{RenderScene, SceneMesh};
+    let a = TriMesh::cuboid(
+        "a",
+        DVec3::new(-20.0, -12.0, -15.0),
+        DVec3::new(10.0, 12.0, 15.0),
+    );
+    let b = TriMesh::cuboid(
+        "b",
+        DVec3::new(0.0, -8.0, -10.0),
+        DVec3::new(20.0, 8.0, 10.0),
+    );
+    let n = a.vertices.len() as u32;
+    let merged = TriMesh {
+        name: "overlapping".into(),
+        vertices: a.vertices.iter().chain(&b.vertices).copied().collect(),
+        triangles: a
+            .triangles
+            .iter()
+            .copied()
+            .chain(b.triangles.iter().map(|t| t.map(|i| i + n)))
+            .collect(),
+        labels: Vec::new(),
+    };
+    let scene = RenderScene::new(vec![SceneMesh {
+        mesh: Arc::new(merged),
+        mu_per_mm: 0.03,
+        object: "overlapping".into(),
+    }])
+    .unwrap();
+    let gpu_renderer = Backend::Gpu.renderer(scene.clone()).unwrap();
+    let view = &views()[0];
+    let (mut summed, mut paired) = (ImageF32::zeros(0, 0), ImageF32::zeros(0, 0));
+    gpu_renderer
+        .render_line_integral_summed_into(view, &mut summed)
+        .unwrap();
+    gpu_renderer
+        .render_line_integral_into(view, &mut paired)
+        .unwrap();
+    let d = crate::render_models::worst_difference(&summed, &paired);
+    assert!(d > 0.1, "the sums must differ from the paired render ({d})");
+    let truth = RigidTransform::new(
+        rotation_exp(DVec3::new(0.02, 0.0, -0.03)),
+        DVec3::new(1.0, 2.0, 0.0),
+    );
+    let cpu_moving = MovingDrr::Mesh(MeshDrr::new(Backend::Raster.renderer(scene).unwrap()));
+    let gpu_moving = MovingDrr::Mesh(MeshDrr::new(gpu_renderer));
+    let fixed: Vec<ImageF32> = views()
+        .iter()
+        .map(|v| cpu_moving.render_at(v, &truth).unwrap())
+        .collect();
+    let objective = || {
+        Objective::new(
+            &gpu_moving,
+            1,
+            level(&fixed, 1, 1),
+            Similarity::Ncc,
+            0.0,
+            RigidTransform::IDENTITY,
+            DVec3::ZERO,
+            20.0,
+        )
+        .unwrap()
+    };
+    let (gpu, host) = (objective(), objective().on_host());
+    assert!(gpu.on_device() && !host.on_device());
+    for p in [[0.0; 6], [0.3, -0.2, 0.1, 0.5, -0.4, 0.2]] {
+        let (mut rg, mut rh) = (Vec::new(), Vec::new());
+        let eg = gpu.evaluate(&p, Some(&mut rg)).unwrap();
+        let eh = host.evaluate(&p, Some(&mut rh)).unwrap();
+        assert!((eg.cost - eh.cost).abs() <= 1e-6, "{eg:?} vs {eh:?}");
+        let peak = rh.iter().fold(0f64, |m, x| m.max(x.abs()));
+        let worst = rg
+            .iter()
+            .zip(&rh)
+            .fold(0f64, |m, (x, y)| m.max((x - y).abs()));
+        assert!(worst <= 1e-5 * peak, "{worst} of {peak}");
+    }
+}
+
 /// `gpu_moving`'s loop (on the GPU) against the same renders compared on the host and against
 /// `cpu_moving`'s loop: each level's cost, similarities and residuals at three poses for every
 /// similarity, with and without 2 × 2 rays and smoothing; then a finest-level refinement from the start
