@@ -36,7 +36,7 @@ pub(crate) fn scatter(
     if values.is_empty() {
         return Ok(());
     }
-    if offset % 4 != 0 || offset / 4 > u64::from(u32::MAX) {
+    if !offset.is_multiple_of(4) || offset / 4 > u64::from(u32::MAX) {
         return Err(Error::Internal(format!(
             "scatter into an image at byte {offset}"
         )));
