@@ -315,7 +315,7 @@ pub fn run_spectral(
         || Some("every mesh's density or μ is 0".to_string()),
     )?;
     check_not_negative(&drr.line_integral)?;
-    let details = json!({
+    let mut details = json!({
         "renderer": "spectral",
         "backend": backend,
         "gpu_adapter": renderer.gpu_adapter(),
@@ -323,6 +323,9 @@ pub fn run_spectral(
         "spectral": renderer.summary(),
         "stats": {"channels_ms": drr.channels_ms, "energy_sum_ms": drr.energy_sum_ms},
     });
+    if let Some(n) = drr.gpu_rays_on_cpu {
+        details["stats"]["gpu_rays_on_cpu"] = n.into();
+    }
     let products = DrrProducts {
         line_integral: &drr.line_integral,
         values: run.values,

@@ -125,6 +125,13 @@ fn cli_backend_gpu_renders_meshes_like_the_raster() {
         )
         .unwrap();
         let cpu_passes = raster["details"]["spectral"]["passes"].as_str().unwrap();
+        // The host's pixels of the GPU's channel renders are counted (a screw's among them); a CPU
+        // render has none to count.
+        let on_cpu = side["details"]["stats"]["gpu_rays_on_cpu"]
+            .as_u64()
+            .unwrap_or(0);
+        assert!(on_cpu > 0, "{name}: {side}");
+        assert!(raster["details"]["stats"].get("gpu_rays_on_cpu").is_none());
         assert!(cpu_passes.ends_with("channel renders, then the energy sum"));
         assert_eq!(
             side["details"]["spectral"]["passes"],

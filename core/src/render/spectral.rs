@@ -13,7 +13,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde_json::json;
 
-use super::{Backend, RenderScene, SceneMesh, ThicknessOptions, ThicknessRenderer};
+use super::{Backend, RenderScene, RenderStats, SceneMesh, ThicknessOptions, ThicknessRenderer};
 use crate::anatomy::TriMesh;
 use crate::geometry::View;
 use crate::io::ImageF32;
@@ -198,6 +198,9 @@ pub struct SpectralDrr {
     pub energy_sum_ms: f64,
     /// Rays that did not pair their crossings, over all passes.
     pub rays_unrepaired: u64,
+    /// The gpu backend's mesh renders: the pixels evaluated on the CPU over all passes (see
+    /// [`super::RenderStats::gpu_rays_on_cpu`]; an implant's are among them), else `None`.
+    pub gpu_rays_on_cpu: Option<u64>,
 }
 
 impl SpectralRenderer {
@@ -248,26 +251,27 @@ impl SpectralRenderer {
         let blank = || ImageF32::zeros(view.intrinsics.width, view.intrinsics.height);
         match &self.passes {
             Passes::Monochromatic(r) => {
-                let (line_integral, unrepaired) = match r {
+                let (line_integral, stats) = match r {
                     Some(r) => {
                         let d = r.render(view, &opts)?;
-                        (d.line_integral, d.stats.rays_unrepaired)
+                        (d.line_integral, d.stats)
                     }
-                    None => (blank(), 0),
+                    None => (blank(), RenderStats::default()),
                 };
                 Ok(SpectralDrr {
                     line_integral,
                     channels_ms: t0.elapsed().as_secs_f64() * 1e3,
                     energy_sum_ms: 0.0,
-                    rays_unrepaired: unrepaired,
+                    rays_unrepaired: stats.rays_unrepaired,
+                    gpu_rays_on_cpu: stats.gpu_rays_on_cpu,
                 })
             }
             Passes::Channels(rs) => {
                 let mut maps = vec![None; self.channels.len()];
-                let mut unrepaired = 0;
+                let mut stats = RenderStats::default();
                 for (c, r) in rs {
                     let d = r.render(view, &opts)?;
-                    unrepaired += d.stats.rays_unrepaired;
+                    stats = stats.add(d.stats);
                     maps[*c] = Some(d.line_integral);
                 }
                 let channels_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -279,7 +283,8 @@ impl SpectralRenderer {
                     line_integral,
                     channels_ms,
                     energy_sum_ms: t1.elapsed().as_secs_f64() * 1e3,
-                    rays_unrepaired: unrepaired,
+                    rays_unrepaired: stats.rays_unrepaired,
+                    gpu_rays_on_cpu: stats.gpu_rays_on_cpu,
                 })
             }
         }

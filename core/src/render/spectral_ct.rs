@@ -225,17 +225,20 @@ impl SpectralCtRenderer {
                 channels_ms: d.channels_ms,
                 energy_sum_ms: d.energy_sum_ms,
                 rays_unrepaired: 0,
+                gpu_rays_on_cpu: None,
             });
         }
         let t0 = Instant::now();
         let mut maps = self.channel_maps(view)?;
+        let mut gpu_rays_on_cpu = None;
         if let Some(implants) = &self.implants {
             self.displace(implants, view, &mut maps)?;
             for (_, r) in &implants.channels {
-                maps.push(
-                    r.render(view, &ThicknessOptions::image_only())?
-                        .line_integral,
-                );
+                let d = r.render(view, &ThicknessOptions::image_only())?;
+                if let Some(n) = d.stats.gpu_rays_on_cpu {
+                    gpu_rays_on_cpu = Some(gpu_rays_on_cpu.unwrap_or(0) + n);
+                }
+                maps.push(d.line_integral);
             }
         }
         let channels_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -252,6 +255,7 @@ impl SpectralCtRenderer {
             channels_ms,
             energy_sum_ms: t1.elapsed().as_secs_f64() * 1e3,
             rays_unrepaired: 0,
+            gpu_rays_on_cpu,
         })
     }
 

@@ -23,7 +23,8 @@ pub struct RenderStats {
 }
 
 impl RenderStats {
-    pub(super) fn add(mut self, o: RenderStats) -> RenderStats {
+    /// The counters of two renders (or parts of one) together.
+    pub(crate) fn add(mut self, o: RenderStats) -> RenderStats {
         self.rays_traced += o.rays_traced;
         self.rays_culled += o.rays_culled;
         self.hits += o.hits;
