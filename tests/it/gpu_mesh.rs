@@ -64,6 +64,20 @@ fn mask_differences(c: &ThicknessDrr, g: &ThicknessDrr) -> Vec<(u32, u32)> {
         .collect()
 }
 
+/// A GPU render `g` against the raster's `c` of view `name` (depth and masks asked for): path lengths to
+/// 1e-4 mm, beyond f32's rounding of the values (~1e-5 mm at 100 mm); the first surface's depth to 2e-4 mm
+/// (~1000 mm in f32: 6e-5 mm a step); the silhouettes of every object and labelled structure equal; the
+/// same rays traced.
+fn like_the_raster(c: &ThicknessDrr, g: &ThicknessDrr, name: &str) {
+    let d = worst_difference(&c.line_integral, &g.line_integral);
+    assert!(d <= 1e-4, "{name}: path lengths differ by {d} mm");
+    let d = worst_difference(c.depth.as_ref().unwrap(), g.depth.as_ref().unwrap());
+    assert!(d <= 2e-4, "{name}: depths differ by {d} mm");
+    let bad = mask_differences(c, g);
+    assert!(bad.is_empty(), "{name}: silhouettes differ at {bad:?}");
+    assert_eq!(c.stats.rays_traced, g.stats.rays_traced, "{name}");
+}
+
 #[test]
 fn gpu_mesh_drrs_equal_the_cpu_raster_on_the_phantom() {
     let scene = phantom_mm();
@@ -81,21 +95,8 @@ fn gpu_mesh_drrs_equal_the_cpu_raster_on_the_phantom() {
             "{}: the view must see the spine ({peak} mm)",
             view.name
         );
-        // Path lengths to 1e-4 mm, beyond f32's rounding of the values (~1e-5 mm at 100 mm).
-        let d = worst_difference(&c.line_integral, &g.line_integral);
-        assert!(d <= 1e-4, "{}: path lengths differ by {d} mm", view.name);
-        // The first surface's depth (~1000 mm, f32 output: 6e-5 mm a step).
-        let d = worst_difference(c.depth.as_ref().unwrap(), g.depth.as_ref().unwrap());
-        assert!(d <= 2e-4, "{}: depths differ by {d} mm", view.name);
-        // Silhouettes of every object and every labelled structure.
-        let bad = mask_differences(&c, &g);
-        assert!(
-            bad.is_empty(),
-            "{}: silhouettes differ at {bad:?}",
-            view.name
-        );
+        like_the_raster(&c, &g, &view.name);
         assert_eq!(g.stats.rays_unrepaired, 0);
-        assert_eq!(c.stats.rays_traced, g.stats.rays_traced, "{}", view.name);
         // The line integral alone is finished on the GPU (mesh.wgsl's `finish`) and only the pixels
         // the sums cannot give come back to the host: the same image and counts.
         let gi = gpu.render(&view, &ThicknessOptions::image_only()).unwrap();
@@ -242,17 +243,7 @@ fn gpu_mesh_drrs_with_implants_equal_the_cpu_raster() {
         ..PhantomOptions::default()
     })
     .unwrap();
-    let mut screws = Vec::new();
-    for targets in phantom.pedicle_targets() {
-        for side in ["left", "right"] {
-            let at = |what: &str| targets.points[&format!("{side}_pedicle_{what}")];
-            screws.push(spinedrr::anatomy::screw::PlannedScrew {
-                name: format!("{}_screw_{side}", targets.level),
-                entry: at("entry"),
-                tip: at("tip"),
-            });
-        }
-    }
+    let screws = spinedrr::render::pedicle_screws(&phantom).unwrap();
     let implants: Vec<SceneMesh> = spinedrr::render::screw_implants(&screws)
         .unwrap()
         .into_iter()
@@ -282,17 +273,7 @@ fn gpu_mesh_drrs_with_implants_equal_the_cpu_raster() {
         let plain = not_displaced.render(&view, &opts).unwrap();
         let d = worst_difference(&c.line_integral, &plain.line_integral);
         assert!(d > 1.0, "{}: the screws displace {d} mm of bone", view.name);
-        let d = worst_difference(&c.line_integral, &g.line_integral);
-        assert!(d <= 1e-4, "{}: path lengths differ by {d} mm", view.name);
-        let d = worst_difference(c.depth.as_ref().unwrap(), g.depth.as_ref().unwrap());
-        assert!(d <= 2e-4, "{}: depths differ by {d} mm", view.name);
-        let bad = mask_differences(&c, &g);
-        assert!(
-            bad.is_empty(),
-            "{}: silhouettes differ at {bad:?}",
-            view.name
-        );
-        assert_eq!(c.stats.rays_traced, g.stats.rays_traced, "{}", view.name);
+        like_the_raster(&c, &g, &view.name);
         // Every pixel a screw covers is paired on the host.
         let screw_pixels = screws_alone
             .render(&view, &ThicknessOptions::image_only())

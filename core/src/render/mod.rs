@@ -27,8 +27,8 @@ mod volume_backend;
 
 pub use backend::Backend;
 pub use phantom_scene::{
-    ImplantMeshes, add_pedicle_screws, add_screws, phantom_scene, phantom_spectral_scene,
-    planned_screw_implants, screw_implants,
+    ImplantMeshes, add_pedicle_screws, add_screws, pedicle_screws, phantom_scene,
+    phantom_spectral_scene, planned_screw_implants, screw_implants,
 };
 pub use scene::{MAX_OBJECTS, RenderScene, SceneMesh, orient_outward_warning};
 pub use spectral::{

@@ -126,9 +126,14 @@ pub fn phantom_spectral_scene(p: &Phantom) -> Result<SpectralScene> {
 }
 
 /// Two titanium (Ti-6Al-4V) pedicle screws per level ([`ScrewSpec::default`]) along the phantom's planned
-/// trajectories (each side's `pedicle_entry` to `pedicle_tip`), added to `scene` as implants named
-/// `<level>_screw_<side>`.
+/// trajectories ([`pedicle_screws`]), added to `scene` as implants named `<level>_screw_<side>`.
 pub fn add_pedicle_screws(scene: &mut SpectralScene, phantom: &Phantom) -> Result<()> {
+    add_screws(scene, &pedicle_screws(phantom)?)
+}
+
+/// The phantom's planned screws: per level and side, its `pedicle_entry` to its `pedicle_tip`, named
+/// `<level>_screw_<side>`.
+pub fn pedicle_screws(phantom: &Phantom) -> Result<Vec<PlannedScrew>> {
     let mut screws = Vec::new();
     for targets in phantom.pedicle_targets() {
         for side in ["left", "right"] {
@@ -145,7 +150,7 @@ pub fn add_pedicle_screws(scene: &mut SpectralScene, phantom: &Phantom) -> Resul
             });
         }
     }
-    add_screws(scene, &screws)
+    Ok(screws)
 }
 
 /// Titanium (Ti-6Al-4V) screws of [`ScrewSpec::default`] along `screws` (entry to tip), added to `scene`
