@@ -399,6 +399,28 @@ def test_every_number_of_a_different_study_is_recomputed_from_its_tables(other):
     assert any(f["id"] == "calibration_headline" for f in other.findings)
 
 
+def test_a_piercing_shift_in_mm_is_said_per_axis(quick, other):
+    """A piercing shift (p, p) moves the piercing point p px along u and p px along v (√2·p px in all), so
+    its mm in the Findings is per axis and the prose says so; a focal offset's mm is an SDD error."""
+    import re
+
+    seen = 0
+    for study in (quick, other):
+        for f in study.findings:
+            assert "mm on the detector" not in f["text"], f["text"]
+            for c in f["claims"]:
+                if c["source"]["kind"] != "detector":
+                    continue
+                if c["id"].endswith(".p_mm") or ".piercing_px." in c["id"]:
+                    seen += 1
+                    # The value alone or either end of a span `a–b mm`.
+                    said = rf"(?<![0-9.]){re.escape(c['text'])}(–[0-9.]+)? mm along u and v on the detector"
+                    assert re.search(said, f["text"]), (c["id"], f["text"])
+                else:  # a focal offset's mm
+                    assert "SDD error" in f["text"], (c["id"], f["text"])
+    assert seen >= 3, seen
+
+
 def test_a_changed_table_cell_is_caught(quick, tmp_path):
     """The recomputation is not vacuous: one Dice cell changed in the CSV fails it."""
     import shutil

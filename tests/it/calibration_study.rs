@@ -251,6 +251,29 @@ intensity_trials = 1
         "report lacks the section"
     );
     assert!(report.contains("Tolerance: how good must the calibration be?"));
+    // The section says what ran, as the table shows it: trial 0 of the 6 with a silhouette (finite
+    // Dice) and an intensity registration (finite mTRE), on L1.
+    let ran = |c: &str| {
+        let mut t: Vec<String> = rows
+            .iter()
+            .filter(|r| r[col(c)].parse::<f64>().is_ok_and(f64::is_finite))
+            .map(|r| r[col("trial")].to_string())
+            .collect();
+        t.sort();
+        t.dedup();
+        t
+    };
+    assert_eq!(
+        (ran("dice"), ran("ireg_mtre_mm")),
+        (vec!["0".to_string()], vec!["0".to_string()])
+    );
+    for says in [
+        "used on the vertebra (L1)",
+        "rendered silhouette for the first trial of each cell; and an intensity-based registration",
+        "noise-free DRRs through the true views for the first trial of each cell.",
+    ] {
+        assert!(report.contains(says), "{says}: {report}");
+    }
 }
 
 /// `[calibration.physical]` at σ = 0 (each calibration exact): a **full** calibration of the displaced
@@ -309,6 +332,36 @@ det_dz_mm = [10.0]
         );
     }
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    // Nothing the table lacks is described as run: no Dice, no intensity registration in any row.
+    assert!(
+        t.calibration
+            .iter()
+            .all(|r| r.dice.is_nan() && r.ireg_mtre_mm.is_nan())
+    );
+    assert!(
+        report.contains(
+            "no silhouette (`silhouette_trials = 0`); and no intensity-based registration \
+             (`intensity_trials = 0`)."
+        ),
+        "{report}"
+    );
+    // …and its registration table is the landmark registration's alone, each cell's mean from the CSV.
+    assert!(
+        report.contains("| phantom | σ (px) | protocol | landmark mTRE (mm) | n |")
+            && !report.contains("intensity mTRE (mm)"),
+        "{report}"
+    );
+    for protocol in ["intrinsic", "full"] {
+        let m: Vec<f64> = t
+            .calibration
+            .iter()
+            .filter(|r| r.protocol.name() == protocol && r.view == "ap")
+            .map(|r| r.reg_mtre_mm)
+            .collect();
+        assert_eq!(m.len(), 1);
+        let row = format!("| helix | 0 | {protocol} | {:.3} | 1 |", m[0]);
+        assert!(report.contains(&row), "{row}: {report}");
+    }
     assert!(report.contains("### Calibrating a C-arm displaced by a physical error"));
     assert!(
         report.contains("| det_dz_mm = 10 | helix | 0 | full | 0 |"),

@@ -54,7 +54,7 @@ impl Conditions {
             };
             format!(
                 "; at its {} mm pixels a focal offset Δf of 100 px is an SDD error of {} mm and a piercing \
-                 shift of 10 px a move of {} mm on the detector",
+                 shift of 10 px a move of {} mm along u and v on the detector",
                 mm(1.0),
                 mm(100.0),
                 mm(10.0)

@@ -24,7 +24,7 @@ fn sd(v: &[f64]) -> f64 {
 /// Writes the section (nothing when the experiment did not run).
 pub fn section(
     md: &mut String,
-    cfg: &StudyConfig,
+    (cfg, first): (&StudyConfig, &str),
     tables: &StudyTables,
     figs: &[FigureEntry],
     n: &mut usize,
@@ -34,6 +34,46 @@ pub fn section(
         return;
     }
     let c = &cfg.calibration;
+    // What ran, from the table: the trials (of each cell) with a silhouette and with an intensity
+    // registration; the configuration only says why none did.
+    let ran = |has: fn(&CalibrationRow) -> bool| {
+        distinct(rows.iter().filter(|r| has(r)).map(|r| r.trial)).len()
+    };
+    let (silhouettes, intensity) = (
+        ran(|r| r.dice.is_finite()),
+        ran(|r| r.ireg_mtre_mm.is_finite()),
+    );
+    let trials = distinct(rows.iter().map(|r| r.trial)).len();
+    // `ran` trials of each cell did it: every trial, the first few, or none (`key = configured`, and
+    // whether the configuration asked for some that produced no value).
+    let said = |ran: usize, (what, key, configured): (&str, &str, usize), done: &str| match ran {
+        0 => format!(
+            "no {what} (`{key} = {configured}`{})",
+            if configured > 0 {
+                ", none of which produced a value"
+            } else {
+                ""
+            }
+        ),
+        _ if ran == trials => format!("{done} for every trial"),
+        1 => format!("{done} for the first trial of each cell"),
+        _ => format!("{done} for the first {ran} trials of each cell"),
+    };
+    let silhouette = said(
+        silhouettes,
+        ("silhouette", "silhouette_trials", c.silhouette_trials),
+        "Dice and contour distances of the rendered silhouette",
+    );
+    let registration = said(
+        intensity,
+        (
+            "intensity-based registration",
+            "intensity_trials",
+            c.intensity_trials,
+        ),
+        "an intensity-based registration (AP + LAT, NCC, binned pyramid, from the true pose) whose \
+fixed images are the vertebra's noise-free DRRs through the true views",
+    );
     let _ = writeln!(md, "## {HEADING}\n");
     let _ = writeln!(
         md,
@@ -48,10 +88,8 @@ estimate is then used on the vertebra ({}) under two protocols: **intrinsic** �
 extrinsics, the paper's intrinsic-only perturbation with magnitudes a real calibration produces — and \
 **full** — K_est with each view's estimated extrinsics, the geometry a navigation system would actually \
 use. Per trial: the landmark shifts (exact projections of the 3-D landmarks), the homography law's \
-residual (intrinsic protocol) and a landmark registration (direct LM over all views); Dice and contour \
-distances of the rendered silhouette for the first {} trials of each cell; and for the first {} an \
-intensity-based registration (AP + LAT, NCC, binned pyramid, from the true pose) whose fixed images are \
-the vertebra's noise-free DRRs through the true views.\n",
+residual (intrinsic protocol) and a landmark registration (direct LM over all views); {silhouette}; and \
+{registration}.\n",
         c.phantoms.join(", "),
         c.noise_px
             .iter()
@@ -61,11 +99,7 @@ the vertebra's noise-free DRRs through the true views.\n",
         c.trials,
         c.poses_per_view,
         c.tilt_deg,
-        c.target
-            .clone()
-            .unwrap_or_else(|| "the first target".into()),
-        c.silhouette_trials,
-        c.intensity_trials
+        c.target.as_deref().unwrap_or(first),
     );
     layout::figures(md, figs, Section::Calibration, n);
     summary_table(md, rows);
@@ -143,6 +177,43 @@ fn finite_mean(v: impl Iterator<Item = f64>) -> (f64, usize) {
     (mean(&v), v.len())
 }
 
+const REGISTRATION_HEADING: &str = "Registration error under the estimated geometry";
+
+/// The registration table of a run without intensity registrations: the landmark registration's mean
+/// mTRE per phantom, σ and protocol, over every trial.
+fn landmark_only_table(md: &mut String, trials: &[&CalibrationRow]) {
+    let _ = writeln!(
+        md,
+        "### {REGISTRATION_HEADING}\n\nThe mean target registration error (mTRE over the vertebra's \
+surface points, mm) of the landmark registration over every trial, when the navigation system uses the \
+calibrated geometry (no intensity-based registration ran in this study: `calibration.intensity_trials` \
+adds one on the first trials of each cell); n: the trials whose registration ended.\n\n| phantom | σ (px) \
+| protocol | landmark mTRE (mm) | n |\n|---|---|---|---|---|"
+    );
+    let cells = distinct(
+        trials
+            .iter()
+            .map(|r| (r.phantom.clone(), r.noise_px.to_bits(), r.protocol)),
+    );
+    for (phantom, bits, protocol) in cells {
+        let (lm, n) = finite_mean(
+            trials
+                .iter()
+                .filter(|r| {
+                    r.phantom == phantom && r.noise_px.to_bits() == bits && r.protocol == protocol
+                })
+                .map(|r| r.reg_mtre_mm),
+        );
+        let _ = writeln!(
+            md,
+            "| {phantom} | {} | {protocol} | {} | {n} |",
+            f64::from_bits(bits),
+            num(lm, 3)
+        );
+    }
+    let _ = writeln!(md);
+}
+
 /// Per phantom, σ and protocol: the landmark and the intensity registration's mean mTRE, and what
 /// the comparison says.
 fn registration_table(md: &mut String, rows: &[CalibrationRow]) {
@@ -151,9 +222,13 @@ fn registration_table(md: &mut String, rows: &[CalibrationRow]) {
     };
     // One row per trial and protocol (the registration uses every view; rows repeat it per view).
     let trials: Vec<&CalibrationRow> = rows.iter().filter(|r| r.view == first_view).collect();
+    if !trials.iter().any(|r| r.ireg_mtre_mm.is_finite()) {
+        landmark_only_table(md, &trials);
+        return;
+    }
     let _ = writeln!(
         md,
-        "### Registration error under the estimated geometry\n\nThe mean target registration error \
+        "### {REGISTRATION_HEADING}\n\nThe mean target registration error \
 (mTRE over the vertebra's surface points, mm) of the landmark registration — over every trial, and over \
 the trials that also ran the intensity-based registration (the first n of each cell) — and of the \
 intensity-based registration, when the navigation system uses the calibrated geometry. The intensity \

@@ -195,7 +195,7 @@ fn summary_table(md: &mut String, rows: &[IntensitySummaryRow], pitch: Pitch) {
         md,
         "| target | views | fixed image | Δf, {u} | piercing p, {v} | physical error | starts | success | capture (mm) | final mTRE of the successes (mm): mean [95 % CI], or the value | median final mTRE (mm) | intensity optimum mTRE (mm) | spread of the optimum's searches (mm) | reached optimum | landmark mTRE (mm) | intensity vs landmark optimum: mTRE (mm), rotation (°) | DRR evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         u = pitch.unit("SDD error"),
-        v = pitch.unit("on the detector")
+        v = pitch.unit("along u and v on the detector")
     );
     for r in rows {
         let (df, p, physical) = if r.physical.is_empty() {

@@ -151,7 +151,7 @@ configuration is `study.toml`.\n",
             (cfg.registration.noise_px, pitch),
         );
     }
-    calibration::section(&mut md, cfg, tables, &figs, &mut n);
+    calibration::section(&mut md, (cfg, &first), tables, &figs, &mut n);
     calibration_physical::section(&mut md, &tables.calibration_physical, &tables.calibration);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
     intensity_spectral::section(&mut md, cfg, &tables.intensity_summary, pitch);

@@ -5,7 +5,8 @@
 use super::Inputs;
 use super::claim::{Claim, Finding, Geometry, Op, Source, Stat, Table, Transform, Where};
 
-/// What a size in px is in mm: a focal offset's SDD error, or a piercing shift's move on the detector.
+/// What a size in px is in mm: a focal offset's SDD error, or a piercing shift's move on the detector (a
+/// shift (p, p): p px along u and p px along v, so its mm is per axis, as the prose says).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Mm {
     Sdd,
@@ -13,7 +14,7 @@ pub enum Mm {
 }
 
 /// `px` in mm as the prose prints it beside the px — ` (an SDD error of 150 mm)` or
-/// ` (15 mm on the detector)` — recorded as the printed claim `id` ([`Source::Detector`]); empty where
+/// ` (15 mm along u and v on the detector)` — recorded as the printed claim `id` ([`Source::Detector`]); empty where
 /// the study has no reference sidecar with a pixel pitch (an explicit-K geometry, no projection run).
 pub fn in_mm(f: &mut Finding, x: &Inputs, id: &str, px: f64, what: Mm) -> String {
     let Some((reference, pitch)) = &x.pitch else {
@@ -22,7 +23,7 @@ pub fn in_mm(f: &mut Finding, x: &Inputs, id: &str, px: f64, what: Mm) -> String
     let mm = f.say(mm_claim(id, px, *pitch, reference));
     match what {
         Mm::Sdd => format!(" (an SDD error of {mm} mm)"),
-        Mm::Detector => format!(" ({mm} mm on the detector)"),
+        Mm::Detector => format!(" ({mm} mm along u and v on the detector)"),
     }
 }
 

@@ -57,7 +57,7 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
         let id = |what: &str| format!("dice.{family}.{what}_mm");
         let where_ = match family {
             "piercing" => format!(
-                "p = {top} px{}",
+                "piercing ({top}, {top}) px{}",
                 in_mm(&mut f, x, &id("p"), step, Mm::Detector)
             ),
             "joint" => {

@@ -102,7 +102,7 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
         families.push((
             "piercing",
             "a piercing shift alone",
-            format!("p = {p_top} px{p_mm}"),
+            format!("piercing ({p_top}, {p_top}) px{p_mm}"),
             d0,
             p_top.clone(),
         ));
@@ -111,7 +111,7 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
         families.push((
             "joint",
             "both together",
-            format!("Δf = {df_top} px{df_mm} with p = {p_top} px{p_mm}"),
+            format!("Δf = {df_top} px{df_mm} with piercing ({p_top}, {p_top}) px{p_mm}"),
             df_top.clone(),
             p_top.clone(),
         ));
@@ -321,7 +321,7 @@ pub fn versus_paper(x: &Inputs) -> Option<Finding> {
                 m("piercing_px", "min"),
                 m("piercing_px", "max"),
             );
-            format!(" (SDD errors of {a}–{b} mm, {c}–{d} mm on the detector)")
+            format!(" (SDD errors of {a}–{b} mm, {c}–{d} mm along u and v on the detector)")
         }
         None => String::new(),
     };
