@@ -387,7 +387,8 @@ impl StudyConfig {
     /// from (for messages and the report's *Setup*).
     /// The binned detector's pixel pitch along u (mm), where the geometry states it (None for an
     /// explicit K, or a geometry that cannot be read): a focal offset of Δf px is an SDD error of
-    /// Δf × pitch mm, a piercing shift (p, p) of p px a move of p × pitch mm along u and along v on the detector.
+    /// Δf × pitch mm, a piercing shift (p, p) of p px a move of p × pitch mm along u and along v on the
+    /// detector.
     pub fn pixel_pitch_mm(&self) -> Option<f64> {
         let (g, _) = self.geometry_config().ok()?;
         g.detector.stated_pixel_spacing_mm().map(|s| s[0])

@@ -14,8 +14,9 @@ pub enum Mm {
 }
 
 /// `px` in mm as the prose prints it beside the px — ` (an SDD error of 150 mm)` or
-/// ` (15 mm along u and v on the detector)` — recorded as the printed claim `id` ([`Source::Detector`]); empty where
-/// the study has no reference sidecar with a pixel pitch (an explicit-K geometry, no projection run).
+/// ` (15 mm along u and v on the detector)` — recorded as the printed claim `id`
+/// ([`Source::Detector`]); empty where the study has no reference sidecar with a pixel pitch (an
+/// explicit-K geometry, no projection run).
 pub fn in_mm(f: &mut Finding, x: &Inputs, id: &str, px: f64, what: Mm) -> String {
     let Some((reference, pitch)) = &x.pitch else {
         return String::new();
