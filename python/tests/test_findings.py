@@ -397,6 +397,11 @@ def test_every_number_of_a_different_study_is_recomputed_from_its_tables(other):
     sigma = [c for f in other.findings for c in f["claims"] if c["id"] == "registration.noise_px"]
     assert sigma and sigma[0]["text"] == "1"
     assert any(f["id"] == "calibration_headline" for f in other.findings)
+    # The intensity-registration experiment did not run (its table is absent), so no section of it is
+    # written, though its `images` default names spectral fixed images.
+    assert not (other.out / "tables" / "intensity_registration_summary.csv").exists()
+    headings = [line for line in other.report.splitlines() if line.startswith("#")]
+    assert not [h for h in headings if "ntensity" in h or "Spectral" in h], headings
 
 
 def test_a_piercing_shift_in_mm_is_said_per_axis(quick, other):

@@ -48,11 +48,15 @@ fn shared_model(s: &crate::study::config::IntensitySection) -> String {
     format!("{scope}, {noise}, and the `{}` similarity", s.similarity)
 }
 
-/// Writes the subsection (nothing unless the run has spectral fixed images).
+/// Writes the subsection (nothing unless the run's table has rows of spectral fixed images: a study that
+/// configures them but does not run the experiment has none).
 pub fn section(md: &mut String, cfg: &StudyConfig, rows: &[IntensitySummaryRow], pitch: Pitch) {
     let s = &cfg.intensity_registration;
     let models: Vec<FixedImage> = s.images.clone();
-    if !models.iter().any(|m| m.is_spectral()) {
+    if !models
+        .iter()
+        .any(|m| m.is_spectral() && rows.iter().any(|r| r.fixed_image == m.name()))
+    {
         return;
     }
     let of = |m: FixedImage| -> Vec<&IntensitySummaryRow> {
