@@ -387,6 +387,12 @@ def other(cli, tmp_path_factory) -> Study:
 
 def test_every_number_of_the_quick_study_findings_is_recomputed_from_its_tables(quick):
     check(quick)
+    # With projection.csv and landmarks.csv written, the report says how they are measured (a run
+    # without them leaves those bullets out: tests/it/study_physical.rs).
+    tables = quick.out / "tables"
+    assert (tables / "projection.csv").exists() and (tables / "landmarks.csv").exists()
+    how = quick.report.split("## How each measurement is made")[1].split("\n## ")[0]
+    assert "marker sphere" in how and "projection.csv" in how and "Landmark overlays" in how, how
 
 
 def test_every_number_of_a_different_study_is_recomputed_from_its_tables(other):

@@ -265,4 +265,14 @@ fn a_detector_roll_registers_one_view_to_the_pose_turned_about_its_central_ray()
     );
     assert!(report.contains("| det_roll_deg = 1.5 | direct-lat | 1.500 (all 2 agree) |"));
     assert!(out.join("tables/registration_physical.csv").is_file());
+    // Without the projection and landmark experiments (no projection.csv, no landmarks.csv) the report
+    // does not describe their measurements.
+    assert!(t.projection.is_empty() && t.landmarks.is_empty());
+    assert!(!out.join("tables/projection.csv").exists());
+    let how = &report[report.find("## How each measurement is made").unwrap()..];
+    let how = &how[..how.find("\n## ").unwrap()];
+    assert!(how.contains("Thickness DRRs"), "{how}");
+    for absent in ["marker sphere", "projection.csv", "Landmark overlays"] {
+        assert!(!how.contains(absent), "{absent}: {how}");
+    }
 }

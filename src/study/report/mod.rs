@@ -164,7 +164,7 @@ configuration is `study.toml`.\n",
         (&figs, &mut n),
     );
     literature::section(&mut md, &tables.tracking, &first)?;
-    renderers_section(&mut md, cfg);
+    renderers_section(&mut md, cfg, tables);
     // The .tex tables first: the products list names what is on disk.
     write_latex_tables(out, tables, &paper, &first, pitch)?;
     layout::products(&mut md, out)?;
@@ -242,34 +242,40 @@ silhouettes); the adapter is named in the reference DRRs' sidecars (`references/
     }
 }
 
-/// Which renderer feeds which measurement, per kind of target.
-fn renderers_section(md: &mut String, cfg: &StudyConfig) {
+/// Which renderer feeds which measurement, per kind of target: how the measurements of the tables this run wrote are made (a table the run did not write gets no
+/// bullet: the landmark markers only with `landmarks.csv`, the image metrics only with `projection.csv`).
+fn renderers_section(md: &mut String, cfg: &StudyConfig, tables: &StudyTables) {
+    let (projection, landmarks) = (!tables.projection.is_empty(), !tables.landmarks.is_empty());
     let _ = writeln!(md, "## {MEASUREMENT}\n");
     let _ = writeln!(
         md,
         "- Thickness DRRs (Σ μ·L through closed surfaces) are rendered by {}.",
         backend_words(cfg.geometry.backend)
     );
-    let _ = writeln!(
-        md,
-        "- Landmark shifts: a small marker sphere at each 3-D landmark is rendered alone and its blob \
+    if landmarks {
+        let _ = writeln!(
+            md,
+            "- Landmark shifts: a small marker sphere at each 3-D landmark is rendered alone and its blob \
 centroid measured, in the reference and the perturbed view; the homography prediction H·x is beside it."
-    );
-    let _ = writeln!(
-        md,
-        "- Phantom levels and mesh targets: silhouettes, contours and image metrics (NCC, SSIM, MI, GC, \
+        );
+    }
+    if projection {
+        let _ = writeln!(
+            md,
+            "- Phantom levels and mesh targets: silhouettes, contours and image metrics (NCC, SSIM, MI, GC, \
 heatmaps) all come from the thickness DRR. `mean_abs_diff` is the mean |a − b| of the two DRRs, in \
 their units (unitless line integrals), over the whole detector."
-    );
-    let _ = writeln!(
-        md,
-        "- NCC, SSIM, MI and gradient correlation in `projection.csv` are taken over the anatomy's region: \
-the union of the reference and perturbed silhouettes dilated by {} px (`region_margin_px`; `region_px` \
-pixels), SSIM and GC counting the windows centred there. The whole detector's values are the \
+        );
+        let _ = writeln!(
+            md,
+            "- NCC, SSIM, MI and gradient correlation in `projection.csv` are taken over the anatomy's \
+region: the union of the reference and perturbed silhouettes dilated by {} px (`region_margin_px`; \
+`region_px` pixels), SSIM and GC counting the windows centred there. The whole detector's values are the \
 `*_detector` columns: its empty background, identical in both images, pulls them toward 1 (SSIM) \
 whatever the anatomy does.",
-        crate::analysis::REGION_MARGIN_PX
-    );
+            crate::analysis::REGION_MARGIN_PX
+        );
+    }
     if !cfg.anatomy.ct.is_empty() {
         let names: Vec<&str> = cfg.anatomy.ct.iter().map(|c| c.name.as_str()).collect();
         let _ = writeln!(
@@ -284,11 +290,13 @@ structures from its automatic landmark frame, so structures.csv has per-structur
         );
         let _ = writeln!(md, "{}", ct_alignment_note(cfg));
     }
-    let _ = writeln!(
-        md,
-        "- Landmark overlays are drawn on each target's reference DRR (`references/<target>_<view>.tiff`, \
-with its JSON sidecar)."
-    );
+    if landmarks {
+        let _ = writeln!(
+            md,
+            "- Landmark overlays are drawn on each target's reference DRR \
+(`references/<target>_<view>.tiff`, with its JSON sidecar)."
+        );
+    }
     let _ = writeln!(md);
 }
 
