@@ -393,6 +393,9 @@ def test_every_number_of_the_quick_study_findings_is_recomputed_from_its_tables(
     assert (tables / "projection.csv").exists() and (tables / "landmarks.csv").exists()
     how = quick.report.split("## How each measurement is made")[1].split("\n## ")[0]
     assert "marker sphere" in how and "projection.csv" in how and "Landmark overlays" in how, how
+    # …and its Setup states the perturbation grid and where each target lies (tests/it/study_physical.rs:
+    # neither without the experiments that use them).
+    assert "perturbations of K" in quick.report and "| target | view | centroid" in quick.report
 
 
 def test_every_number_of_a_different_study_is_recomputed_from_its_tables(other):

@@ -190,6 +190,20 @@ fn the_literature_section_prints_this_runs_tracking_cells() {
     }
     assert_eq!(rows, 7, "{section}");
     assert!(!section.contains("not in this run"));
+    // No experiment that steps through `[perturbations]` ran and none wrote a reference DRR: the Setup
+    // states neither the grid nor an empty table of where the targets lie, but says why.
+    assert!(t.projection.is_empty() && t.landmarks.is_empty() && t.screws.is_empty());
+    assert!(
+        !out.join("references")
+            .read_dir()
+            .is_ok_and(|mut d| d.next().is_some())
+    );
+    let setup = &report[report.find("## Setup").unwrap()..];
+    let setup = &setup[..setup.find("\n## ").unwrap()];
+    for absent in ["perturbations of K", "| target | view | centroid"] {
+        assert!(!setup.contains(absent), "{absent}: {setup}");
+    }
+    assert!(setup.contains("this run wrote none"), "{setup}");
 }
 
 /// Landmark registration under the physical cells (`registration_physical.csv`): a detector rolled

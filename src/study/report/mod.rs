@@ -97,7 +97,12 @@ configuration is `study.toml`.\n",
         out,
         cfg,
         &targets,
-        &tables.projection,
+        (
+            &tables.projection,
+            !(tables.projection.is_empty()
+                && tables.landmarks.is_empty()
+                && tables.screws.is_empty()),
+        ),
         (&figs, &mut n),
     );
     let piercing: std::collections::BTreeMap<String, (f64, f64)> = cfg

@@ -98,7 +98,7 @@ pub fn section(
     out: &Path,
     cfg: &StudyConfig,
     targets: &[String],
-    projection: &[ProjectionRow],
+    (projection, grid_used): (&[ProjectionRow], bool),
     (figs, n): (&[FigureEntry], &mut usize),
 ) {
     let _ = writeln!(md, "## {HEADING}\n");
@@ -187,23 +187,13 @@ pub fn section(
             num(z.iter().sum::<f64>() / z.len().max(1) as f64, 1)
         );
     }
-    if let Some(v) = cfg.studied_views(&carm).next() {
+    // The grid of `[perturbations]`, where an experiment that steps through it ran.
+    if let Some(v) = cfg.studied_views(&carm).next().filter(|_| grid_used) {
         let _ = writeln!(md);
         let sdd = g.detector.k.is_none().then_some(g.detector.sdd_mm);
         super::grid::table(md, &cfg.perturbations, &v.intrinsics, sp, sdd);
     }
-    let _ = writeln!(
-        md,
-        "Where each target's reference silhouette lies on the detector: its centroid's offset from the \
-         piercing point (cx, cy) and its bounding box, in px and in mm at the detector. Under a focal \
-         scale α every point moves by (α − 1)·|x − c|, so a target far from the piercing point, or large \
-         on the detector, moves more.\n"
-    );
-    let _ = writeln!(
-        md,
-        "| target | view | centroid − piercing point (px) | distance (px) | distance (mm at detector) | \
-         extent (px) | extent (mm at detector) | on the detector |\n|---|---|---|---|---|---|---|---|"
-    );
+    let mut table = String::new();
     let mut rows = 0;
     for t in targets {
         for view in cfg.studied_views(&carm) {
@@ -220,7 +210,7 @@ pub fn section(
                 })
             };
             let _ = writeln!(
-                md,
+                table,
                 "| {t} | {} | ({}, {}) | {:.1} | {} | {} × {} | {} | {} |",
                 view.name.to_uppercase(),
                 one_decimal(du),
@@ -237,8 +227,22 @@ pub fn section(
     if rows == 0 {
         let _ = writeln!(
             md,
-            "\n(No reference DRRs under `references/`: they are written by the `projection` and `landmarks` experiments.)"
+            "\nWhere each target lies on the detector is measured on its reference DRRs, which the \
+             `projection` and `landmarks` experiments write; this run wrote none (`references/` is empty).\n"
         );
+        return;
     }
-    let _ = writeln!(md);
+    let _ = writeln!(
+        md,
+        "\nWhere each target's reference silhouette lies on the detector: its centroid's offset from the \
+         piercing point (cx, cy) and its bounding box, in px and in mm at the detector. Under a focal \
+         scale α every point moves by (α − 1)·|x − c|, so a target far from the piercing point, or large \
+         on the detector, moves more.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| target | view | centroid − piercing point (px) | distance (px) | distance (mm at detector) | \
+         extent (px) | extent (mm at detector) | on the detector |\n|---|---|---|---|---|---|---|---|\n\
+         {table}"
+    );
 }
