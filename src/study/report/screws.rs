@@ -65,7 +65,7 @@ pub fn section(
     let _ = writeln!(md, "## {HEADING}\n");
     let _ = writeln!(
         md,
-        "Each level's planned pedicle screws ({screws} screws on {} levels: {}; entry to tip {}–{} mm, \
+        "Each level's planned pedicle screws ({screws} screws on {} level{}: {}; entry to tip {} mm, \
 the phantom's pedicle axes or a user's `…pedicle_entry` / `…pedicle_tip` landmarks) under each assumed \
 geometry of the grid, two ways. **Drawn**: the screw at its true pose projected with the assumed view, \
 against its true image — an overlay from a tracked pose with the wrong calibration; the tip's offset in \
@@ -76,9 +76,15 @@ the drawn axis turns. **Navigated**: the level registered from its landmarks in 
 how well the overlay seems to fit. Each cell is the largest over the levels' screws \
 (`tables/screws.csv`, `tables/screw_navigation.csv`).\n",
         levels.len(),
+        if levels.len() == 1 { "" } else { "s" },
         levels.join(", "),
-        num(lengths.iter().copied().fold(f64::INFINITY, f64::min), 1),
-        num(lengths.iter().copied().fold(f64::NEG_INFINITY, f64::max), 1),
+        {
+            let (lo, hi) = (
+                num(lengths.iter().copied().fold(f64::INFINITY, f64::min), 1),
+                num(lengths.iter().copied().fold(f64::NEG_INFINITY, f64::max), 1),
+            );
+            if lo == hi { lo } else { format!("{lo}–{hi}") }
+        },
         views
             .iter()
             .map(|v| v.to_uppercase())
