@@ -435,6 +435,52 @@ def test_a_piercing_shift_in_mm_is_said_per_axis(quick, other):
     assert seen >= 3, seen
 
 
+LAT_ONLY = """
+experiments = ["projection", "registration"]
+heatmaps_df_px = []
+
+[anatomy]
+levels = ["L1"]
+segment = false
+voxel_mm = 1.2
+
+[geometry]
+binning = 4
+views = ["lat"]
+
+[perturbations]
+df_px = [100.0, 500.0]
+piercing_px = [0.0, 50.0]
+skew_px = []
+pixel_scale = []
+
+[registration]
+methods = ["direct-lat", "opencv-lat"]
+df_px = [0.0, 500.0]
+piercing_px = [0.0, 50.0]
+trials = 4
+trials_per_unit = 4
+"""
+
+
+def test_a_one_view_study_states_what_its_one_view_measured(cli, tmp_path):
+    """LAT alone: every claim recomputed as for the others; the structures' mean is over the LAT view (not
+    'both views'), and the registration finding states the run's own methods, none of the two-view ones."""
+    (tmp_path / "study.toml").write_text(LAT_ONLY)
+    cli("study", "--config", tmp_path / "study.toml", "--out", tmp_path / "out")
+    study = Study(tmp_path / "out")
+    # check() without its LAT/AP law, which needs both views.
+    assert check_values(study) > 0
+    check_prose(study)
+    check_rules(study)
+    assert not any(f["id"] == "landmark_ratio" for f in study.findings)
+    by_id = {f["id"]: f["text"] for f in study.findings}
+    assert "over the single levels and the LAT view" in by_id["structures"], by_id["structures"]
+    reg = by_id["registration_by_family"]
+    assert ": ;" not in reg and "direct-lat " in reg and "opencv-lat " in reg, reg
+    assert "kabsch" not in reg and "direct-ap" not in reg, reg
+
+
 def test_a_changed_table_cell_is_caught(quick, tmp_path):
     """The recomputation is not vacuous: one Dice cell changed in the CSV fails it."""
     import shutil

@@ -225,7 +225,7 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
 const TIE_PCT: f64 = 2.0;
 
 /// The most and least sensitive structures at the largest focal Δf: mean 1 − Dice over the single levels
-/// (or, without any, the targets reported apart: segments and cut targets) and both views.
+/// (or, without any, the targets reported apart: segments and cut targets) and the views the rows have.
 pub fn structures(x: &Inputs) -> Option<Finding> {
     let t = &x.structures;
     let top = largest_step(t, "focal", "df_px", false)?;
@@ -238,6 +238,13 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
     };
     let at = at.any("target", &targets);
     let df: f64 = top.parse().ok()?;
+    // The views the mean runs over, as the rows have them.
+    let views = t.distinct(&at, "view");
+    let over_views = match views.as_slice() {
+        [one] => format!("the {} view", one.to_uppercase()),
+        [_, _] => "both views".to_string(),
+        more => format!("the {} views", more.len()),
+    };
     let mut f = Finding::new("structures");
     let mut loss: Vec<(String, f64, Claim)> = t
         .distinct(&at, "structure")
@@ -252,7 +259,7 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
             )?;
             let c = Claim::new(format!("structure.{s}"), v, src)
                 .shown(3, "")
-                .about(&targets.join(","), "ap,lat", "focal")
+                .about(&targets.join(","), &views.join(","), "focal")
                 .cell("df_px", df)
                 .count(n);
             Some((s, v, c))
@@ -299,8 +306,8 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
             ],
         );
         f.text = format!(
-            "At focal Δf {df_text} every structure loses alike (mean `1 − Dice` over {over} and both \
-views {lo}–{hi}, within {tol} % of each other) {}.",
+            "At focal Δf {df_text} every structure loses alike (mean `1 − Dice` over {over} and \
+{over_views} {lo}–{hi}, within {tol} % of each other) {}.",
             sources::<StructureRow>(&fig)
         );
         return Some(f);
@@ -333,7 +340,7 @@ views {lo}–{hi}, within {tol} % of each other) {}.",
     let (low_names, low_values, low_note) = group(&bottom, &mut f, "least");
     f.text = format!(
         "At focal Δf {df_text} the most sensitive structure{} {top_names} (mean `1 − Dice` over \
-{over} and both views {top_values}{top_note}) and the least sensitive {low_names} \
+{over} and {over_views} {top_values}{top_note}) and the least sensitive {low_names} \
 ({low_values}{low_note}) {}.",
         if top_set.len() > 1 { "s are" } else { " is" },
         sources::<StructureRow>(&fig)

@@ -126,7 +126,16 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
         let joined = levels.join(",");
         let who = (joined.as_str(), family);
         let mut said = Vec::new();
-        for m in ["kabsch", "direct-ap+lat"] {
+        // Kabsch and the two-view direct solver, and the single views' translations side by side; a run
+        // with none of those (one view, say) states each of its methods instead.
+        let featured = ["kabsch", "direct-ap+lat"];
+        let paired = has("direct-ap") && has("direct-lat");
+        let shown: Vec<&str> = if featured.iter().any(|m| has(m)) || paired {
+            featured.to_vec()
+        } else {
+            methods.iter().map(String::as_str).collect()
+        };
+        for &m in &shown {
             if !has(m) {
                 continue;
             }
@@ -134,7 +143,7 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
             let tr = range(&mut f, t, &at, &id, (m, "trans_err_mm_mean", "mm"), who)?;
             said.push(format!("{m} {r} and {tr}"));
         }
-        if has("direct-ap") && has("direct-lat") {
+        if paired {
             let a = range(
                 &mut f,
                 t,
