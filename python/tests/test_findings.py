@@ -223,6 +223,10 @@ def check_prose(study: Study):
         allowed |= {shown(abs(v)) for c in f["claims"] for v in c["cell"].values()}
         stray = [x for x in prose_numbers(f["text"]) if x not in allowed]
         assert not stray, f"{f['id']}: {stray} in the prose are not in findings.json:\n{f['text']}"
+    # No clause left empty: a list with nothing in it would leave its punctuation behind.
+    for f in study.findings:
+        for junk in (",;", ": ;", ",.", ", .", ":  ", "  "):
+            assert junk not in f["text"], f"{f['id']}: {junk!r} in\n{f['text']}"
     # The prose the rest of the report writes about Findings holds no number either.
     intro = section.split("\n- ", 1)[0]
     assert not prose_numbers(intro), intro
@@ -479,6 +483,39 @@ def test_a_one_view_study_states_what_its_one_view_measured(cli, tmp_path):
     reg = by_id["registration_by_family"]
     assert ": ;" not in reg and "direct-lat " in reg and "opencv-lat " in reg, reg
     assert "kabsch" not in reg and "direct-ap" not in reg, reg
+
+
+CUT_BY_THE_EDGE = """
+experiments = ["projection"]
+heatmaps_df_px = []
+
+[anatomy]
+levels = ["L1"]
+segment = false
+voxel_mm = 1.2
+
+[geometry]
+binning = 4
+
+[perturbations]
+df_px = [100.0]
+piercing_px = [0.0, 90.0]
+skew_px = []
+pixel_scale = []
+"""
+
+
+def test_a_level_cut_by_the_edge_is_reported_apart_in_a_sentence_that_reads(cli, tmp_path):
+    """A piercing shift that pushes L1 over the LAT detector's edge: its silhouette loss is reported apart
+    (not pooled with whole levels), and with no whole level the family's clause opens with it."""
+    (tmp_path / "study.toml").write_text(CUT_BY_THE_EDGE)
+    cli("study", "--config", tmp_path / "study.toml", "--out", tmp_path / "out")
+    study = Study(tmp_path / "out")
+    check_values(study)
+    check_prose(study)
+    assert any(r["cut_by_edge"] == "true" for r in study.table("projection.csv") if r["target"] == "L1")
+    text = next(f["text"] for f in study.findings if f["id"] == "dice_by_family")
+    assert "single levels" not in text and " L1 AP " in text, text
 
 
 def test_a_changed_table_cell_is_caught(quick, tmp_path):

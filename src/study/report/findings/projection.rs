@@ -191,6 +191,9 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
                 " the {n} single levels lose AP {ap_r}, LAT {lat_r}: {direction}"
             ));
         }
+        // The targets reported apart follow the single levels' clause, or open the sentence without one.
+        let opened = text.len();
+        let mut sep = if levels.is_empty() { " " } else { "; " };
         for s in &segments {
             let mut one = |view: &str| {
                 let (v, src) = loss(t, &at, s, view)?;
@@ -204,8 +207,12 @@ pub fn dice_by_family(x: &Inputs) -> Option<Finding> {
             };
             if let (Some(ap), Some(lat)) = (one("ap"), one("lat")) {
                 let flag = x.cut_note(s, &t.select(&at.clone().is("target", s)));
-                text.push_str(&format!("; {s} AP {ap}, LAT {lat}{flag}"));
+                text.push_str(&format!("{sep}{s} AP {ap}, LAT {lat}{flag}"));
+                sep = "; ";
             }
+        }
+        if levels.is_empty() && text.len() == opened {
+            continue;
         }
         parts.push(text);
     }
