@@ -439,10 +439,8 @@ def test_a_piercing_shift_in_mm_is_said_per_axis(quick, other):
     assert seen >= 3, seen
 
 
-LAT_ONLY = """
-experiments = ["projection", "registration"]
-heatmaps_df_px = []
-
+# L1 alone on the detector binned by 4: the small studies below add their experiments and grids to it.
+L1_BINNED = """
 [anatomy]
 levels = ["L1"]
 segment = false
@@ -450,7 +448,9 @@ voxel_mm = 1.2
 
 [geometry]
 binning = 4
-views = ["lat"]
+"""
+
+LAT_ONLY = 'experiments = ["projection", "registration"]\nheatmaps_df_px = []\n' + L1_BINNED + """views = ["lat"]
 
 [perturbations]
 df_px = [100.0, 500.0]
@@ -467,15 +467,21 @@ trials_per_unit = 4
 """
 
 
+def small_study(cli, folder, config: str) -> Study:
+    """The study of `config` run into `folder`/out, its findings' numbers and prose checked against its
+    tables (check() without the LAT/AP law, which needs both views and the landmarks)."""
+    (folder / "study.toml").write_text(config)
+    cli("study", "--config", folder / "study.toml", "--out", folder / "out")
+    study = Study(folder / "out")
+    assert check_values(study) > 0
+    check_prose(study)
+    return study
+
+
 def test_a_one_view_study_states_what_its_one_view_measured(cli, tmp_path):
     """LAT alone: every claim recomputed as for the others; the structures' mean is over the LAT view (not
     'both views'), and the registration finding states the run's own methods, none of the two-view ones."""
-    (tmp_path / "study.toml").write_text(LAT_ONLY)
-    cli("study", "--config", tmp_path / "study.toml", "--out", tmp_path / "out")
-    study = Study(tmp_path / "out")
-    # check() without its LAT/AP law, which needs both views.
-    assert check_values(study) > 0
-    check_prose(study)
+    study = small_study(cli, tmp_path, LAT_ONLY)
     check_rules(study)
     assert not any(f["id"] == "landmark_ratio" for f in study.findings)
     by_id = {f["id"]: f["text"] for f in study.findings}
@@ -485,18 +491,7 @@ def test_a_one_view_study_states_what_its_one_view_measured(cli, tmp_path):
     assert "kabsch" not in reg and "direct-ap" not in reg, reg
 
 
-CUT_BY_THE_EDGE = """
-experiments = ["projection"]
-heatmaps_df_px = []
-
-[anatomy]
-levels = ["L1"]
-segment = false
-voxel_mm = 1.2
-
-[geometry]
-binning = 4
-
+CUT_BY_THE_EDGE = 'experiments = ["projection"]\nheatmaps_df_px = []\n' + L1_BINNED + """
 [perturbations]
 df_px = [100.0]
 piercing_px = [0.0, 90.0]
@@ -508,11 +503,7 @@ pixel_scale = []
 def test_a_level_cut_by_the_edge_is_reported_apart_in_a_sentence_that_reads(cli, tmp_path):
     """A piercing shift that pushes L1 over the LAT detector's edge: its silhouette loss is reported apart
     (not pooled with whole levels), and with no whole level the family's clause opens with it."""
-    (tmp_path / "study.toml").write_text(CUT_BY_THE_EDGE)
-    cli("study", "--config", tmp_path / "study.toml", "--out", tmp_path / "out")
-    study = Study(tmp_path / "out")
-    check_values(study)
-    check_prose(study)
+    study = small_study(cli, tmp_path, CUT_BY_THE_EDGE)
     assert any(r["cut_by_edge"] == "true" for r in study.table("projection.csv") if r["target"] == "L1")
     text = next(f["text"] for f in study.findings if f["id"] == "dice_by_family")
     assert "single levels" not in text and " L1 AP " in text, text
