@@ -203,7 +203,8 @@ pub fn table(
     let _ = writeln!(
         md,
         "The perturbations of K that the projection, landmark and screw experiments step through \
-         (`[perturbations]`; the extrinsics held fixed), in physical terms at this detector's K (fx {}, fy {} px):\n\n| family | steps | what they mean |\n|---|---|---|",
+         (`[perturbations]`; the extrinsics held fixed), in physical terms at this detector's K (fx {}, \
+         fy {} px):\n\n| family | steps | what they mean |\n|---|---|---|",
         short(k.fx, 1),
         short(k.fy, 1)
     );

@@ -247,8 +247,9 @@ silhouettes); the adapter is named in the reference DRRs' sidecars (`references/
     }
 }
 
-/// Which renderer feeds which measurement, per kind of target: how the measurements of the tables this run wrote are made (a table the run did not write gets no
-/// bullet: the landmark markers only with `landmarks.csv`, the image metrics only with `projection.csv`).
+/// Which renderer feeds which measurement, per kind of target: how the measurements of the tables this
+/// run wrote are made (a table the run did not write gets no bullet: the landmark markers only with
+/// `landmarks.csv`, the image metrics only with `projection.csv`).
 fn renderers_section(md: &mut String, cfg: &StudyConfig, tables: &StudyTables) {
     let (projection, landmarks) = (!tables.projection.is_empty(), !tables.landmarks.is_empty());
     let _ = writeln!(md, "## {MEASUREMENT}\n");
