@@ -177,6 +177,32 @@ fn finite_mean(v: impl Iterator<Item = f64>) -> (f64, usize) {
     (mean(&v), v.len())
 }
 
+/// A registration cell: phantom, σ (px) and protocol.
+type CellKey = (String, f64, Protocol);
+
+/// The registration rows (one per trial and protocol) grouped by cell, in table order.
+fn registration_cells<'a>(
+    trials: &[&'a CalibrationRow],
+) -> Vec<(CellKey, Vec<&'a CalibrationRow>)> {
+    let keys = distinct(
+        trials
+            .iter()
+            .map(|r| (r.phantom.clone(), r.noise_px.to_bits(), r.protocol)),
+    );
+    keys.into_iter()
+        .map(|(phantom, bits, protocol)| {
+            let cell = trials
+                .iter()
+                .copied()
+                .filter(|r| {
+                    r.phantom == phantom && r.noise_px.to_bits() == bits && r.protocol == protocol
+                })
+                .collect();
+            ((phantom, f64::from_bits(bits), protocol), cell)
+        })
+        .collect()
+}
+
 const REGISTRATION_HEADING: &str = "Registration error under the estimated geometry";
 
 /// The registration table of a run without intensity registrations: the landmark registration's mean
@@ -190,24 +216,11 @@ calibrated geometry (no intensity-based registration ran in this study: `calibra
 adds one on the first trials of each cell); n: the trials whose registration ended.\n\n| phantom | σ (px) \
 | protocol | landmark mTRE (mm) | n |\n|---|---|---|---|---|"
     );
-    let cells = distinct(
-        trials
-            .iter()
-            .map(|r| (r.phantom.clone(), r.noise_px.to_bits(), r.protocol)),
-    );
-    for (phantom, bits, protocol) in cells {
-        let (lm, n) = finite_mean(
-            trials
-                .iter()
-                .filter(|r| {
-                    r.phantom == phantom && r.noise_px.to_bits() == bits && r.protocol == protocol
-                })
-                .map(|r| r.reg_mtre_mm),
-        );
+    for ((phantom, sigma, protocol), cell) in registration_cells(trials) {
+        let (lm, n) = finite_mean(cell.iter().map(|r| r.reg_mtre_mm));
         let _ = writeln!(
             md,
-            "| {phantom} | {} | {protocol} | {} | {n} |",
-            f64::from_bits(bits),
+            "| {phantom} | {sigma} | {protocol} | {} | {n} |",
             num(lm, 3)
         );
     }
@@ -241,19 +254,8 @@ its capture range (some 10–20 mm), it stops short and its mTRE understates the
 intensity mTRE (mm) | n |"
     );
     let _ = writeln!(md, "|---|---|---|---|---|---|---|");
-    let cells = distinct(
-        trials
-            .iter()
-            .map(|r| (r.phantom.clone(), r.noise_px.to_bits(), r.protocol)),
-    );
     let mut by_protocol: Vec<(Protocol, f64)> = Vec::new();
-    for (phantom, bits, protocol) in cells {
-        let cell: Vec<&&CalibrationRow> = trials
-            .iter()
-            .filter(|r| {
-                r.phantom == phantom && r.noise_px.to_bits() == bits && r.protocol == protocol
-            })
-            .collect();
+    for ((phantom, sigma, protocol), cell) in registration_cells(&trials) {
         let (lm, _) = finite_mean(cell.iter().map(|r| r.reg_mtre_mm));
         let (im, ni) = finite_mean(cell.iter().map(|r| r.ireg_mtre_mm));
         let (lm_same, _) = finite_mean(
@@ -266,8 +268,7 @@ intensity mTRE (mm) | n |"
         }
         let _ = writeln!(
             md,
-            "| {phantom} | {} | {protocol} | {} | {} | {} | {ni} |",
-            f64::from_bits(bits),
+            "| {phantom} | {sigma} | {protocol} | {} | {} | {} | {ni} |",
             num(lm, 3),
             num(lm_same, 3),
             num(im, 3)
