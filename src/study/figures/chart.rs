@@ -107,13 +107,14 @@ pub(super) const SINGLE: ChartStyle = ChartStyle {
     legend: Some(16),
 };
 
-/// The padded (x, y) ranges of the finite points (and of their error bars).
 /// Dot radius (px) of series `i` of `n`: 4 for the last, 1 px more per later series, at most 8.
 fn radius(i: usize, n: usize) -> i32 {
     4 + n.saturating_sub(i + 1).min(4) as i32
 }
 
-fn ranges(series: &[Series], marks: &[Mark]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+/// The unpadded extents `(x0, x1, y0, y1)` of the finite points, their error bars and bands, and the
+/// marks; `x0 > x1` when no point is finite.
+pub(super) fn extents(series: &[Series], marks: &[Mark]) -> (f64, f64, f64, f64) {
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for s in series {
         for (&(x, _), &(lo, hi)) in s.points.iter().zip(&s.band) {
@@ -140,6 +141,12 @@ fn ranges(series: &[Series], marks: &[Mark]) -> (std::ops::Range<f64>, std::ops:
         };
         (y0, y1) = (y0.min(lo), y1.max(hi));
     }
+    (x0, x1, y0, y1)
+}
+
+/// The padded (x, y) ranges of the finite points (and of their error bars).
+fn ranges(series: &[Series], marks: &[Mark]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+    let (mut x0, mut x1, mut y0, mut y1) = extents(series, marks);
     if x0 > x1 {
         (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
     }

@@ -7,7 +7,9 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::canvas::{Figure, Raster, write_figure};
-use super::chart::{ChartStyle, Panel, SINGLE, SIZE, Series, draw_lines, legend_grid, plot_err};
+use super::chart::{
+    ChartStyle, Mark, Panel, SINGLE, SIZE, Series, draw_lines, extents, legend_grid, plot_err,
+};
 use crate::Result;
 
 /// Series above which a single chart gets its legend in a column beside the plot instead of inside it.
@@ -201,7 +203,55 @@ impl Figure for PanelChart<'_> {
     }
 }
 
-/// [`PanelChart`] with one y label, written to `path` (PNG) and beside it as SVG.
+/// What a panel's title names with its view left out: `AP` and `LAT` → ``, `direct-ap` and
+/// `direct-lat` → `direct`, `AP: final mTRE < 2 mm` → `: final mTRE < 2 mm`; a title naming no single
+/// view (`AP+LAT`, `kabsch`, `fx: estimated − true`) is itself.
+fn view_free(title: &str) -> String {
+    let t = title.to_lowercase();
+    for view in ["ap", "lat"] {
+        if t == view {
+            return String::new();
+        }
+        if let Some(rest) = t.strip_prefix(&format!("{view}:")) {
+            return format!(":{rest}");
+        }
+        if let Some(rest) = t.strip_suffix(&format!("-{view}")) {
+            return rest.to_string();
+        }
+    }
+    t
+}
+
+/// Draws panels that show the same thing in different views (AP beside LAT: [`view_free`] titles
+/// equal) at one y scale, the union of their data's, so that comparing the views by eye compares
+/// their values; every other panel keeps its own scale.
+pub(super) fn share_view_scales(panels: &mut [Panel]) {
+    let keys: Vec<String> = panels.iter().map(|p| view_free(&p.title)).collect();
+    for key in &keys {
+        let group: Vec<usize> = (0..panels.len()).filter(|&i| keys[i] == *key).collect();
+        if group.len() < 2 {
+            continue;
+        }
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for &i in &group {
+            let (x0, x1, y0, y1) = extents(&panels[i].series, &panels[i].marks);
+            if x0 <= x1 {
+                (lo, hi) = (lo.min(y0), hi.max(y1));
+            }
+        }
+        if lo <= hi {
+            for &i in &group {
+                let extent = Mark::Extent { lo, hi };
+                if !panels[i].marks.contains(&extent) {
+                    panels[i].marks.push(extent);
+                }
+            }
+        }
+    }
+}
+
+/// [`PanelChart`] with one y label, written to `path` (PNG) and beside it as SVG; panels that differ
+/// only in their view share one y scale ([`share_view_scales`]).
 pub fn panel_chart(
     path: &Path,
     title: &str,
@@ -210,6 +260,8 @@ pub fn panel_chart(
     panels: Vec<Panel>,
     cols: usize,
 ) -> Result<()> {
+    let mut panels = panels;
+    share_view_scales(&mut panels);
     let fig = PanelChart {
         title,
         x_label,
@@ -219,4 +271,51 @@ pub fn panel_chart(
         legend_extra: Vec::new(),
     };
     write_figure(path, &fig)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn panel(title: &str, ys: &[f64]) -> Panel {
+        Panel {
+            title: title.into(),
+            series: vec![Series::line(
+                "s",
+                ys.iter().enumerate().map(|(i, &y)| (i as f64, y)).collect(),
+            )],
+            marks: Vec::new(),
+        }
+    }
+
+    fn y_span(p: &Panel) -> (f64, f64) {
+        let (_, _, y0, y1) = extents(&p.series, &p.marks);
+        (y0, y1)
+    }
+
+    /// AP and LAT of one quantity (and of one method) get the union of their y extents; a panel of
+    /// another method, or of both views together, keeps its own.
+    #[test]
+    fn views_of_one_thing_share_a_scale_and_nothing_else_does() {
+        let mut panels = vec![
+            panel("direct-ap", &[0.0, 450.0]),
+            panel("direct-lat", &[2.0, 400.0]),
+            panel("direct-ap+lat", &[0.1, 6.0]),
+            panel("kabsch", &[0.2, 5.5]),
+            panel("AP", &[0.9, 0.6]),
+            panel("LAT", &[0.88, 0.55]),
+        ];
+        share_view_scales(&mut panels);
+        assert_eq!(y_span(&panels[0]), (0.0, 450.0));
+        assert_eq!(y_span(&panels[1]), (0.0, 450.0));
+        assert_eq!(y_span(&panels[2]), (0.1, 6.0));
+        assert_eq!(y_span(&panels[3]), (0.2, 5.5));
+        assert_eq!(y_span(&panels[4]), (0.55, 0.9));
+        assert_eq!(y_span(&panels[5]), (0.55, 0.9));
+        assert_eq!(
+            view_free("AP: final mTRE < 2 mm"),
+            view_free("LAT: final mTRE < 2 mm")
+        );
+        assert_ne!(view_free("AP+LAT"), view_free("AP"));
+    }
 }

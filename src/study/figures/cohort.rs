@@ -38,16 +38,17 @@ fn band(rows: &[CohortRow], label: &str, keep: impl Fn(&CohortRow) -> bool) -> O
     })
 }
 
-fn entry(section: Section, file: &str, title: &str, what: &str, cases: usize) -> FigureEntry {
+/// A figure of the report's cohort section.
+fn entry(file: &str, title: &str, what: &str, cases: usize) -> FigureEntry {
     FigureEntry {
-        section,
+        section: Section::Cohort,
         file: file.to_string(),
         title: title.to_string(),
         caption: format!(
             "{title}: {what}; line: median across the {cases} cases' levels, band: 5th–95th \
              percentile"
         ),
-        primary: false,
+        primary: true,
     }
 }
 
@@ -62,6 +63,35 @@ pub fn write(figs: &Path, rows: &[CohortRow], cases: usize) -> Result<Vec<Figure
             .map(|r| r.view.clone()),
     );
 
+    let series: Vec<Series> = views
+        .iter()
+        .filter_map(|v| {
+            band(rows, &v.to_uppercase(), |r| {
+                r.table == "landmarks"
+                    && r.metric == "shift_px"
+                    && r.landmark == "*"
+                    && focal(r)
+                    && r.view == *v
+            })
+        })
+        .collect();
+    if !series.is_empty() {
+        let title = "Cohort: mean landmark shift, AP vs LAT";
+        let panel = Panel {
+            title: "mean over each target's landmarks".into(),
+            series,
+            marks: Vec::new(),
+        };
+        panel_chart(
+            &figs.join(AP_LAT),
+            title,
+            "focal offset Δf (px)",
+            "mean landmark shift (px)",
+            vec![panel],
+            1,
+        )?;
+        entries.push(entry(AP_LAT, title, "a line per view, focal family", cases));
+    }
     let panels: Vec<Panel> = views
         .iter()
         .filter_map(|v| {
@@ -87,10 +117,9 @@ pub fn write(figs: &Path, rows: &[CohortRow], cases: usize) -> Result<Vec<Figure
             n,
         )?;
         entries.push(entry(
-            Section::Projection,
             DICE,
             title,
-            "a panel per view, focal family",
+            "a panel per view, the views at one y scale, focal family",
             cases,
         ));
     }
@@ -132,10 +161,9 @@ pub fn write(figs: &Path, rows: &[CohortRow], cases: usize) -> Result<Vec<Figure
             n,
         )?;
         entries.push(entry(
-            Section::Landmarks,
             LANDMARKS,
             title,
-            "a panel per view, a line per landmark, focal family",
+            "a panel per view, the views at one y scale, a line per landmark, focal family",
             cases,
         ));
     }
@@ -172,48 +200,13 @@ pub fn write(figs: &Path, rows: &[CohortRow], cases: usize) -> Result<Vec<Figure
             3,
         )?;
         entries.push(entry(
-            Section::Registration,
             REGISTRATION,
             title,
-            "a panel per method, piercing shift 0, per target the mean over its trials",
+            "a panel per method, piercing shift 0, per target the mean over its trials; each panel \
+             has its own y scale, except that a method's AP and LAT panels share one",
             cases,
         ));
     }
 
-    let series: Vec<Series> = views
-        .iter()
-        .filter_map(|v| {
-            band(rows, &v.to_uppercase(), |r| {
-                r.table == "landmarks"
-                    && r.metric == "shift_px"
-                    && r.landmark == "*"
-                    && focal(r)
-                    && r.view == *v
-            })
-        })
-        .collect();
-    if !series.is_empty() {
-        let title = "Cohort: mean landmark shift, AP vs LAT";
-        let panel = Panel {
-            title: "mean over each target's landmarks".into(),
-            series,
-            marks: Vec::new(),
-        };
-        panel_chart(
-            &figs.join(AP_LAT),
-            title,
-            "focal offset Δf (px)",
-            "mean landmark shift (px)",
-            vec![panel],
-            1,
-        )?;
-        entries.push(entry(
-            Section::Landmarks,
-            AP_LAT,
-            title,
-            "a line per view, focal family",
-            cases,
-        ));
-    }
     Ok(entries)
 }

@@ -23,6 +23,8 @@ pub enum Section {
     Calibration,
     Intensity,
     Screws,
+    /// The spread across a cohort's cases (`[[anatomy.dataset]]`).
+    Cohort,
 }
 
 /// One figure: `file` (a PNG in `figures/`, with its SVG beside it).

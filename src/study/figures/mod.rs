@@ -267,7 +267,8 @@ detector's v axis, up = the top row",
                 &title,
                 &format!(
                     "a panel per method, a line per piercing shift, mean over {}, whiskers the 95 % \
-confidence interval of the mean where trials vary",
+confidence interval of the mean where trials vary; each panel has its own y scale, except that a method's \
+AP and LAT panels (direct-ap and direct-lat, opencv-ap and opencv-lat) share one",
                     conditions.trials
                 ),
                 false,

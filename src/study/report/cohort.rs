@@ -7,11 +7,12 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
+use super::shift_ratio::TargetRatio;
 use crate::study::cohort::{self, Manifest};
 use crate::study::config::StudyConfig;
-use crate::study::figures::cohort as figs;
+use crate::study::figures::{FigureEntry, Section};
 use crate::study::schema::cohort::{CaseOf, CohortRow, Stats, stats};
-use crate::study::schema::{Family, LandmarkRow, StudyTables, mean_sd};
+use crate::study::schema::{StudyTables, mean_sd};
 
 /// The section's heading.
 pub const HEADING: &str = "Cohort: spread across patients";
@@ -25,31 +26,6 @@ fn range(s: &Stats, digits: usize) -> String {
         s.n,
         d = digits
     )
-}
-
-/// Per level target, the ratio LAT/AP of its mean landmark shift at focal Δf `df`.
-fn lat_ap_ratios(rows: &[LandmarkRow], case_of: &CaseOf, df: f64) -> Vec<(String, f64)> {
-    let mut shifts: BTreeMap<(&str, &str), Vec<f64>> = BTreeMap::new();
-    for r in rows {
-        if r.family == Family::Focal && r.df_px == df && case_of.contains_key(&r.target) {
-            shifts
-                .entry((r.target.as_str(), r.view.as_str()))
-                .or_default()
-                .push(r.shift_px);
-        }
-    }
-    let mut out = Vec::new();
-    for (target, case) in case_of {
-        let mean = |v: &str| shifts.get(&(target.as_str(), v)).map(|s| mean_sd(s).0);
-        if let (Some(ap), Some(lat)) = (mean("ap"), mean("lat"))
-            && ap.is_finite()
-            && lat.is_finite()
-            && ap > 0.0
-        {
-            out.push((case.clone(), lat / ap));
-        }
-    }
-    out
 }
 
 fn pooled(rows: &[CohortRow], keep: impl Fn(&CohortRow) -> bool) -> Option<&CohortRow> {
@@ -69,38 +45,45 @@ fn as_stats(r: &CohortRow) -> Stats {
 
 /// The population findings, one sentence each.
 fn findings(
-    t: &StudyTables,
+    ratios: &[TargetRatio],
     rows: &[CohortRow],
     case_of: &CaseOf,
     pitch: super::grid::Pitch,
 ) -> Vec<String> {
     let mut items = Vec::new();
-    let df_max = t
-        .landmarks
+    // The landmark table's measured LAT/AP ratios, one per level target on its fixed landmark set.
+    let mine: Vec<(&str, &TargetRatio)> = ratios
         .iter()
-        .filter(|r| r.family == Family::Focal)
-        .map(|r| r.df_px)
-        .fold(f64::NAN, f64::max);
-    if df_max.is_finite() {
-        let ratios = lat_ap_ratios(&t.landmarks, case_of, df_max);
-        if !ratios.is_empty() {
-            let s = stats(&ratios.iter().map(|r| r.1).collect::<Vec<_>>());
-            let mut per_case: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
-            for (c, r) in &ratios {
-                per_case.entry(c).or_default().push(*r);
-            }
-            let case_means: Vec<f64> = per_case.values().map(|v| mean_sd(v).0).collect();
-            let lo = case_means.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = case_means.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            items.push(format!(
-                "At {} the LAT/AP ratio of the mean landmark shift is {} across the \
-                 cases' levels; per patient (mean over its levels) it ranges from {lo:.2} to {hi:.2} \
-                 over {} patients.",
-                pitch.df_words(df_max),
-                range(&s, 2),
-                per_case.len()
-            ));
+        .filter_map(|r| Some((case_of.get(&r.target)?.as_str(), r)))
+        .filter(|(_, r)| r.measured().is_finite())
+        .collect();
+    if let [df] = crate::study::figures::distinct(mine.iter().map(|r| r.1.df_px)).as_slice() {
+        let s = stats(&mine.iter().map(|r| r.1.measured()).collect::<Vec<_>>());
+        let mut per_case: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
+        for (c, r) in &mine {
+            per_case.entry(c).or_default().push(r.measured());
         }
+        let case_means: Vec<f64> = per_case.values().map(|v| mean_sd(v).0).collect();
+        let lo = case_means.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = case_means.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let per_patient = match per_case.len() {
+            1 => format!("the one patient's mean over its levels is {lo:.2}"),
+            n if format!("{lo:.2}") == format!("{hi:.2}") => {
+                format!(
+                    "per patient (mean over its levels) it is {lo:.2} in each of the {n} patients"
+                )
+            }
+            n => format!(
+                "per patient (mean over its levels) it ranges from {lo:.2} to {hi:.2} over {n} patients"
+            ),
+        };
+        items.push(format!(
+            "At {} the LAT/AP ratio of the RMS landmark shift (each level on its fixed landmark set, \
+             the column \"LAT/AP measured\" of the table above) is {} across the cases' levels; \
+             {per_patient}.",
+            pitch.df_words(*df),
+            range(&s, 2),
+        ));
     }
     for view in ["ap", "lat"] {
         let last = rows
@@ -147,7 +130,7 @@ fn findings(
         .collect();
     if !parts.is_empty() {
         items.push(format!(
-            "Registration translation error at {} (no piercing shift), per target the \
+            "Registration translation error at {} and no piercing shift, per target the \
              mean over its trials: {}.",
             pitch.df_words(reg_df),
             parts.join("; ")
@@ -157,21 +140,36 @@ fn findings(
 }
 
 /// Writes the cohort section into `md` when the study has datasets (else nothing).
-pub fn section(md: &mut String, out: &Path, cfg: &StudyConfig, t: &StudyTables) {
+/// `ratios` are the landmark table's per-target LAT/AP ratios ([`super::shift_ratio::ratios`]).
+pub fn section(
+    md: &mut String,
+    out: &Path,
+    cfg: &StudyConfig,
+    (t, ratios): (&StudyTables, &[TargetRatio]),
+    (figs, n): (&[FigureEntry], &mut usize),
+) {
     let Some((m, rows)) = cohort::cohort_of(out, cfg, t) else {
         return;
     };
     let case_of = cohort::case_of(cfg, &m);
     let pitch = super::grid::Pitch::of(cfg);
-    write_section(md, &out.join("figures"), &m, &rows, t, (&case_of, pitch));
+    let segments = cfg.anatomy.dataset.iter().any(|d| d.segment);
+    write_section(
+        md,
+        (figs, n),
+        (&m, segments),
+        &rows,
+        ratios,
+        (&case_of, pitch),
+    );
 }
 
 fn write_section(
     md: &mut String,
-    figures: &Path,
-    m: &Manifest,
+    (figs, n): (&[FigureEntry], &mut usize),
+    (m, segments): (&Manifest, bool),
     rows: &[CohortRow],
-    t: &StudyTables,
+    ratios: &[TargetRatio],
     (case_of, pitch): (&CaseOf, super::grid::Pitch),
 ) {
     let _ = writeln!(md, "## {HEADING}\n");
@@ -179,38 +177,23 @@ fn write_section(
     let _ = writeln!(
         md,
         "{} cases from {} ({} level targets), {} left out. Every statistic is over the cases' level \
-targets (the segment targets are not samples): median and 5th–95th percentile, per perturbation cell, in \
-`tables/cohort.csv` (scope `pooled`, and one scope per case).\n",
+targets{}: median and 5th–95th percentile, per perturbation cell, in `tables/cohort.csv` (scope `pooled`, \
+and one scope per case).\n",
         m.cases.len(),
         datasets.join(", "),
         case_of.len(),
-        m.left_out.len()
+        m.left_out.len(),
+        if segments {
+            " (the segment targets are not samples)"
+        } else {
+            ""
+        }
     );
-    for f in findings(t, rows, case_of, pitch) {
+    for f in findings(ratios, rows, case_of, pitch) {
         let _ = writeln!(md, "- {f}");
     }
     let _ = writeln!(md);
-    for (file, title) in [
-        (figs::DICE, "Dice vs focal offset across patients"),
-        (figs::AP_LAT, "Landmark shift, AP vs LAT, across patients"),
-        (
-            figs::LANDMARKS,
-            "Landmark shift per landmark across patients",
-        ),
-        (
-            figs::REGISTRATION,
-            "Registration error vs focal offset across patients",
-        ),
-    ] {
-        if figures.join(file).is_file() {
-            let svg = file.replace(".png", ".svg");
-            let _ = writeln!(md, "![{title}](figures/{file})");
-            let _ = writeln!(
-                md,
-                "_{title}: median line, 5th–95th percentile band ([PNG](figures/{file}), [SVG](figures/{svg}))_\n"
-            );
-        }
-    }
+    super::layout::figures(md, figs, Section::Cohort, n);
     let _ = writeln!(md, "### Cases\n");
     let _ = writeln!(
         md,

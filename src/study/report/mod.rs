@@ -132,7 +132,7 @@ configuration is `study.toml`.\n",
     )?;
     let pitch = grid::Pitch::of(cfg);
     shift_ratio::table(&mut md, &ratios, pitch);
-    cohort::section(&mut md, out, cfg, tables);
+    cohort::section(&mut md, out, cfg, (tables, &ratios), (&figs, &mut n));
     if !tables.projection.is_empty() {
         let _ = writeln!(md, "## {PROJECTION}\n");
         layout::figures(&mut md, &figs, Section::Projection, &mut n);
