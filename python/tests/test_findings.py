@@ -257,7 +257,15 @@ def check_rules(study: Study):
             assert not (any(map(is_segment, targets)) and not all(map(is_segment, targets))), (
                 f"{c['id']} pools a segment with single levels: {targets}"
             )
-            assert len(targets) < 2 or not cut & set(targets), f"{c['id']} pools a cut target: {targets}"
+            # Silhouettes, structures and marker images see the detector's edge; registration observes its
+            # landmarks analytically, so a cut level is pooled there like any other.
+            table = c["source"].get("table", "")
+            assert len(targets) < 2 or not cut & set(targets) or table.startswith("registration"), (
+                f"{c['id']} pools a cut target: {targets}"
+            )
+            if table.startswith("registration") and len(targets) > 1 and not any(map(is_segment, targets)):
+                levels = {r["target"] for r in study.table(table) if not is_segment(r["target"])}
+                assert set(targets) == levels, f"{c['id']} leaves out single levels: {targets}"
     proj = study.table("projection.csv")
     if "dice_by_family" in by_id:
         fam_col = {"focal": "df_px", "piercing": "dcx_px", "joint": "df_px", "skew": "skew_px", "scale": "sy"}

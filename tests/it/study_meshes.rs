@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::Output;
 
 use glam::DVec3;
-use spinedrr::anatomy::{TriMesh, write_mesh};
+use spinedrr::anatomy::{Structure, TriMesh, write_mesh};
 use spinedrr::study::schema::Family;
 use spinedrr::study::{StudyConfig, StudyTables};
 
@@ -164,8 +164,26 @@ fn a_target_cut_by_the_detector_edge_is_flagged_in_the_setup() {
     assert!(row("LAT").ends_with("| whole |"), "{}", row("LAT"));
 }
 
+/// A box whose x faces are labelled `pedicle_left` and the rest `body` (binary STL keeps the labels), so
+/// the structures table has two rows per cell.
+fn labelled_cuboid(name: &str, lo: DVec3, hi: DVec3) -> TriMesh {
+    let mut m = TriMesh::cuboid(name, lo, hi);
+    m.labels = (0..m.triangles.len())
+        .map(|i| {
+            if i >= 8 {
+                Structure::PedicleLeft as u8
+            } else {
+                Structure::Body as u8
+            }
+        })
+        .collect();
+    m
+}
+
 /// A cut target is left out of pooled numbers: beside two whole boxes `a` and `b`, the shifted box's
-/// Dice is reported apart and flagged, and no claim of `findings.json` pools it with them.
+/// Dice is reported apart and flagged, the structures' means leave it out and say so, and no claim of
+/// `findings.json` pools it with them — but registration, which observes its landmarks analytically
+/// (wherever the detector's edge is), pools all three levels.
 #[test]
 fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
     let dir = tempfile::tempdir().expect("temp dir");
@@ -173,7 +191,7 @@ fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
     let lm = std::fs::read_to_string(dir.path().join("box-landmarks.json")).unwrap();
     write_mesh(
         &dir.path().join("box.stl"),
-        &TriMesh::cuboid(
+        &labelled_cuboid(
             "box",
             DVec3::new(80.0, -15.0, -12.0),
             DVec3::new(120.0, 15.0, 12.0),
@@ -184,7 +202,7 @@ fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
     for (name, half) in [("a", 20.0), ("b", 25.0)] {
         let stl = dir.path().join(format!("{name}.stl"));
         let h = DVec3::new(half, 15.0, 12.0);
-        write_mesh(&stl, &TriMesh::cuboid(name, -h, h)).unwrap();
+        write_mesh(&stl, &labelled_cuboid(name, -h, h)).unwrap();
         let json = dir.path().join(format!("{name}.json"));
         std::fs::write(&json, lm.replace("\"box\"", &format!("{name:?}"))).unwrap();
         extra.push_str(&format!(
@@ -196,7 +214,7 @@ fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
     let cfg = dir.path().join("three.toml");
     std::fs::write(
         &cfg,
-        format!("experiments = [\"projection\"]\n{base}{extra}"),
+        format!("experiments = [\"projection\", \"registration\"]\n{base}{extra}"),
     )
     .unwrap();
     let out = dir.path().join("out");
@@ -206,30 +224,54 @@ fn a_target_cut_by_the_detector_edge_is_left_out_of_pooled_findings() {
         serde_json::from_str(&std::fs::read_to_string(out.join("tables/findings.json")).unwrap())
             .unwrap();
     let findings = json["findings"].as_array().unwrap();
-    let dice = findings
-        .iter()
-        .find(|f| f["id"] == "dice_by_family")
-        .expect("a Dice finding");
-    let text = dice["text"].as_str().unwrap();
+    let text = |id: &str| {
+        findings
+            .iter()
+            .find(|f| f["id"] == id)
+            .unwrap_or_else(|| panic!("no finding {id}"))["text"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    let dice = text("dice_by_family");
     assert!(
-        text.contains("box AP")
-            && text.contains("(cut by the detector edge in AP here: not comparable)"),
-        "{text}"
+        dice.contains("box AP")
+            && dice.contains("(cut by the detector edge in AP here: not comparable)"),
+        "{dice}"
     );
-    let mut pooled = 0;
+    let structures = text("structures");
+    assert!(
+        structures.contains("over the single levels")
+            && structures
+                .contains("; box, cut by the detector edge in some cell, is left out of the means"),
+        "{structures}"
+    );
+    assert!(
+        text("registration_by_family").contains("a range over the 3 single levels"),
+        "{}",
+        text("registration_by_family")
+    );
+    let (mut pooled, mut registration) = (0, 0);
     for f in findings {
         for c in f["claims"].as_array().unwrap() {
-            let targets: Vec<&str> = c["source"]["where"]["target"]
+            let mut targets: Vec<&str> = c["source"]["where"]["target"]
                 .as_array()
                 .map(|t| t.iter().filter_map(|x| x.as_str()).collect())
                 .unwrap_or_default();
+            targets.sort_unstable();
             if targets.len() > 1 {
-                pooled += 1;
-                assert_eq!(targets, ["a", "b"], "{}", c["id"]);
+                if c["source"]["table"] == "registration_summary.csv" {
+                    registration += 1;
+                    assert_eq!(targets, ["a", "b", "box"], "{}", c["id"]);
+                } else {
+                    pooled += 1;
+                    assert_eq!(targets, ["a", "b"], "{}", c["id"]);
+                }
             }
         }
     }
     assert!(pooled > 0, "no pooled claim over a and b");
+    assert!(registration > 0, "no registration claim over the levels");
 }
 
 /// With landmark noise the trials of a cell differ; the 95 % CI of the mean is Student's, shrinks with

@@ -78,6 +78,12 @@ impl Inputs<'_> {
         targets.into_iter().partition(|t| self.pooled(t))
     }
 
+    /// The single levels and the segments: for tables the detector's edge does not touch (registration
+    /// observes its landmarks analytically, wherever they fall), a cut level is pooled like any other.
+    fn split_segments(&self, targets: Vec<String>) -> (Vec<String>, Vec<String>) {
+        targets.into_iter().partition(|t| !is_segment(t))
+    }
+
     /// Why `target` is reported apart when the detector cuts it: the views cut in the rows `here` (the
     /// cell being reported: not comparable), else the views cut in other cells; nothing when whole.
     fn cut_note(&self, target: &str, here: &[usize]) -> String {

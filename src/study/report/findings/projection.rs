@@ -3,7 +3,7 @@
 
 use super::claim::{Claim, Finding, Source, Stat, Table, Transform, Where};
 use super::derive::{Mm, column, count, count_greater, greater, in_mm, mm_claim, tie};
-use super::{Inputs, sources};
+use super::{Inputs, is_segment, sources};
 use crate::study::schema::{ProjectionRow, StructureRow};
 
 /// A perturbation family as the Dice finding names it: (family, wording, the column of its step and
@@ -238,6 +238,25 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
     let top = largest_step(t, "focal", "df_px", false)?;
     let at = Where::new().is("family", "focal").is("df_px", &top);
     let (levels, segments) = x.split_targets(t.distinct(&at, "target"));
+    // Levels the detector's edge cuts in some cell are left out of the levels' means, and said so.
+    let left_out = match segments
+        .iter()
+        .filter(|t| !is_segment(t))
+        .collect::<Vec<_>>()
+    {
+        cut if levels.is_empty() || cut.is_empty() => String::new(),
+        cut => {
+            let names: Vec<&str> = cut.iter().map(|t| t.as_str()).collect();
+            let names = match names.split_last() {
+                Some((last, rest)) if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
+                _ => names.join(""),
+            };
+            let verb = if cut.len() == 1 { "is" } else { "are" };
+            format!(
+                "; {names}, cut by the detector edge in some cell, {verb} left out of the means"
+            )
+        }
+    };
     let (targets, over) = if levels.is_empty() {
         (segments, "the targets reported apart")
     } else {
@@ -314,7 +333,7 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
         );
         f.text = format!(
             "At focal Δf {df_text} every structure loses alike (mean `1 − Dice` over {over} and \
-{over_views} {lo}–{hi}, within {tol} % of each other) {}.",
+{over_views} {lo}–{hi}, within {tol} % of each other){left_out} {}.",
             sources::<StructureRow>(&fig)
         );
         return Some(f);
@@ -348,7 +367,7 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
     f.text = format!(
         "At focal Δf {df_text} the most sensitive structure{} {top_names} (mean `1 − Dice` over \
 {over} and {over_views} {top_values}{top_note}) and the least sensitive {low_names} \
-({low_values}{low_note}) {}.",
+({low_values}{low_note}){left_out} {}.",
         if top_set.len() > 1 { "s are" } else { " is" },
         sources::<StructureRow>(&fig)
     );

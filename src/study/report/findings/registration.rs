@@ -57,7 +57,8 @@ fn range(
 }
 
 /// Registration error at each family's largest step: Kabsch and two-view direct as ranges over the
-/// single levels, and single-view translation AP against LAT with the direction per level.
+/// single levels (a level the detector's edge cuts among them: the trials observe the landmarks
+/// analytically), and single-view translation AP against LAT with the direction per level.
 pub fn by_family(x: &Inputs) -> Option<Finding> {
     let t = &x.registration;
     let (dfs, ps) = (grid(t, "df_px"), grid(t, "piercing_px"));
@@ -73,7 +74,7 @@ pub fn by_family(x: &Inputs) -> Option<Finding> {
     let (df_top, p_top) = (top(&dfs)?, top(&ps)?);
     let zero_of = |g: &[String]| g.iter().find(|v| v.parse::<f64>() == Ok(0.0)).cloned();
     let (df_zero, p_zero) = (zero_of(&dfs), zero_of(&ps));
-    let (levels, _) = x.split_targets(t.distinct(&Where::new(), "target"));
+    let (levels, _) = x.split_segments(t.distinct(&Where::new(), "target"));
     if levels.is_empty() {
         return None;
     }
