@@ -12,7 +12,7 @@ use super::manifest::{FigureEntry, Section};
 use super::{distinct, overlap, overlay, registration};
 use crate::Result;
 use crate::io::units::LINE_INTEGRAL_DIFFERENCE;
-use crate::study::config::StudyConfig;
+use crate::study::config::{StudyConfig, is_segment};
 use crate::study::paper::PaperResults;
 use crate::study::schema::{Family, StudyTables};
 
@@ -105,9 +105,10 @@ pub fn write(
     let mut entries = Vec::new();
     let p = &tables.projection;
     if !p.is_empty() {
-        let targets = overlap::pooled_targets(p);
-        let mut panels = overlap::overlap_panels(p, &targets, Family::Focal, &paper);
-        panels.extend(overlap::overlap_panels(p, &targets, Family::Joint, &paper));
+        let pooled = overlap::pooled_targets(p);
+        let targets = &pooled.targets;
+        let mut panels = overlap::overlap_panels(p, targets, Family::Focal, &paper);
+        panels.extend(overlap::overlap_panels(p, targets, Family::Joint, &paper));
         for (i, panel) in panels.iter_mut().enumerate() {
             let family = if i < 2 {
                 "focal: Δf alone"
@@ -133,14 +134,31 @@ pub fn write(
         let what = format!(
             "Dice (left) and IoU (right) of the whole-object silhouette against Δf, under a focal offset \
 alone (top, focal family) and with the piercing shift (p, p) paired in order (bottom, joint family); the \
-line is the mean over {} ({}), the band their min–max; triangles are the paper's LAT values at Δf 100 and \
-500 px, the dashed line its AP Dice minimum",
-            if targets.len() == 1 {
-                "one target"
-            } else {
-                "the levels"
+line is the mean over {} ({}{}), the band their min–max{}; triangles are the paper's LAT values at Δf 100 \
+and 500 px, the dashed line its AP Dice minimum",
+            match (targets.len(), targets.iter().all(|t| is_segment(t))) {
+                (1, _) => "one target",
+                (_, true) => "the segments",
+                _ => "the levels",
             },
-            targets.join(", ")
+            targets.join(", "),
+            if pooled.all_cut {
+                if targets.len() == 1 {
+                    ", cut by the detector edge in some cell"
+                } else {
+                    ", each cut by the detector edge in some cell"
+                }
+            } else {
+                ""
+            },
+            match pooled.left_out.as_slice() {
+                [] => String::new(),
+                [one] => format!(" ({one}, cut by the detector edge in some cell, is left out)"),
+                more => format!(
+                    " ({}, cut by the detector edge in some cell, are left out)",
+                    more.join(", ")
+                ),
+            }
         );
         entries.push(c.entry(Section::Projection, file, title, &what, true));
     }

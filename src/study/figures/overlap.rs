@@ -5,14 +5,48 @@
 use std::collections::BTreeMap;
 
 use super::chart::{Mark, Panel, Series};
+use crate::study::config::is_segment;
 use crate::study::paper::PaperResults;
 use crate::study::schema::{Family, ProjectionRow};
 
-/// The targets pooled: every target but the whole segment (not a level), unless it is the only one.
-pub fn pooled_targets(rows: &[ProjectionRow]) -> Vec<String> {
+/// The targets a figure pools, by the Findings' rule.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pooled {
+    /// The single levels whose silhouettes are whole on the detector in every view and cell; when no
+    /// level is, every level ([`Pooled::all_cut`]); with no level at all, the segments.
+    pub targets: Vec<String>,
+    /// The levels cut by the detector's edge in some cell, left out of `targets`.
+    pub left_out: Vec<String>,
+    /// Every level is cut in some cell, so `targets` are cut ones.
+    pub all_cut: bool,
+}
+
+/// The targets pooled: the single levels (never a segment: `segment`, `<name>-segment`) whose
+/// silhouette no cell's row marks cut by the detector's edge; the cut ones are left out and named.
+pub fn pooled_targets(rows: &[ProjectionRow]) -> Pooled {
     let all = super::distinct(rows.iter().map(|r| r.target.clone()));
-    let levels: Vec<String> = all.iter().filter(|t| *t != "segment").cloned().collect();
-    if levels.is_empty() { all } else { levels }
+    let cut = |t: &String| rows.iter().any(|r| r.target == *t && r.cut_by_edge);
+    let (levels, segments): (Vec<String>, Vec<String>) =
+        all.into_iter().partition(|t| !is_segment(t));
+    let (whole, left_out): (Vec<String>, Vec<String>) =
+        levels.iter().cloned().partition(|t| !cut(t));
+    match (whole.is_empty(), levels.is_empty()) {
+        (false, _) => Pooled {
+            targets: whole,
+            left_out,
+            all_cut: false,
+        },
+        (true, false) => Pooled {
+            targets: levels,
+            left_out: Vec::new(),
+            all_cut: true,
+        },
+        (true, true) => Pooled {
+            all_cut: segments.iter().any(cut),
+            targets: segments,
+            left_out: Vec::new(),
+        },
+    }
 }
 
 /// Per view: (x, mean, min, max) of `value` over `targets` at each Δf of `family`.
@@ -136,16 +170,25 @@ mod tests {
         }
     }
 
-    /// The line is the mean over levels, the band their min and max; the segment is not pooled.
+    /// The line is the mean over levels, the band their min and max; no segment is pooled (a CT's
+    /// `<name>-segment` no more than the phantom's `segment`), nor a level cut by the detector's edge.
     #[test]
     fn mean_and_band_over_levels() {
+        let mut cut = row("L4", "ap", 100.0, 0.50);
+        cut.cut_by_edge = true;
         let rows = vec![
             row("L1", "lat", 100.0, 0.90),
             row("L2", "lat", 100.0, 0.96),
             row("L3", "lat", 100.0, 0.93),
+            row("L4", "lat", 100.0, 0.99),
+            cut,
             row("segment", "lat", 100.0, 0.10),
+            row("ct-segment", "lat", 100.0, 0.20),
         ];
-        let targets = pooled_targets(&rows);
+        let pooled_ = pooled_targets(&rows);
+        assert_eq!(pooled_.left_out, ["L4"]);
+        assert!(!pooled_.all_cut);
+        let targets = pooled_.targets;
         assert_eq!(targets, ["L1", "L2", "L3"]);
         let s = pooled(&rows, &targets, Family::Joint, "lat", |r| r.dice);
         assert_eq!(s.points.len(), 1);
@@ -159,5 +202,20 @@ mod tests {
             y: paper.silhouette.lat_dice.at_df_500,
             colour: 1
         }));
+    }
+
+    /// With every level cut in some cell, the figure pools them all and says so; with only segments,
+    /// the segments.
+    #[test]
+    fn all_cut_levels_or_only_segments_are_pooled_and_flagged() {
+        let mut a = row("L1", "ap", 100.0, 0.5);
+        a.cut_by_edge = true;
+        let p = pooled_targets(&[a, row("segment", "ap", 100.0, 0.4)]);
+        assert_eq!((p.targets, p.all_cut), (vec!["L1".to_string()], true));
+        let p = pooled_targets(&[row("ct-segment", "ap", 100.0, 0.4)]);
+        assert_eq!(
+            (p.targets, p.all_cut),
+            (vec!["ct-segment".to_string()], false)
+        );
     }
 }
