@@ -41,7 +41,10 @@ fn carm_views(downscale: u32) -> Vec<View> {
         toml::from_str(spinedrr::geometry::DEFAULT_GEOMETRY_TOML).unwrap();
     cfg.detector.width /= downscale;
     cfg.detector.height /= downscale;
-    cfg.detector.pixel_spacing_mm = cfg.detector.pixel_spacing_mm.map(|s| s * downscale as f64);
+    cfg.detector.pixel_spacing_mm = cfg
+        .detector
+        .pixel_spacing_mm
+        .map(|p| p.map(|s| s * downscale as f64));
     let carm = cfg.build().unwrap();
     let mut views: Vec<View> = ["ap", "lat"]
         .iter()

@@ -14,7 +14,10 @@ fn coarse_carm(downscale: u32) -> CArm {
         toml::from_str(spinedrr::geometry::DEFAULT_GEOMETRY_TOML).unwrap();
     cfg.detector.width /= downscale;
     cfg.detector.height /= downscale;
-    cfg.detector.pixel_spacing_mm = cfg.detector.pixel_spacing_mm.map(|s| s * downscale as f64);
+    cfg.detector.pixel_spacing_mm = cfg
+        .detector
+        .pixel_spacing_mm
+        .map(|p| p.map(|s| s * downscale as f64));
     cfg.build().unwrap()
 }
 

@@ -22,6 +22,7 @@ sdd_mm = 1350.0                   # source-to-detector distance: fx = sdd / spac
 # principal_point_px = [511.5, 511.5]   # piercing point; default is the detector centre
 # skew_px = 0.0
 # K = [[4500.0, 0.0, 511.5], [0.0, 4500.0, 511.5], [0.0, 0.0, 1.0]]   # overrides all of the above but width/height
+#                                  (with K, pixel_spacing_mm and sdd_mm may be left out)
 
 # A view is either source_mm + target_mm (+ up) or an explicit 4x4 world_to_camera matrix.
 [[view]]
@@ -49,8 +50,12 @@ up = [0.0, 0.0, 1.0]
 pub struct DetectorConfig {
     pub width: u32,
     pub height: u32,
-    pub pixel_spacing_mm: [f64; 2],
-    pub sdd_mm: f64,
+    /// Required unless `K` is given (which fixes the intrinsics without a size in mm).
+    #[serde(default)]
+    pub pixel_spacing_mm: Option<[f64; 2]>,
+    /// Required unless `K` is given.
+    #[serde(default)]
+    pub sdd_mm: Option<f64>,
     #[serde(default)]
     pub principal_point_px: Option<[f64; 2]>,
     #[serde(default)]
@@ -93,7 +98,29 @@ impl DetectorConfig {
     /// The pixel spacing (mm, u and v) where this section states the detector physically (`None` for an
     /// explicit `K`, whose pixels have no stated size in mm).
     pub fn stated_pixel_spacing_mm(&self) -> Option<[f64; 2]> {
-        self.k.is_none().then_some(self.pixel_spacing_mm)
+        self.physical().ok().map(|(spacing, _)| spacing)
+    }
+
+    /// The physical detector, `(pixel_spacing_mm, sdd_mm)`: an error naming the missing key when the
+    /// section gives neither it nor an explicit `K`, and when `K` is given (it overrides them).
+    pub fn physical(&self) -> Result<([f64; 2], f64)> {
+        if self.k.is_some() {
+            return Err(Error::invalid(
+                "detector.K",
+                "an explicit K has no pixel size or SDD in mm",
+            ));
+        }
+        let missing = |key: &str| {
+            Error::invalid(
+                format!("detector.{key}"),
+                "missing: give pixel_spacing_mm and sdd_mm, or an explicit K",
+            )
+        };
+        Ok((
+            self.pixel_spacing_mm
+                .ok_or_else(|| missing("pixel_spacing_mm"))?,
+            self.sdd_mm.ok_or_else(|| missing("sdd_mm"))?,
+        ))
     }
 
     /// The intrinsics this detector section describes.
@@ -101,8 +128,8 @@ impl DetectorConfig {
         if let Some(k) = self.k {
             return Intrinsics::from_matrix(k, self.width, self.height);
         }
-        let mut k =
-            Intrinsics::from_detector(self.sdd_mm, self.pixel_spacing_mm, self.width, self.height)?;
+        let (spacing, sdd) = self.physical()?;
+        let mut k = Intrinsics::from_detector(sdd, spacing, self.width, self.height)?;
         if let Some([cx, cy]) = self.principal_point_px {
             k.cx = cx;
             k.cy = cy;
@@ -162,9 +189,9 @@ impl GeometryConfig {
             }
             let view = View::new(vc.name.clone(), k, vc.world_to_camera()?);
             // With an explicit K the detector's distance in mm is not known (K fixes only ratios).
-            views.push(match self.detector.k {
-                None => view.with_sdd(self.detector.sdd_mm),
-                Some(_) => view,
+            views.push(match self.detector.physical() {
+                Ok((_, sdd)) => view.with_sdd(sdd),
+                Err(_) => view,
             });
         }
         Ok(CArm { views })
@@ -266,5 +293,30 @@ mod tests {
                 .to_string()
                 .contains("zoom")
         );
+    }
+
+    /// An explicit K needs no pixel size or SDD (the template says so); without K, each of them is
+    /// required and its absence is an error naming it. With K the views carry no SDD.
+    #[test]
+    fn explicit_k_needs_no_physical_detector_and_without_it_both_keys_are_named() {
+        let views = "[[view]]\nname = \"ap\"\nsource_mm = [0.0, -1000.0, 0.0]\ntarget_mm = [0.0, 0.0, 0.0]\n";
+        let k = format!(
+            "[detector]\nwidth = 64\nheight = 32\nK = [[900.0, 0.0, 31.5], [0.0, 900.0, 15.5], [0.0, 0.0, 1.0]]\n{views}"
+        );
+        let c = CArm::from_toml_str(&k, "k.toml").unwrap();
+        assert_eq!(c.views[0].intrinsics.fx, 900.0);
+        assert_eq!(c.views[0].sdd_mm, None);
+        let g: GeometryConfig = toml::from_str(&k).unwrap();
+        assert_eq!(g.detector.stated_pixel_spacing_mm(), None);
+        for (given, missing) in [
+            ("pixel_spacing_mm = [0.5, 0.5]\n", "detector.sdd_mm"),
+            ("sdd_mm = 1000.0\n", "detector.pixel_spacing_mm"),
+        ] {
+            let text = format!("[detector]\nwidth = 64\nheight = 32\n{given}{views}");
+            let e = CArm::from_toml_str(&text, "p.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(missing) && e.contains("p.toml"), "{e}");
+        }
     }
 }

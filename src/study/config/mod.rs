@@ -429,7 +429,7 @@ impl StudyConfig {
             let bf = f64::from(b);
             d.width /= b;
             d.height /= b;
-            d.pixel_spacing_mm = d.pixel_spacing_mm.map(|s| s * bf);
+            d.pixel_spacing_mm = d.pixel_spacing_mm.map(|p| p.map(|s| s * bf));
             d.principal_point_px = d
                 .principal_point_px
                 .map(|c| c.map(|c| (c + 0.5) / bf - 0.5));

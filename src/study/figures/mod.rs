@@ -53,10 +53,7 @@ fn legible(width_px: u32, at_least: u32) -> u32 {
 /// the scale bars' unit.
 fn mm_per_px(cfg: &StudyConfig) -> Option<f64> {
     let (g, _) = cfg.geometry_config().ok()?;
-    g.detector
-        .k
-        .is_none()
-        .then_some(g.detector.pixel_spacing_mm[0])
+    g.detector.stated_pixel_spacing_mm().map(|s| s[0])
 }
 
 /// Groups the rows passing `keep` by `group` and collects their (x, y) points, x-sorted.

@@ -46,10 +46,7 @@ impl SetupSketch {
     /// outline.
     pub fn load(out: &Path, cfg: &StudyConfig, targets: &[String]) -> Option<SetupSketch> {
         let (g, _) = cfg.geometry_config().ok()?;
-        if g.detector.k.is_some() {
-            return None;
-        }
-        let sv = g.detector.pixel_spacing_mm[1];
+        let sv = g.detector.stated_pixel_spacing_mm()?[1];
         let carm = cfg.carm().ok()?;
         let mut views = Vec::new();
         for view in cfg.studied_views(&carm) {

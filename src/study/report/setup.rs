@@ -190,7 +190,7 @@ pub fn section(
     // The grid of `[perturbations]`, where an experiment that steps through it ran.
     if let Some(v) = cfg.studied_views(&carm).next().filter(|_| grid_used) {
         let _ = writeln!(md);
-        let sdd = g.detector.k.is_none().then_some(g.detector.sdd_mm);
+        let sdd = g.detector.physical().ok().map(|(_, sdd)| sdd);
         super::grid::table(md, &cfg.perturbations, &v.intrinsics, sp, sdd);
     }
     let mut table = String::new();
