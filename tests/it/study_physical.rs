@@ -112,7 +112,7 @@ fn a_physical_grid_needs_a_geometry_with_a_known_sdd() {
     let geometry = dir.path().join("k.toml");
     std::fs::write(
         &geometry,
-        "[detector]\nwidth = 256\nheight = 256\npixel_spacing_mm = [1.2, 1.2]\nsdd_mm = 1350.0\n\
+        "[detector]\nwidth = 256\nheight = 256\n\
          K = [[1125.0, 0.0, 127.5], [0.0, 1125.0, 127.5], [0.0, 0.0, 1.0]]\n\
          [[view]]\nname = \"ap\"\nsource_mm = [0.0, -1000.0, 0.0]\ntarget_mm = [0.0, 0.0, 0.0]\n\
          [[view]]\nname = \"lat\"\nsource_mm = [-900.0, -25.0, 20.0]\ntarget_mm = [0.0, -25.0, 20.0]\n",
@@ -136,6 +136,29 @@ fn a_physical_grid_needs_a_geometry_with_a_known_sdd() {
     );
     assert!(!dir.path().join("out/tables").exists());
     assert!(started.elapsed().as_secs() < 30);
+
+    // The same geometry without physical cells runs; its literature section does not advise adding
+    // one (which this geometry refuses) but says what it needs.
+    let config = format!(
+        "experiments = [\"tracking\"]\n[geometry]\nfile = \"{}\"\n\
+         [anatomy]\nlevels = [\"L1\"]\nsegment = false\nvoxel_mm = 1.2\n\
+         [perturbations]\ndf_px = [100.0]\npiercing_px = [0.0]\nskew_px = []\npixel_scale = []\n\
+         [tracking]\ndf_px = [500.0]\n",
+        geometry.display()
+    );
+    std::fs::remove_dir_all(dir.path().join("out")).ok();
+    let (ok, err) = study(dir.path(), &config);
+    assert!(ok, "{err}");
+    let report = std::fs::read_to_string(dir.path().join("out/report.md")).unwrap();
+    let section = &report[report
+        .find("## The literature beside ours")
+        .expect("literature")..];
+    assert!(
+        section.contains(
+            "add its Δf to `[tracking] df_px` (a physical error needs a geometry that gives"
+        ) && !section.contains("[perturbations.physical]"),
+        "{section}"
+    );
 }
 
 #[test]

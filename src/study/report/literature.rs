@@ -62,18 +62,30 @@ pub fn cell(row: &TrackingRow, column: &str) -> Option<f64> {
 }
 
 /// Writes the section (nothing without tracking rows).
-pub fn section(md: &mut String, rows: &[TrackingRow], first: &str) -> Result<()> {
+/// `physical`: whether the geometry states its detector in mm (`sdd_mm`, `pixel_spacing_mm`), which
+/// the physical errors need; an explicit K does not.
+pub fn section(
+    md: &mut String,
+    rows: &[TrackingRow],
+    (first, physical): (&str, bool),
+) -> Result<()> {
     if rows.is_empty() {
         return Ok(());
     }
     let lit = literature()?;
     let _ = writeln!(md, "## {HEADING}\n");
+    let add = if physical {
+        "add its perturbation to `[perturbations.physical]` or `[tracking] df_px`"
+    } else {
+        "add its Δf to `[tracking] df_px` (a physical error needs a geometry that gives `sdd_mm` and \
+`pixel_spacing_mm`; this one gives an explicit K)"
+    };
     let _ = writeln!(
         md,
         "Published sensitivity results (as their abstracts state them, `reference/literature.toml`) beside \
 the cell of this run's `tables/tracking.csv` whose setup comes closest, for {first}. The cells were chosen \
 by setup, not to match: each study's last line says why the numbers need not agree. A cell this run did \
-not compute says so; add its perturbation to `[perturbations.physical]` or `[tracking] df_px`.\n"
+not compute says so; {add}.\n"
     );
     for s in &lit.study {
         let _ = writeln!(md, "**{}.** Setup: {}.\n", s.cite, s.setup);

@@ -168,7 +168,7 @@ configuration is `study.toml`.\n",
         pitch,
         (&figs, &mut n),
     );
-    literature::section(&mut md, &tables.tracking, &first)?;
+    literature::section(&mut md, &tables.tracking, (&first, pitch.0.is_some()))?;
     renderers_section(&mut md, cfg, tables);
     // The .tex tables first: the products list names what is on disk.
     write_latex_tables(out, tables, &paper, &first, pitch)?;
