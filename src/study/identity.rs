@@ -35,6 +35,8 @@ pub struct UnitIdentity {
     calibration: HashMap<String, Vec<String>>,
     /// The digest cache, when this computation added to it ([`UnitIdentity::save_cache`]).
     cache: Option<BTreeMap<String, CachedDigest>>,
+    /// Every input file of the config, once each.
+    inputs: Vec<InputFile>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -48,6 +50,16 @@ struct CachedDigest {
 struct Digests {
     cache: BTreeMap<String, CachedDigest>,
     changed: bool,
+    /// Every file digested, as the config names it: (path, bytes, BLAKE3), in first-read order.
+    read: Vec<InputFile>,
+}
+
+/// One input file of a study: its path as the config names it, its size and its BLAKE3 digest.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InputFile {
+    pub path: PathBuf,
+    pub bytes: u64,
+    pub blake3: String,
 }
 
 impl Digests {
@@ -59,6 +71,7 @@ impl Digests {
         Digests {
             cache,
             changed: false,
+            read: Vec::new(),
         }
     }
 
@@ -93,12 +106,19 @@ impl Digests {
                 d
             }
         };
+        if !self.read.iter().any(|f| f.path == path) {
+            self.read.push(InputFile {
+                path: path.to_path_buf(),
+                bytes: meta.len(),
+                blake3: digest.clone(),
+            });
+        }
         Ok(format!("{}:{digest}", path.display()))
     }
 
-    /// The cache to save, when this run added to it.
-    fn into_changes(self) -> Option<BTreeMap<String, CachedDigest>> {
-        self.changed.then_some(self.cache)
+    /// The cache to save, when this run added to it, and the files read.
+    fn finish(self) -> (Option<BTreeMap<String, CachedDigest>>, Vec<InputFile>) {
+        (self.changed.then_some(self.cache), self.read)
     }
 }
 
@@ -143,13 +163,21 @@ impl UnitIdentity {
                 calibration.insert(p.clone(), files(&[&PathBuf::from(p)])?);
             }
         }
+        let (cache, inputs) = digests.finish();
         Ok(UnitIdentity {
             config_fp: config_fp.to_string(),
             common,
             targets,
             calibration,
-            cache: digests.into_changes(),
+            cache,
+            inputs,
         })
+    }
+
+    /// Every input file the config reads (geometry, meshes, landmarks, CTs, label maps, phantom files),
+    /// once each, with its size and BLAKE3 digest: what the report's provenance names.
+    pub fn inputs(&self) -> &[InputFile] {
+        &self.inputs
     }
 
     /// Writes the digest cache into `out` when this computation added to it. Called once the run owns

@@ -202,7 +202,7 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
         timings.add(Phase::Figures, std::time::Duration::ZERO, n_figures as u64);
         let rows = timings.rows(start.elapsed());
         timings.time(Phase::Report, 2, || -> Result<()> {
-            report::write(&opts.out, cfg, &tables, &rows, &run)?;
+            report::write(&opts.out, cfg, &tables, &rows, (&run, ident.inputs()))?;
             report_html::write(&opts.out)
         })?;
     }

@@ -91,6 +91,31 @@ fn mesh_target_study_obeys_the_homography_law() {
     let out = dir.path().join("out");
     let o = run_study(&cfg_path, &out, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The provenance names each input file by its BLAKE3 digest (as b3sum computes it), and
+    // tables/inputs.csv lists them with their paths and sizes.
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let line = md
+        .lines()
+        .find(|l| l.starts_with(spinedrr::study::report::PROVENANCE))
+        .expect("provenance");
+    let csv = std::fs::read_to_string(out.join("tables/inputs.csv")).unwrap();
+    assert!(csv.starts_with("file,bytes,blake3\n"), "{csv}");
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    for name in ["box.stl", "box-landmarks.json"] {
+        let path = dir.path().join(name);
+        let bytes = std::fs::read(&path).unwrap();
+        let hash = blake3::hash(&bytes).to_hex().to_string();
+        assert!(
+            line.contains(&format!("`{name}` (BLAKE3 `{hash}`)")),
+            "{line}"
+        );
+        assert!(
+            csv.lines()
+                .any(|l| l.ends_with(&format!(",{},{hash}", bytes.len()))
+                    && l.starts_with(path.to_str().unwrap())),
+            "{name}: {csv}"
+        );
+    }
     let tables = StudyTables::load(&out).expect("tables");
     let t = &tables.landmarks;
     assert_eq!(

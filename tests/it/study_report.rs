@@ -370,6 +370,14 @@ fn the_report_states_its_provenance() {
     let toml = std::fs::read(quick_out().join("study.toml")).unwrap();
     let hash = blake3::hash(&toml).to_hex().to_string();
     assert!(line.contains(&format!("(BLAKE3 `{hash}`)")), "{line}");
+    // The built-in phantom and geometry read no file, and the line says so.
+    assert!(
+        line.contains(&format!(
+            "(BLAKE3 `{hash}`) and no input file (built-in anatomy and geometry) on "
+        )),
+        "{line}"
+    );
+    assert!(!quick_out().join("tables/inputs.csv").exists());
     let date = line
         .split(" on ")
         .nth(1)

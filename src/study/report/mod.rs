@@ -14,6 +14,7 @@ pub mod latex;
 mod layout;
 pub mod literature;
 mod physical;
+mod provenance;
 mod registration;
 mod screws;
 mod setup;
@@ -27,9 +28,11 @@ use super::paper::PaperResults;
 pub use comparison::{landmark_table, registration_table, silhouette_table};
 pub use latex::PaperTable;
 pub use layout::slug;
+pub use provenance::PROVENANCE;
 
 use super::config::StudyConfig;
 use super::figures::{self, Section};
+use super::identity::InputFile;
 use super::schema::{LandmarkRow, ProjectionRow, StudyTables};
 use super::timings::{RunFacts, TimingRow, to_markdown};
 use super::units::targets;
@@ -50,14 +53,14 @@ pub fn write(
     cfg: &StudyConfig,
     tables: &StudyTables,
     rows: &[TimingRow],
-    run: &RunFacts,
+    (run, inputs): (&RunFacts, &[InputFile]),
 ) -> Result<()> {
     let paper = PaperResults::embedded()?;
     let targets = targets(cfg);
     let first = targets.first().cloned().unwrap_or_default();
     let mut md = String::new();
     let _ = writeln!(md, "# spinedrr sensitivity study\n");
-    provenance(&mut md, out, cfg, run);
+    provenance::line(&mut md, out, cfg, (run, inputs))?;
     let _ = writeln!(
         md,
         "spinedrr {}. Targets: {}; views: {}; seed {}; detector binning {}; {} backend. The full \
@@ -176,34 +179,6 @@ configuration is `study.toml`.\n",
     timings_section(&mut md, rows, run);
     write_atomic_bytes(&out.join("report.md"), md.as_bytes())
 }
-
-/// The first line of the report after its title, starting with [`PROVENANCE`]: which build wrote it
-/// (version, commit), from which configuration (BLAKE3 of `study.toml`, which `b3sum` recomputes),
-/// when and with how many threads. Only the date and the thread count change between invocations that
-/// write the same tables.
-fn provenance(md: &mut String, out: &Path, cfg: &StudyConfig, run: &RunFacts) {
-    let config = std::fs::read(out.join("study.toml"))
-        .ok()
-        .or_else(|| toml::to_string(cfg).ok().map(String::into_bytes))
-        .map_or_else(
-            || "unknown".to_string(),
-            |b| blake3::hash(&b).to_hex().to_string(),
-        );
-    let _ = writeln!(
-        md,
-        "{PROVENANCE} spinedrr {} (git commit `{}`) from the configuration `study.toml` (BLAKE3 `{}`) \
-         on {} with {} thread{}.\n",
-        env!("CARGO_PKG_VERSION"),
-        env!("SPINEDRR_GIT_COMMIT"),
-        config,
-        humantime::format_rfc3339_seconds(std::time::SystemTime::now()),
-        run.threads,
-        if run.threads == 1 { "" } else { "s" }
-    );
-}
-
-/// How the report's provenance line starts.
-pub const PROVENANCE: &str = "**Provenance.** Written by";
 
 /// The paper's tables of the non-empty `tables` as `tables/<name>.tex` (booktabs).
 fn write_latex_tables(
