@@ -4,16 +4,17 @@
 //! exactly the files whose change reruns this script: a tree-wide `git status` let an edit to a file the
 //! binary is not built from (a test, the README) mark it `-dirty`, and the mark then outlived the
 //! edit's revert, since nothing the script watches had changed (a clean checkout's report called its
-//! binary dirty). The code digest that keys the phantom mesh cache is
-//! `spinedrr-core`'s (`core/build.rs`).
+//! binary dirty). Also records the build's code digest (`SPINEDRR_BUILD_DIGEST`, of every input above,
+//! the compiler and the profile; `core/code_digest.rs`), which keys a study's unit files; the digest that
+//! keys the phantom mesh cache is `spinedrr-core`'s (`core/build.rs`).
 
-use std::path::PathBuf;
-use std::process::Command;
+include!("core/code_digest.rs");
 
 /// What the library is built from; a change to any of it reruns this script.
-const INPUTS: [&str; 11] = [
+const INPUTS: [&str; 12] = [
     "src",
     "core/src",
+    "core/code_digest.rs",
     "sys",
     "cv",
     "assets",
@@ -50,6 +51,12 @@ fn main() {
         println!("cargo:rerun-if-changed={p}");
     }
     println!("cargo:rustc-env=SPINEDRR_GIT_COMMIT={commit}");
+    // What a study's unit files are keyed by besides their config and inputs: results of another build
+    // (another source, compiler or profile) are computed again, never reused.
+    println!(
+        "cargo:rustc-env=SPINEDRR_BUILD_DIGEST={}",
+        code_digest(&INPUTS)
+    );
     // Rerun when HEAD moves: HEAD itself (a checkout), a commit on any branch (the loose refs, a directory
     // cargo scans for changed files) and packed refs. Only paths that exist: cargo takes a missing file as
     // changed, so a checkout without packed refs (a fresh `git init`) or a branch whose ref was packed

@@ -2,77 +2,25 @@
 //! (`core/src/anatomy/phantom_cache.rs`). The git commit the report names is the `spinedrr` crate's (its
 //! `build.rs`).
 
-use std::hash::{DefaultHasher, Hasher};
-use std::path::{Path, PathBuf};
-use std::process::Command;
-
 /// What the code is built from (paths relative to this crate; the assets and the lock file are the
 /// workspace's); a change to any of it reruns this script.
-const INPUTS: [&str; 5] = [
+const INPUTS: [&str; 6] = [
     "src",
+    "code_digest.rs",
     "../assets",
     "Cargo.toml",
     "../Cargo.lock",
     "build.rs",
 ];
 
-fn files_under(p: &Path, out: &mut Vec<PathBuf>) {
-    if p.is_dir() {
-        let mut entries: Vec<PathBuf> = std::fs::read_dir(p)
-            .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
-            .unwrap_or_default();
-        entries.sort();
-        for e in entries {
-            files_under(&e, out);
-        }
-    } else if p.is_file() {
-        out.push(p.to_path_buf());
-    }
-}
-
-/// A 128-bit digest (two SipHash-1-3 streams, hex) of every input file's path and bytes, the compiler's
-/// version, the target and the profile's settings: equal digests mean the same code compiled the same
-/// way, so a result it built once may be reused. Not cryptographic; it guards against staleness, not
-/// against an adversary (the cache's entries also carry a BLAKE3 checksum).
-fn code_digest() -> String {
-    let mut files = Vec::new();
-    for p in INPUTS {
-        files_under(Path::new(p), &mut files);
-    }
-    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
-    let version = Command::new(rustc)
-        .arg("-vV")
-        .output()
-        .map(|o| o.stdout)
-        .unwrap_or_default();
-    let (mut a, mut b) = (DefaultHasher::new(), DefaultHasher::new());
-    b.write(b"second stream");
-    let mut feed = |bytes: &[u8]| {
-        for h in [&mut a, &mut b] {
-            h.write_usize(bytes.len());
-            h.write(bytes);
-        }
-    };
-    for f in &files {
-        feed(f.to_string_lossy().as_bytes());
-        feed(&std::fs::read(f).unwrap_or_default());
-    }
-    feed(&version);
-    for var in [
-        "TARGET",
-        "PROFILE",
-        "OPT_LEVEL",
-        "DEBUG",
-        "CARGO_ENCODED_RUSTFLAGS",
-    ] {
-        feed(std::env::var(var).unwrap_or_default().as_bytes());
-    }
-    format!("{:016x}{:016x}", a.finish(), b.finish())
-}
+include!("code_digest.rs");
 
 fn main() {
     for p in INPUTS {
         println!("cargo:rerun-if-changed={p}");
     }
-    println!("cargo:rustc-env=SPINEDRR_CODE_DIGEST={}", code_digest());
+    println!(
+        "cargo:rustc-env=SPINEDRR_CODE_DIGEST={}",
+        code_digest(&INPUTS)
+    );
 }

@@ -27,6 +27,61 @@ pub enum FolderPolicy {
 /// The product folders of a study.
 pub const PRODUCT_DIRS: [&str; 4] = ["units", "tables", "figures", experiments::REFERENCES_DIR];
 
+/// The report files a study writes at the top of its output folder (the report and its list of input
+/// files).
+const REPORT_FILES: [&str; 3] = ["report.md", "report.html", "inputs.csv"];
+
+/// Whether `name` (a file at the top of an output folder) is a study's timing table.
+fn is_timings(name: &str) -> bool {
+    name == "timings.csv" || (name.starts_with("timings-") && name.ends_with(".csv"))
+}
+
+/// Refuses an output folder that holds no study's record (`study.toml`) yet holds what a study writes —
+/// `report.md`, `report.html`, a timing table, or files in `units/`, `tables/`, `figures/`,
+/// `references/` — naming them: such files are someone's own, not a run this tool may resume or
+/// replace. A missing or empty folder, one with only other files (written beside, never over), or one
+/// whose product folders are empty (a run stopped before it recorded its config) passes. Called before
+/// anything is written into `out`.
+pub fn refuse_unowned_products(out: &Path) -> Result<()> {
+    if !out.is_dir() || out.join("study.toml").exists() {
+        return Ok(());
+    }
+    let mut found: Vec<String> = REPORT_FILES
+        .iter()
+        .filter(|n| out.join(n).exists())
+        .map(|n| n.to_string())
+        .collect();
+    if let Ok(entries) = std::fs::read_dir(out) {
+        found.extend(
+            entries
+                .flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| is_timings(n)),
+        );
+    }
+    for d in PRODUCT_DIRS {
+        let files = std::fs::read_dir(out.join(d))
+            .map(|es| es.flatten().filter(|e| !is_hidden(&e.path())).count())
+            .unwrap_or(0);
+        if files > 0 {
+            found.push(format!("{d}/ ({files} entries)"));
+        }
+    }
+    if found.is_empty() {
+        return Ok(());
+    }
+    found.sort();
+    Err(Error::invalid(
+        "--out",
+        format!(
+            "{} holds no study (no study.toml) but does hold what a study would write over: {}. Nothing \
+             was changed. Use a new or empty folder for --out",
+            out.display(),
+            found.join(", ")
+        ),
+    ))
+}
+
 /// Claims the output folder `out` (which must exist) for this process: takes its lock, checks (or, under
 /// [`FolderPolicy::StartOver`], clears) what another config left, creates the product folders and removes
 /// stale temporaries.
@@ -39,6 +94,18 @@ pub fn claim_folder(
 ) -> Result<OutputLock> {
     let lock = OutputLock::acquire(out)?;
     if let Some(previous) = foreign_config(out, toml) {
+        // A study creates units/ before it records its config: a study.toml without it is not a
+        // study's record (the user's own config, say), and --start-over deletes only a study's products.
+        if !out.join("units").is_dir() {
+            return Err(Error::invalid(
+                "--out",
+                format!(
+                    "{}/study.toml is not a study's record (no units/ folder beside it; your own config?): \
+                     a study writes its own study.toml there. Nothing was changed. Use another --out",
+                    out.display()
+                ),
+            ));
+        }
         match policy {
             FolderPolicy::Keep => return Err(another_config_error(out, &previous, toml)),
             FolderPolicy::StartOver => clear_foreign_products(out, units, ident)?,
@@ -147,8 +214,7 @@ fn clear_foreign_products(out: &Path, units: &[Unit], ident: &UnitIdentity) -> R
     let entries = std::fs::read_dir(out).map_err(|e| Error::io(out, e))?;
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let timings = name == "timings.csv" || name.starts_with("timings-shard-");
-        if (name.starts_with("report.") || timings) && e.path().is_file() {
+        if (REPORT_FILES.contains(&name.as_str()) || is_timings(&name)) && e.path().is_file() {
             std::fs::remove_file(e.path()).map_err(|err| Error::io(e.path(), err))?;
             removed.push(name);
         }

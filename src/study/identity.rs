@@ -1,7 +1,8 @@
 //! A unit's identity: the config it belongs to and the content of every input file it reads.
 //!
 //! A unit file (`units/<id>.json`) is reused only when its `fingerprint` equals [`UnitIdentity::of`] the
-//! unit: BLAKE3 over the config's fingerprint and the BLAKE3 digests of the unit's inputs — the geometry
+//! unit: BLAKE3 over the build's code digest ([`BUILD_DIGEST`]: a unit of another build is run again),
+//! the config's fingerprint and the BLAKE3 digests of the unit's inputs — the geometry
 //! file (every unit), its target's files (a mesh target's surfaces and landmarks; a CT target's CT, label
 //! map and landmarks, for each level and the segment), a calibration cell's phantom file. Replacing one
 //! input file therefore reruns exactly the units that read it, and a resumed study's tables equal a fresh
@@ -19,6 +20,11 @@ use serde::{Deserialize, Serialize};
 use super::config::StudyConfig;
 use super::units::Unit;
 use crate::{Error, Result};
+
+/// The digest of the code this binary was built from, with its compiler and profile (`build.rs`): a
+/// unit file written by another build is computed again, never reused, so a report never states a
+/// number its own build did not compute.
+pub const BUILD_DIGEST: &str = env!("SPINEDRR_BUILD_DIGEST");
 
 /// The digest cache's file name in the output folder.
 pub const DIGEST_CACHE: &str = ".input-digests.json";
@@ -192,8 +198,8 @@ impl UnitIdentity {
         }
     }
 
-    /// The fingerprint a unit file of `u` must carry: the config's when the unit reads no file, else
-    /// BLAKE3 over it and the unit's input digests (16 hex digits, as the config's).
+    /// The fingerprint a unit file of `u` must carry: BLAKE3 over the build's code digest, the config's
+    /// fingerprint and the unit's input digests (16 hex digits, as the config's).
     pub fn of(&self, u: &Unit) -> String {
         let mut inputs: Vec<&str> = self.common.iter().map(String::as_str).collect();
         let own = match u {
@@ -201,10 +207,7 @@ impl UnitIdentity {
             other => other.target().and_then(|t| self.targets.get(t)),
         };
         inputs.extend(own.into_iter().flatten().map(String::as_str));
-        if inputs.is_empty() {
-            return self.config_fp.clone();
-        }
-        let key = format!("{}\n{}", self.config_fp, inputs.join("\n"));
+        let key = format!("{BUILD_DIGEST}\n{}\n{}", self.config_fp, inputs.join("\n"));
         blake3::hash(key.as_bytes()).to_hex()[..16].to_string()
     }
 }

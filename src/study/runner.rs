@@ -19,7 +19,7 @@ use rayon::prelude::*;
 
 use super::config::StudyConfig;
 use super::experiments::{self, Context};
-use super::folder::{FolderPolicy, PRODUCT_DIRS, claim_folder};
+use super::folder::{FolderPolicy, PRODUCT_DIRS, claim_folder, refuse_unowned_products};
 use super::identity::UnitIdentity;
 pub use super::lock::{LOCK_FILE, OutputLock};
 use super::schema::StudyTables;
@@ -110,6 +110,7 @@ pub fn run_study(cfg: &StudyConfig, opts: &RunOptions) -> Result<RunSummary> {
     let timings = Arc::new(Timings::default());
     cfg.validate()?;
     let pool = thread_pool(opts.threads)?;
+    refuse_unowned_products(&opts.out)?;
     // A cohort's cases become CT entries (checked once, then cached in OUT/cohort/).
     let resolved = super::cohort::resolve(cfg, &opts.out)?;
     let cfg = &resolved;

@@ -218,6 +218,7 @@ pub fn prepare(cfg: &StudyConfig, out: &Path, o: &SlurmOptions) -> Result<SlurmP
     }
     check_script_path("--out", out)?;
     cfg.validate()?;
+    super::folder::refuse_unowned_products(out)?;
     // The cohort's cases are checked here, once, and the manifest cached for the shards.
     let cfg = &super::cohort::resolve(cfg, out)?;
     let units = enumerate_units(cfg)?;

@@ -91,6 +91,103 @@ fn a_folder_of_another_config_is_refused_and_cleared_only_on_start_over() {
     );
 }
 
+/// A folder that is not a study's is never written over: one holding a report, a timing table or files
+/// in a product folder but no study.toml is refused (a run, `--assemble`, `--slurm`, `--start-over`
+/// alike) naming what it holds; a folder whose study.toml is the user's own config (no units/ beside
+/// it) is refused even with `--start-over`; and a folder with only other files gets the study beside
+/// them, every one of them untouched.
+#[test]
+fn a_folder_that_is_not_a_study_is_never_written_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write(dir.path(), "c.toml", SMALL);
+    let mine = dir.path().join("mine");
+    std::fs::create_dir_all(mine.join("tables")).unwrap();
+    std::fs::write(mine.join("report.md"), "my notes").unwrap();
+    std::fs::write(mine.join("tables/projection.csv"), "a,b\n").unwrap();
+    std::fs::write(mine.join("report.docx"), "my report").unwrap();
+    let snapshot = tree(&mine);
+    let abs = std::path::absolute(&mine).unwrap();
+    for extra in [&[][..], &["--assemble"], &["--slurm"], &["--start-over"]] {
+        let out = if extra == ["--slurm"] { &abs } else { &mine };
+        refused(
+            &study(&cfg, out, extra),
+            &[
+                "holds no study (no study.toml)",
+                "report.md",
+                "tables/ (1 entries)",
+            ],
+        );
+        assert_eq!(tree(&mine), snapshot, "{extra:?} changed the folder");
+    }
+    // The user's own config as study.toml, beside their files: refused, --start-over too.
+    let project = dir.path().join("project");
+    std::fs::create_dir_all(project.join("figures")).unwrap();
+    std::fs::write(
+        project.join("study.toml"),
+        format!("# my comments\n{SMALL}"),
+    )
+    .unwrap();
+    std::fs::write(project.join("figures/plot.png"), "png").unwrap();
+    let snapshot = tree(&project);
+    for extra in [&[][..], &["--start-over"]] {
+        refused(
+            &study(&cfg, &project, extra),
+            &["is not a study's record (no units/ folder beside it"],
+        );
+        assert_eq!(
+            tree(&project),
+            snapshot,
+            "{extra:?} changed the project folder"
+        );
+    }
+    // Only other files: the study runs beside them.
+    let notes = dir.path().join("notes");
+    std::fs::create_dir_all(&notes).unwrap();
+    std::fs::write(notes.join("readme.txt"), "keep me").unwrap();
+    let (ok, err) = outcome(&study(&cfg, &notes, &[]));
+    assert!(ok, "{err}");
+    assert_eq!(
+        std::fs::read_to_string(notes.join("readme.txt")).unwrap(),
+        "keep me"
+    );
+    assert!(notes.join("report.md").is_file());
+}
+
+/// Unit files another build wrote are run again, never reused: a folder whose units carry the
+/// fingerprint the previous release gave them (the config's alone, for a unit that reads no file) is
+/// resumed by running every unit, and the tables equal a fresh run's. Without this, a report would
+/// name this build in its provenance while stating numbers an older one computed.
+#[test]
+fn units_of_another_build_are_run_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write(dir.path(), "c.toml", SMALL);
+    let out = dir.path().join("out");
+    let (ok, err) = outcome(&study(&cfg, &out, &[]));
+    assert!(ok, "{err}");
+    let fresh = tables(&out);
+    let recorded = std::fs::read_to_string(out.join("study.toml")).unwrap();
+    let config = spinedrr::study::StudyConfig::from_toml_str(&recorded, "study.toml").unwrap();
+    let old = spinedrr::study::runner::fingerprint(&config).unwrap();
+    let mut n = 0;
+    for e in std::fs::read_dir(out.join("units")).unwrap() {
+        let p = e.unwrap().path();
+        let mut unit: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+        assert_ne!(
+            unit["fingerprint"], old,
+            "this build's fingerprint is the bare config's"
+        );
+        unit["fingerprint"] = serde_json::Value::String(old.clone());
+        std::fs::write(&p, serde_json::to_string(&unit).unwrap()).unwrap();
+        n += 1;
+    }
+    assert!(n > 0);
+    let (ok, err) = outcome(&study(&cfg, &out, &[]));
+    assert!(ok, "{err}");
+    assert!(err.contains(&format!("(0 reused, {n} run)")), "{err}");
+    assert_eq!(tables(&out), fresh);
+}
+
 /// Every file under `dir` (relative path) with its bytes and modification time.
 fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>, std::time::SystemTime)> {
     let mut out = Vec::new();

@@ -92,13 +92,13 @@ fn mesh_target_study_obeys_the_homography_law() {
     let o = run_study(&cfg_path, &out, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     // The provenance names each input file by its BLAKE3 digest (as b3sum computes it), and
-    // tables/inputs.csv lists them with their paths and sizes.
+    // inputs.csv beside the report lists them with their paths and sizes.
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     let line = md
         .lines()
         .find(|l| l.starts_with(spinedrr::study::report::PROVENANCE))
         .expect("provenance");
-    let csv = std::fs::read_to_string(out.join("tables/inputs.csv")).unwrap();
+    let csv = std::fs::read_to_string(out.join("inputs.csv")).unwrap();
     assert!(csv.starts_with("file,bytes,blake3\n"), "{csv}");
     assert_eq!(csv.lines().count(), 3, "{csv}");
     for name in ["box.stl", "box-landmarks.json"] {

@@ -66,8 +66,7 @@ fn quick_study_writes_every_table_figure_and_report() {
         "landmark_shift_vs_df.png".into(),
         "landmark_overlay_L1_ap.png".into(),
         "landmark_overlay_L1_lat.png".into(),
-        "structures_dice_L1_ap.png".into(),
-        "structures_dice_L1_lat.png".into(),
+        "structures_dice_L1.png".into(),
     ];
     for v in ["ap", "lat"] {
         for df in [100, 500] {

@@ -377,7 +377,7 @@ fn the_report_states_its_provenance() {
         )),
         "{line}"
     );
-    assert!(!quick_out().join("tables/inputs.csv").exists());
+    assert!(!quick_out().join("inputs.csv").exists());
     let date = line
         .split(" on ")
         .nth(1)

@@ -229,22 +229,28 @@ pub(super) fn share_view_scales(panels: &mut [Panel]) {
     let keys: Vec<String> = panels.iter().map(|p| view_free(&p.title)).collect();
     for key in &keys {
         let group: Vec<usize> = (0..panels.len()).filter(|&i| keys[i] == *key).collect();
-        if group.len() < 2 {
-            continue;
+        share_y(panels, &group);
+    }
+}
+
+/// Draws the panels `group` (indices into `panels`) at one y scale, the union of their data's (points,
+/// whiskers, bands and marks), so that values compare by eye across them.
+pub(super) fn share_y(panels: &mut [Panel], group: &[usize]) {
+    if group.len() < 2 {
+        return;
+    }
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for &i in group {
+        let (x0, x1, y0, y1) = extents(&panels[i].series, &panels[i].marks);
+        if x0 <= x1 {
+            (lo, hi) = (lo.min(y0), hi.max(y1));
         }
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for &i in &group {
-            let (x0, x1, y0, y1) = extents(&panels[i].series, &panels[i].marks);
-            if x0 <= x1 {
-                (lo, hi) = (lo.min(y0), hi.max(y1));
-            }
-        }
-        if lo <= hi {
-            for &i in &group {
-                let extent = Mark::Extent { lo, hi };
-                if !panels[i].marks.contains(&extent) {
-                    panels[i].marks.push(extent);
-                }
+    }
+    if lo <= hi {
+        for &i in group {
+            let extent = Mark::Extent { lo, hi };
+            if !panels[i].marks.contains(&extent) {
+                panels[i].marks.push(extent);
             }
         }
     }

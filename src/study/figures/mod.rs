@@ -298,7 +298,8 @@ pub(crate) fn distinct<T: PartialEq + Clone>(values: impl IntoIterator<Item = T>
     v
 }
 
-/// Per-structure Dice vs Δf (focal family), one figure per (target, view).
+/// Per-structure Dice vs Δf (focal family), one figure per target with a panel per view (the views at
+/// one y scale, a structure in one colour in every panel).
 fn structure_figures(
     rows: &[StructureRow],
     figs: &Path,
@@ -308,24 +309,50 @@ fn structure_figures(
     let targets = distinct(rows.iter().map(|r| r.target.as_str()));
     let views = distinct(rows.iter().map(|r| r.view.as_str()));
     for target in &targets {
-        for v in &views {
-            let keep =
-                |r: &StructureRow| r.target == *target && r.view == *v && r.family == Family::Focal;
-            let s = grouped(rows, keep, |r| r.structure.clone(), |r| (r.df_px, r.dice));
-            if s.is_empty() {
-                continue;
-            }
-            let file = format!("structures_dice_{target}_{v}.png");
-            let title = format!("Per-structure Dice vs focal offset ({target}, {v})");
-            line_chart(&figs.join(&file), &title, "focal offset Δf (px)", "Dice", s)?;
-            entries.push(conditions.entry(
-                Section::Projection,
-                &file,
-                &title,
-                "a line per anatomical structure, focal family",
-                false,
-            ));
+        let mine = |r: &StructureRow| r.target == *target && r.family == Family::Focal;
+        let mut names = distinct(rows.iter().filter(|r| mine(r)).map(|r| r.structure.clone()));
+        names.sort();
+        let panels: Vec<Panel> = views
+            .iter()
+            .map(|v| Panel {
+                title: v.to_uppercase(),
+                series: grouped(
+                    rows,
+                    |r| mine(r) && r.view == *v,
+                    |r| r.structure.clone(),
+                    |r| (r.df_px, r.dice),
+                )
+                .into_iter()
+                .map(|s| {
+                    let colour = names.iter().position(|n| *n == s.label).unwrap_or(0);
+                    s.styled(colour, false)
+                })
+                .collect(),
+                marks: Vec::new(),
+            })
+            .filter(|p| !p.series.is_empty())
+            .collect();
+        if panels.is_empty() {
+            continue;
         }
+        let file = format!("structures_dice_{target}.png");
+        let title = format!("Per-structure Dice vs focal offset ({target})");
+        let cols = panels.len();
+        panel_chart(
+            &figs.join(&file),
+            &title,
+            "focal offset Δf (px)",
+            "Dice",
+            panels,
+            cols,
+        )?;
+        entries.push(conditions.entry(
+            Section::Projection,
+            &file,
+            &title,
+            "a panel per view, the views at one y scale, a line per anatomical structure, focal family",
+            false,
+        ));
     }
     Ok(entries)
 }
@@ -381,7 +408,7 @@ mod tests {
         (lm, st)
     }
 
-    /// Every target gets its own landmark overlays and per-structure figures, one per view.
+    /// Every target gets its own landmark overlays (one per view) and per-structure figure.
     #[test]
     fn overlays_and_structure_figures_for_every_target() {
         let dir = tempfile::tempdir().expect("temp dir");
@@ -391,15 +418,13 @@ mod tests {
         let conditions = composed::Conditions::of(&StudyConfig::default(), &tables);
         structure_figures(&st, dir.path(), &conditions).expect("structure figures");
         for target in ["L1", "segment"] {
+            let mut files = vec![format!("structures_dice_{target}.png")];
             for view in ["ap", "lat"] {
-                for f in [
-                    format!("landmark_overlay_{target}_{view}.png"),
-                    format!("structures_dice_{target}_{view}.png"),
-                ] {
-                    let img =
-                        image::open(dir.path().join(&f)).unwrap_or_else(|e| panic!("{f}: {e}"));
-                    assert!(img.width() > 100, "{f}");
-                }
+                files.push(format!("landmark_overlay_{target}_{view}.png"));
+            }
+            for f in files {
+                let img = image::open(dir.path().join(&f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+                assert!(img.width() > 100, "{f}");
             }
         }
     }

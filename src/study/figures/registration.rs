@@ -141,6 +141,10 @@ pub fn paper_figures(
                 panels.push(p);
             }
         }
+        // Kabsch beside direct AP+LAT is the comparison: each row (quantity) at one y scale.
+        for row in [[0, 1], [2, 3]] {
+            super::charts::share_y(&mut panels, &row);
+        }
         let title =
             format!("{target}: registration error vs focal offset, mean and 95 % CI over trials");
         let fig = PanelChart {

@@ -1,6 +1,7 @@
 //! The report's provenance line — which build wrote it, from which configuration and which input files
 //! (each by its BLAKE3 digest, which `b3sum` recomputes), when and with how many threads — and
-//! `tables/inputs.csv`, the input files one per row.
+//! `inputs.csv` beside the report, the input files one per row (not among the result tables: two runs
+//! of one config on inputs in other places have equal tables).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -16,7 +17,7 @@ use crate::{Error, Result};
 /// How the report's provenance line starts.
 pub const PROVENANCE: &str = "**Provenance.** Written by";
 
-/// The table of input files, in `tables/`.
+/// The table of input files, beside the report.
 pub const INPUTS_CSV: &str = "inputs.csv";
 
 /// Input files named one by one in the provenance line; more are counted (all are in the CSV).
@@ -30,7 +31,7 @@ struct InputRow<'a> {
 }
 
 /// Writes the first line of the report after its title, starting with [`PROVENANCE`], and (when the
-/// config reads any file) `tables/inputs.csv`. Two runs whose configuration and input files have the
+/// config reads any file) `inputs.csv`. Two runs whose configuration and input files have the
 /// same digests wrote the same tables; only the date and the thread count differ between them.
 pub fn line(
     md: &mut String,
@@ -54,7 +55,7 @@ pub fn line(
     let files = match inputs {
         [] => " and no input file (built-in anatomy and geometry)".to_string(),
         few if few.len() <= NAMED_MAX => format!(
-            " and its input file{} {} (all in `tables/{INPUTS_CSV}` with their paths and sizes)",
+            " and its input file{} {} (all in [{INPUTS_CSV}]({INPUTS_CSV}) with their paths and sizes)",
             if few.len() == 1 { "" } else { "s" },
             few.iter()
                 .map(|f| format!("`{}` (BLAKE3 `{}`)", name(f), f.blake3))
@@ -62,8 +63,7 @@ pub fn line(
                 .join(", ")
         ),
         many => format!(
-            " and its {} input files (each with its path, size and BLAKE3 digest in \
-             `tables/{INPUTS_CSV}`)",
+            " and its {} input files (each with its path, size and BLAKE3 digest in [{INPUTS_CSV}]({INPUTS_CSV}))",
             many.len()
         ),
     };
@@ -84,12 +84,15 @@ pub fn line(
     let mut w = csv::Writer::from_writer(Vec::new());
     for f in inputs {
         w.serialize(InputRow {
-            file: f.path.display().to_string(),
+            file: std::path::absolute(&f.path)
+                .unwrap_or_else(|_| f.path.clone())
+                .display()
+                .to_string(),
             bytes: f.bytes,
             blake3: &f.blake3,
         })
         .map_err(|e| Error::encode(INPUTS_CSV, e))?;
     }
     let bytes = w.into_inner().map_err(|e| Error::encode(INPUTS_CSV, e))?;
-    write_atomic_bytes(&out.join("tables").join(INPUTS_CSV), &bytes)
+    write_atomic_bytes(&out.join(INPUTS_CSV), &bytes)
 }

@@ -305,13 +305,8 @@ pub fn structures(x: &Inputs) -> Option<Finding> {
     let bottom: Vec<usize> = (0..loss.len())
         .filter(|&i| tied(loss[i].1, least))
         .collect();
-    let view = t
-        .select(&at)
-        .first()
-        .and_then(|&i| t.rows[i].get("view").cloned())
-        .unwrap_or_else(|| "ap".into());
     let first = targets.first()?.clone();
-    let fig = format!("structures_dice_{first}_{view}.png");
+    let fig = format!("structures_dice_{first}.png");
     let df_text = format!(
         "{top} px{}",
         in_mm(&mut f, x, "structures.df_mm", df, Mm::Sdd)
