@@ -90,7 +90,14 @@ pub fn write(figs: &Path, rows: &[CohortRow], cases: usize) -> Result<Vec<Figure
             vec![panel],
             1,
         )?;
-        entries.push(entry(AP_LAT, title, "a line per view, focal family", cases));
+        entries.push(entry(
+            AP_LAT,
+            title,
+            "a line per view, focal family, each target's mean shift over its landmarks (the LAT/AP \
+             ratio in the text is of RMS shifts on each level's fixed landmark set, as in the Findings' \
+             table)",
+            cases,
+        ));
     }
     let panels: Vec<Panel> = views
         .iter()
