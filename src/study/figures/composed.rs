@@ -233,8 +233,9 @@ size; scale bar in {})",
         let title = format!("{target}: registration error, Kabsch beside direct AP+LAT");
         let what = format!(
             "rotation (top) and translation (bottom) error of the recovered pose vs the focal offset Δf, \
-Kabsch and direct AP+LAT at one y scale in each row, a line per piercing shift (p, p), mean over {}, whiskers the 95 % confidence interval of the mean \
-where trials vary; grey bands are the paper's reported ranges",
+Kabsch and direct AP+LAT at one y scale in each row, a line per piercing shift (p, p), mean over {}, \
+whiskers the 95 % confidence interval of the mean where trials vary; grey bands are the paper's reported \
+ranges",
             c.trials
         );
         let file = format!("registration_paper_{target}.png");

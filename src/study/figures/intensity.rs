@@ -138,7 +138,8 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
             &file,
             &title,
             &format!(
-                "monochromatic fixed images; a panel per view set (AP and LAT at one y scale, AP+LAT at its own); per piercing shift the mTRE of the intensity optimum (registration \
+                "monochromatic fixed images; a panel per view set (AP and LAT at one y scale, AP+LAT at \
+                 its own); per piercing shift the mTRE of the intensity optimum (registration \
                  started at the truth), the median final mTRE over {trials} starts, the mTRE of the \
                  landmark registration under the same assumed K, and the mTRE between the two optima \
                  (equal biases can be different poses); the physical errors are in the table, not on \

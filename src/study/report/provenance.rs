@@ -63,7 +63,8 @@ pub fn line(
                 .join(", ")
         ),
         many => format!(
-            " and its {} input files (each with its path, size and BLAKE3 digest in [{INPUTS_CSV}]({INPUTS_CSV}))",
+            " and its {} input files (each with its path, size and BLAKE3 digest in \
+             [{INPUTS_CSV}]({INPUTS_CSV}))",
             many.len()
         ),
     };
