@@ -9,7 +9,7 @@ import statistics
 
 import pytest
 
-from test_findings import Study, percentile, small_study
+from test_findings import Study, fixed_landmarks, percentile, small_study
 
 COHORT = """experiments = ["projection", "landmarks", "registration"]
 heatmaps_df_px = []
@@ -69,23 +69,17 @@ def section(study: Study) -> str:
 
 
 def lat_ap_ratios(study: Study) -> dict:
-    """Per level target: LAT/AP of the RMS shift at its largest focal Δf over the landmarks measured in both
-    views at every focal Δf (the report's fixed set)."""
+    """Per level target: LAT/AP of the RMS shift at its largest focal Δf over its fixed landmark set."""
     rows = [r for r in study.table("landmarks.csv") if r["family"] == "focal"]
     out = {}
     for target in {r["target"] for r in rows}:
-        mine = [r for r in rows if r["target"] == target]
-        dfs = {float(r["df_px"]) for r in mine}
-        finite = {(r["view"], float(r["df_px"]), r["landmark"]) for r in mine
-                  if all(r[k] not in ("", "NaN", "nan") for k in ("ref_u_px", "ref_v_px", "meas_u_px",
-                                                                  "meas_v_px", "shift_px"))}
-        fixed = {r["landmark"] for r in mine
-                 if all((v, d, r["landmark"]) in finite for v in ("ap", "lat") for d in dfs)}
-        df = max(dfs)
+        fixed = fixed_landmarks(rows, target)
+        df = max(float(r["df_px"]) for r in rows if r["target"] == target)
 
         def rms(view):
-            s = [float(r["shift_px"]) ** 2 for r in mine
-                 if r["view"] == view and float(r["df_px"]) == df and r["landmark"] in fixed]
+            s = [float(r["shift_px"]) ** 2 for r in rows
+                 if r["target"] == target and r["view"] == view and float(r["df_px"]) == df
+                 and r["landmark"] in fixed]
             return (sum(s) / len(s)) ** 0.5
 
         out[target] = rms("lat") / rms("ap")

@@ -247,6 +247,23 @@ def cut_targets(study: Study) -> set:
     return cut
 
 
+def fixed_landmarks(focal: list, target: str) -> list:
+    """The report's fixed landmark set of `target`: the landmarks measured (every coordinate and the shift
+    finite) in both views at every focal Δf of the focal rows `focal`."""
+    mine = [r for r in focal if r["target"] == target]
+    dfs = {r["df_px"] for r in mine}
+    ok = lambda r: all(math.isfinite(float(r[k])) for k in ("ref_u_px", "ref_v_px", "meas_u_px", "meas_v_px", "shift_px"))
+    return sorted(
+        name
+        for name in {r["landmark"] for r in mine}
+        if all(
+            any(r["view"] == v and r["df_px"] == d and r["landmark"] == name and ok(r) for r in mine)
+            for v in ("ap", "lat")
+            for d in dfs
+        )
+    )
+
+
 def check_rules(study: Study):
     """The report's rules, recomputed from the tables."""
     by_id = {f["id"]: f for f in study.findings}
@@ -293,20 +310,9 @@ def check_rules(study: Study):
             if not m:
                 continue
             target = m.group(1)
-            mine = [r for r in focal if r["target"] == target]
-            dfs = {r["df_px"] for r in mine}
-            ok = lambda r: all(math.isfinite(float(r[k])) for k in ("ref_u_px", "ref_v_px", "meas_u_px", "meas_v_px", "shift_px"))
-            fixed = sorted(
-                name
-                for name in {r["landmark"] for r in mine}
-                if all(
-                    any(r["view"] == v and r["df_px"] == d and r["landmark"] == name and ok(r) for r in mine)
-                    for v in ("ap", "lat")
-                    for d in dfs
-                )
-            )
+            dfs = {r["df_px"] for r in focal if r["target"] == target}
             w = c["source"]["where"]
-            assert sorted(w["landmark"]) == fixed, f"{c['id']}: not the fixed landmark set"
+            assert sorted(w["landmark"]) == fixed_landmarks(focal, target), f"{c['id']}: not the fixed landmark set"
             assert float(w["df_px"][0]) == max(map(float, dfs)), f"{c['id']}: not the largest focal Δf"
 
 

@@ -29,7 +29,7 @@ pub const PRODUCT_DIRS: [&str; 4] = ["units", "tables", "figures", experiments::
 
 /// The report files a study writes at the top of its output folder (the report and its list of input
 /// files).
-const REPORT_FILES: [&str; 3] = ["report.md", "report.html", "inputs.csv"];
+const REPORT_FILES: [&str; 3] = ["report.md", "report.html", super::report::INPUTS_CSV];
 
 /// Whether `name` (a file at the top of an output folder) is a study's timing table.
 fn is_timings(name: &str) -> bool {
@@ -46,19 +46,14 @@ pub fn refuse_unowned_products(out: &Path) -> Result<()> {
     if !out.is_dir() || out.join("study.toml").exists() {
         return Ok(());
     }
-    let mut found: Vec<String> = REPORT_FILES
-        .iter()
-        .filter(|n| out.join(n).exists())
-        .map(|n| n.to_string())
-        .collect();
-    if let Ok(entries) = std::fs::read_dir(out) {
-        found.extend(
-            entries
-                .flatten()
+    let mut found: Vec<String> = std::fs::read_dir(out)
+        .map(|es| {
+            es.flatten()
                 .map(|e| e.file_name().to_string_lossy().into_owned())
-                .filter(|n| is_timings(n)),
-        );
-    }
+                .filter(|n| REPORT_FILES.contains(&n.as_str()) || is_timings(n))
+                .collect()
+        })
+        .unwrap_or_default();
     for d in PRODUCT_DIRS {
         let files = std::fs::read_dir(out.join(d))
             .map(|es| es.flatten().filter(|e| !is_hidden(&e.path())).count())

@@ -227,7 +227,7 @@ fn view_free(title: &str) -> String {
 /// their values; every other panel keeps its own scale.
 pub(super) fn share_view_scales(panels: &mut [Panel]) {
     let keys: Vec<String> = panels.iter().map(|p| view_free(&p.title)).collect();
-    for key in &keys {
+    for key in super::distinct(keys.iter()) {
         let group: Vec<usize> = (0..panels.len()).filter(|&i| keys[i] == *key).collect();
         share_y(panels, &group);
     }
@@ -248,10 +248,7 @@ pub(super) fn share_y(panels: &mut [Panel], group: &[usize]) {
     }
     if lo <= hi {
         for &i in group {
-            let extent = Mark::Extent { lo, hi };
-            if !panels[i].marks.contains(&extent) {
-                panels[i].marks.push(extent);
-            }
+            panels[i].marks.push(Mark::Extent { lo, hi });
         }
     }
 }

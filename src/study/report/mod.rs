@@ -28,7 +28,7 @@ use super::paper::PaperResults;
 pub use comparison::{landmark_table, registration_table, silhouette_table};
 pub use latex::PaperTable;
 pub use layout::slug;
-pub use provenance::PROVENANCE;
+pub use provenance::{INPUTS_CSV, PROVENANCE};
 
 use super::config::StudyConfig;
 use super::figures::{self, Section};
