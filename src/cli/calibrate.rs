@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use spinedrr::calibration::output::{
-    CalibrateRequest, MethodChoice, product_paths, run_request, write_outcome,
+    CalibrateRequest, MethodChoice, check_outcome_paths, product_paths, run_request, write_outcome,
 };
 use spinedrr::calibration::{CalibrationPhantom, Detection, SetupOptions};
 use spinedrr::geometry::CArm;
@@ -50,7 +50,8 @@ pub struct Args {
     /// Master seed (trial i draws from a seed derived from it).
     #[arg(long, default_value_t = 0, value_parser = super::values::whole::<u64>)]
     seed: u64,
-    /// Output folder (created; calibrations.csv and phantom.json are replaced atomically).
+    /// Output folder (created; calibrations.csv and phantom.json are replaced atomically, and only when
+    /// spinedrr wrote them: another file of either name is refused).
     #[arg(long)]
     out: PathBuf,
     /// No progress bar.
@@ -71,6 +72,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         None => CArm::default_paper(),
     };
+    // Before the trials: a folder holding someone else's files is refused at once.
+    check_outcome_paths(&a.out)?;
     let req = CalibrateRequest {
         method: match a.method.as_str() {
             "zhang" => MethodChoice::Zhang,

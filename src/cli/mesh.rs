@@ -46,7 +46,8 @@ pub struct Args {
     /// articular), split from the surface's automatic landmark frame. PLY and OBJ keep the labels.
     #[arg(long)]
     structures: bool,
-    /// Output mesh (`.stl`, `.obj` or `.ply`).
+    /// Output mesh (`.stl`, `.obj` or `.ply`). An existing file there, or at the landmarks output, is
+    /// replaced only if spinedrr wrote it (its header or `tool` says so); any other is refused, nothing written.
     #[arg(long)]
     out: PathBuf,
 }
@@ -110,6 +111,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     check_spares_inputs(&outputs, &[("the --seg file".to_string(), a.seg.clone())])?;
+    spinedrr::io::check_ours(&a.out)?;
+    if let Some((p, _)) = &lm_out {
+        spinedrr::io::check_ours_landmarks(p)?;
+    }
     if a.smooth > MAX_SMOOTH_ITERATIONS {
         bail!(
             "--smooth {}: more than the limit of {MAX_SMOOTH_ITERATIONS} Taubin iterations",

@@ -16,7 +16,9 @@ pub struct Args {
     /// Levels: a range `L1-L5`, one level `L3` or a list `L1,L3`.
     #[arg(long, default_value = "L1-L5")]
     levels: String,
-    /// Output directory (created if missing).
+    /// Output directory (created if missing). A file of the same name already there is replaced only if
+    /// spinedrr wrote it (the meshes' headers and the landmarks' `tool` say so); any other is refused by
+    /// name before anything is written. The same holds for --ct and --labels-out.
     #[arg(long)]
     out: PathBuf,
     /// Mesh file format.
@@ -99,9 +101,8 @@ enum Format {
     Ply,
 }
 
-fn write_one(dir: &Path, stem: &str, mesh: &TriMesh, format: MeshFormat) -> anyhow::Result<()> {
-    let path = dir.join(format!("{stem}.{}", format.extension()));
-    write_mesh_as(&path, mesh, format)
+fn write_one(path: &Path, mesh: &TriMesh, format: MeshFormat) -> anyhow::Result<()> {
+    write_mesh_as(path, mesh, format)
         .with_context(|| format!("writing mesh {}", path.display()))?;
     let chk = mesh.check();
     eprintln!(
@@ -149,27 +150,28 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     spinedrr::io::create_output_dir(&a.out, "--out")?;
     let phantom = build_phantom(&opts).context("building the phantom")?;
+    let mut meshes: Vec<(String, &TriMesh)> = Vec::new();
     for v in &phantom.vertebrae {
-        write_one(
-            &a.out,
-            &format!("{}_cortical", v.level),
-            &v.cortical,
-            format,
-        )?;
-        write_one(
-            &a.out,
-            &format!("{}_cancellous", v.level),
-            &v.cancellous,
-            format,
-        )?;
+        meshes.push((format!("{}_cortical", v.level), &v.cortical));
+        meshes.push((format!("{}_cancellous", v.level), &v.cancellous));
     }
-    for d in &phantom.discs {
-        write_one(&a.out, &d.name, d, format)?;
-    }
-    if let Some(s) = &phantom.soft_tissue {
-        write_one(&a.out, "soft_tissue", s, format)?;
-    }
+    meshes.extend(phantom.discs.iter().map(|d| (d.name.clone(), d)));
+    meshes.extend(
+        phantom
+            .soft_tissue
+            .iter()
+            .map(|s| ("soft_tissue".to_string(), s)),
+    );
+    let mesh_path = |stem: &str| a.out.join(format!("{stem}.{}", format.extension()));
+    // Every file this run writes, checked before the first is: one already there must be spinedrr's.
     let lm = a.out.join("landmarks.json");
+    let mut outputs: Vec<PathBuf> = meshes.iter().map(|(stem, _)| mesh_path(stem)).collect();
+    outputs.extend(a.ct.iter().chain(&a.labels_out).cloned());
+    spinedrr::io::check_output_paths(&outputs)?;
+    spinedrr::io::check_ours_landmarks(&lm)?;
+    for (stem, mesh) in &meshes {
+        write_one(&mesh_path(stem), mesh, format)?;
+    }
     write_landmarks(&lm, &phantom.landmarks())
         .with_context(|| format!("writing {}", lm.display()))?;
     eprintln!("landmarks.json         {} levels", phantom.vertebrae.len());

@@ -45,7 +45,8 @@ pub struct Args {
     /// Iteration cap of the direct solver.
     #[arg(long, default_value_t = 100, value_parser = super::values::whole::<usize>)]
     max_iterations: usize,
-    /// Output JSON: {"R", "t", "residual_px", "iterations", "converged"} (+ errors when truth is known).
+    /// Output JSON: {"R", "t", "residual_px", "iterations", "converged", "tool"} (+ errors when truth is
+    /// known). An existing file there is replaced only if spinedrr wrote it (its `tool`); any other is refused.
     #[arg(long)]
     out: PathBuf,
     /// Accept a solve that did not converge: still warn on stderr, but exit 0. Without it a
@@ -66,6 +67,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &[("--out".to_string(), a.out.clone())],
         &[("the --problem file".to_string(), a.problem.clone())],
     )?;
+    spinedrr::io::check_ours(&a.out)?;
     if a.intensity {
         return run_intensity(&a);
     }

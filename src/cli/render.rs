@@ -123,7 +123,9 @@ pub struct Args {
     ct: super::render_ct::CtArgs,
     #[command(flatten)]
     spectral: super::render_spectral::SpectralArgs,
-    /// Output image (.tiff or .tif); the sidecar and preview are written beside it.
+    /// Output image (.tiff or .tif); the sidecar and preview are written beside it. A file already at any
+    /// of these names is replaced only if spinedrr wrote it (a sidecar of spinedrr's, or an image beside
+    /// one); any other (your own `OUT.png`, a TIFF without a sidecar) is refused before anything is written.
     #[arg(long, value_name = "OUT.tiff")]
     out: PathBuf,
 }
@@ -202,7 +204,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
     }
     // The files every render writes, checked before the (possibly long) render: none may be one of the
-    // render's inputs, and an existing JSON there must be a spinedrr sidecar.
+    // render's inputs, and a file already there must be one spinedrr wrote (spinedrr::io::check_ours).
     let set = drr_set_paths(&a.out, &[], a.depth);
     let outputs: Vec<(String, PathBuf)> = set
         .iter()

@@ -8,7 +8,7 @@
 #![allow(dead_code)]
 
 use std::ffi::OsStr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus, Output};
 
 /// The phantom mesh cache of every `spinedrr` the tests run (`SPINEDRR_CACHE_DIR`), inside the build's
@@ -290,4 +290,32 @@ pub fn view_from(target: glam::DVec3, offset: glam::DVec3, n: u32) -> spinedrr::
         k,
         spinedrr::geometry::RigidTransform::look_at(target + offset, target, up).unwrap(),
     )
+}
+
+/// Every file directly in `dir` with its bytes.
+pub fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut v: Vec<(PathBuf, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .map(|p| {
+            let b = std::fs::read(&p).unwrap();
+            (p, b)
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// Runs `args`, expects a refusal without a panic naming every one of `needles`, and that `dir` is
+/// unchanged.
+pub fn refused_untouched(dir: &Path, args: &[String], needles: &[&str]) {
+    let before = snapshot(dir);
+    let (ok, err) = run(args);
+    assert!(!ok, "accepted: {args:?}");
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks {n:?}: {err}");
+    }
+    assert_eq!(snapshot(dir), before, "{args:?} changed the folder");
 }

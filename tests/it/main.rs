@@ -30,6 +30,7 @@ mod meshing_decimate;
 mod meshing_landmarks;
 mod nifti_io;
 mod output_sets;
+mod outputs_only_ours;
 mod outputs_spare_inputs;
 mod phantom_cache;
 mod phantom_morphometry;

@@ -48,10 +48,12 @@ fn a_render_that_cannot_write_its_set_leaves_the_old_set_intact() {
         .map(|f| d.path().join(f))
         .map(|p| (p.clone(), std::fs::read(&p).unwrap()))
         .collect();
-    // The sidecar's path blocked by a folder; and a mask's.
+    // The sidecar's path blocked by a folder; and a mask's. Each blocked file is put back afterwards
+    // (the image beside a missing sidecar would be refused as not spinedrr's before the mask is reached).
     for blocked in ["o.json", "o_mask_c.json"] {
         let b = d.path().join(blocked);
-        let _ = std::fs::remove_file(&b);
+        let saved = std::fs::read(&b).unwrap();
+        std::fs::remove_file(&b).unwrap();
         std::fs::create_dir(&b).unwrap();
         let args = [
             "render",
@@ -71,6 +73,7 @@ fn a_render_that_cannot_write_its_set_leaves_the_old_set_intact() {
         }
         assert!(temporaries(d.path()).is_empty());
         std::fs::remove_dir(&b).unwrap();
+        std::fs::write(&b, saved).unwrap();
     }
 }
 

@@ -2,40 +2,12 @@
 //! binary, one case per command (`mesh`, `register`, `compare`, `render`), each refused naming the output
 //! and the input, with every file left byte for byte as it was.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use crate::common::run;
+use crate::common::{refused_untouched, run};
 
 fn s(p: &Path) -> String {
     p.display().to_string()
-}
-
-/// Every file under `dir` with its bytes.
-fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut v: Vec<(PathBuf, Vec<u8>)> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.is_file())
-        .map(|p| {
-            let b = std::fs::read(&p).unwrap();
-            (p, b)
-        })
-        .collect();
-    v.sort();
-    v
-}
-
-/// Runs `args`, expects a refusal without a panic naming every one of `needles`, and that `dir` is
-/// unchanged.
-fn refused_untouched(dir: &Path, args: &[String], needles: &[&str]) {
-    let before = snapshot(dir);
-    let (ok, err) = run(args);
-    assert!(!ok, "accepted: {args:?}");
-    assert!(!err.contains("panicked"), "{err}");
-    for n in needles {
-        assert!(err.contains(n), "stderr lacks {n:?}: {err}");
-    }
-    assert_eq!(snapshot(dir), before, "{args:?} changed the folder");
 }
 
 fn args(a: &[&str]) -> Vec<String> {
@@ -44,22 +16,7 @@ fn args(a: &[&str]) -> Vec<String> {
 
 /// A phantom level's mesh, landmarks, CT and labels in `dir` (`spinedrr phantom`).
 fn phantom(dir: &Path) {
-    let (ok, err) = run(&args(&[
-        "phantom",
-        "--levels",
-        "L3",
-        "--no-discs",
-        "--voxel-mm",
-        "1.5",
-        "--ct-voxel-mm",
-        "2",
-        "--ct",
-        &s(&dir.join("ct.nii.gz")),
-        "--labels-out",
-        &s(&dir.join("seg.nii.gz")),
-        "--out",
-        &s(dir),
-    ]));
+    let (ok, err) = run(&crate::outputs_only_ours::phantom_args(dir));
     assert!(ok, "{err}");
 }
 
@@ -122,8 +79,8 @@ fn compare_and_render_never_replace_an_input_or_another_kind_of_file() {
         ]),
         &[
             "landmarks.json",
-            "a landmarks file",
-            "not a spinedrr sidecar",
+            "a landmarks file of spinedrr's, not a record",
+            "spinedrr did not write",
         ],
     );
     // Two renders, then a comparison whose output set lands on the reference image.

@@ -8,7 +8,7 @@ use spinedrr::geometry::{CArm, RigidTransform, rotation_exp};
 
 use crate::common::Spinedrr;
 
-fn landmarks() -> Vec<(&'static str, [f64; 3])> {
+pub(crate) fn landmarks() -> Vec<(&'static str, [f64; 3])> {
     vec![
         ("corner_ant_sup", [0.0, 15.0, 12.0]),
         ("corner_ant_inf", [0.0, 15.0, -12.0]),
@@ -28,7 +28,7 @@ fn truth() -> RigidTransform {
 }
 
 /// A problem JSON with noise-free observations of `lms` in the given views.
-fn problem_json(lms: &[(&str, [f64; 3])], views: &[&str]) -> Value {
+pub(crate) fn problem_json(lms: &[(&str, [f64; 3])], views: &[&str]) -> Value {
     let carm = CArm::default_paper();
     let t = truth();
     let views: Vec<Value> = views

@@ -54,6 +54,10 @@ impl Landmarks {
 
 #[derive(Serialize, Deserialize)]
 struct LevelJson {
+    /// `spinedrr` in a file spinedrr wrote ([`crate::io::TOOL`]): what lets a later run replace it and
+    /// never a hand-placed file ([`crate::io::check_ours`]); absent in the user's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    tool: Option<String>,
     level: String,
     #[serde(default = "default_units")]
     units: String,
@@ -151,6 +155,7 @@ pub fn landmarks_to_json(sets: &[Landmarks]) -> Result<String> {
     let list: Vec<LevelJson> = sets
         .iter()
         .map(|l| LevelJson {
+            tool: Some(crate::io::TOOL.into()),
             level: l.level.clone(),
             units: "mm".into(),
             frame: default_frame(),

@@ -84,6 +84,11 @@ pub fn rows_of(trial: usize, carm: &CArm, r: &TrialResult) -> Vec<CalibrationRow
 /// `phantom.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct PhantomRecord {
+    /// `spinedrr` ([`crate::io::TOOL`]).
+    pub tool: &'static str,
+    /// The other file of the output set (`calibrations.csv`), which this record vouches for as
+    /// spinedrr's own when a later run replaces it ([`crate::io::check_output_paths`]).
+    pub companions: Vec<String>,
     pub phantom: CalibrationPhantom,
     /// The true K (row-major) and detector size.
     #[serde(rename = "K")]
@@ -222,6 +227,8 @@ pub fn run_request(
         .collect();
     let k = req.carm.views[0].intrinsics;
     let record = PhantomRecord {
+        tool: crate::io::TOOL,
+        companions: vec![CSV_NAME.to_string()],
         phantom: req.phantom.clone(),
         k: k.matrix_rows(),
         width: k.width,
@@ -268,14 +275,33 @@ pub fn run_request(
     })
 }
 
-/// The two product paths under `out`.
+const CSV_NAME: &str = "calibrations.csv";
+
+/// The two product paths under `out`, the record `phantom.json` last.
 pub fn product_paths(out: &Path) -> [PathBuf; 2] {
-    [out.join("calibrations.csv"), out.join("phantom.json")]
+    [out.join(CSV_NAME), out.join("phantom.json")]
 }
 
-/// Writes `calibrations.csv` and `phantom.json` into `out` (created if absent), each atomically.
+/// Checks that both products can be written into `out`: a file already in their place must be
+/// spinedrr's ([`crate::io::check_output_paths`]: `phantom.json` a record of spinedrr's,
+/// `calibrations.csv` listed by it); `out` may not exist yet (nothing to replace), but must not be a file.
+/// Nothing is written.
+pub fn check_outcome_paths(out: &Path) -> Result<()> {
+    if !out.exists() {
+        return Ok(());
+    }
+    if !out.is_dir() {
+        // The refusal of an output folder that is a file, by name.
+        return crate::io::create_output_dir(out, "--out");
+    }
+    crate::io::check_output_paths(&product_paths(out))
+}
+
+/// Writes `calibrations.csv` and then its record `phantom.json` into `out` (created if absent), each
+/// atomically, after [`check_outcome_paths`].
 pub fn write_outcome(out: &Path, o: &CalibrateOutcome) -> Result<()> {
     crate::io::create_output_dir(out, "--out")?;
+    check_outcome_paths(out)?;
     let [csv_path, json_path] = product_paths(out);
     let mut w = csv::Writer::from_writer(Vec::new());
     for r in &o.rows {
@@ -285,6 +311,6 @@ pub fn write_outcome(out: &Path, o: &CalibrateOutcome) -> Result<()> {
     let bytes = w
         .into_inner()
         .map_err(|e| Error::encode("calibrations.csv", e))?;
-    write_json(&json_path, &o.record)?;
-    write_atomic_bytes(&csv_path, &bytes)
+    write_atomic_bytes(&csv_path, &bytes)?;
+    write_json(&json_path, &o.record)
 }

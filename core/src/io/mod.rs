@@ -5,6 +5,7 @@ mod atomic;
 mod heatmap;
 mod image;
 mod output_set;
+mod ownership;
 mod preview;
 mod products;
 mod sidecar;
@@ -18,9 +19,8 @@ pub use heatmap::{format_label, heatmap_rgb, write_heatmap_png};
 pub use image::{
     ImageF32, decode_drr_tiff, read_tiff_f32, write_mask_png, write_preview_png, write_tiff_f32,
 };
-pub use output_set::{
-    check_ours, check_output_paths, check_spares_inputs, create_output_dir, same_file,
-};
+pub use output_set::{check_output_paths, check_spares_inputs, create_output_dir, same_file};
+pub use ownership::{SLICER_DESCRIPTION, TOOL, check_ours, check_ours_landmarks};
 pub use preview::{png_preview, posterise};
 pub use products::{
     DrrProducts, DrrValues, Silhouette, SilhouetteOf, difference_set_paths, drr_set_paths,

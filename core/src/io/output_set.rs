@@ -9,6 +9,7 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
+use super::ownership::{companions_of, foreign, refusal};
 use crate::{Error, Result};
 
 /// The folder `path` is written into (`.` for a bare file name).
@@ -19,19 +20,29 @@ pub(super) fn folder_of(path: &Path) -> &Path {
 }
 
 /// Checks that every path of an output set can be written: its folder exists and accepts new files, the
-/// path is not a directory, and an existing JSON file there is one spinedrr wrote ([`check_ours`]: a
-/// sidecar never replaces a landmarks file or any other file of the user's). Nothing is written when any
-/// check fails (a probe file is created and removed in each folder).
+/// path is not a directory, and a file already there is one spinedrr wrote: listed among the `companions`
+/// of the set's record (the last path, when it is spinedrr's), or told by its own content
+/// ([`super::ownership`]: a sidecar never replaces a landmarks file, a preview never the user's photo).
+/// Nothing is written when any check fails (a probe file is created and removed in each folder).
 pub fn check_output_paths(paths: &[PathBuf]) -> Result<()> {
+    let listed = paths
+        .last()
+        .map(|marker| companions_of(marker))
+        .unwrap_or_default();
+    if let Some(p) = paths.iter().find(|p| p.is_dir()) {
+        return Err(Error::invalid(
+            format!("output {}", p.display()),
+            "is a directory, not a file; nothing was written",
+        ));
+    }
     let mut folders = BTreeSet::new();
     for p in paths {
-        if p.is_dir() {
-            return Err(Error::invalid(
-                format!("output {}", p.display()),
-                "is a directory, not a file; nothing was written",
-            ));
+        let name = p.file_name().unwrap_or_default().to_string_lossy();
+        if !listed.iter().any(|c| *c == name)
+            && let Some(what) = foreign(p)
+        {
+            return Err(refusal(p, what));
         }
-        check_ours(p)?;
         let dir = folder_of(p);
         if !dir.is_dir() {
             return Err(Error::invalid(
@@ -59,46 +70,6 @@ pub fn check_output_paths(paths: &[PathBuf]) -> Result<()> {
         std::fs::remove_file(&probe).map_err(|e| Error::io(&probe, e))?;
     }
     Ok(())
-}
-
-/// Refuses to replace an existing `.json` file at `path` that spinedrr did not write (a JSON object whose
-/// `tool` is `spinedrr`: every sidecar and `metrics.json`; or an earlier version's `metrics.json`, known by
-/// its `image` and `silhouettes` records), naming what it appears to be.
-pub fn check_ours(path: &Path) -> Result<()> {
-    if path.extension().is_none_or(|e| e != "json") || !path.is_file() {
-        return Ok(());
-    }
-    let text = std::fs::read_to_string(path).unwrap_or_default();
-    let value: Option<serde_json::Value> = serde_json::from_str(&text).ok();
-    let tool = value
-        .as_ref()
-        .and_then(|v| v.get("tool"))
-        .and_then(|t| t.as_str());
-    // `metrics.json` of a spinedrr before it named its tool: the comparison record's own keys.
-    let old_metrics = value
-        .as_ref()
-        .is_some_and(|v| v.get("image").is_some() && v.get("silhouettes").is_some());
-    if tool == Some("spinedrr") || old_metrics {
-        return Ok(());
-    }
-    let first = match &value {
-        Some(serde_json::Value::Array(a)) => a.first(),
-        v => v.as_ref(),
-    };
-    let what = match &value {
-        _ if first.is_some_and(|f| f.get("landmarks").is_some()) => "a landmarks file",
-        Some(v) if v.get("markups").is_some() => "a 3D Slicer markups file",
-        Some(serde_json::Value::Object(_)) => "a JSON file spinedrr did not write",
-        Some(_) => "JSON that is not an object",
-        None => "not JSON",
-    };
-    Err(Error::invalid(
-        format!("output {}", path.display()),
-        format!(
-            "would replace an existing file that is {what}, not a spinedrr sidecar; nothing was written \
-             (choose another output name, or move that file)"
-        ),
-    ))
 }
 
 /// Whether `a` and `b` name the same file: the same device and inode when both exist, else the same

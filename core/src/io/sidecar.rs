@@ -98,7 +98,7 @@ impl Sidecar {
         let rendered = reference.perturbed(perturbation)?;
         let k = rendered.intrinsics;
         Ok(Sidecar {
-            tool: "spinedrr".into(),
+            tool: super::TOOL.into(),
             version: crate::VERSION.into(),
             kind: kind.into(),
             width: k.width,

@@ -151,6 +151,7 @@ pub fn run_request(loaded: LoadedProblem, req: &RegisterRequest) -> Result<Regis
         "converged": result.converged,
         "method": req.method,
         "views": problem.views.iter().map(|v| v.view.name.clone()).collect::<Vec<_>>(),
+        "tool": crate::io::TOOL,
     });
     if let Some(why) = implausible {
         record["implausible"] = json!(why);

@@ -385,7 +385,8 @@ fn temp_path(path: &Path, gz: bool) -> PathBuf {
     path.with_file_name(format!(".{base}-tmp-{}.{ext}", std::process::id()))
 }
 
-/// A header carrying the affine as sform (code 1, scanner anatomical) and pixdim = column lengths, in mm.
+/// A header carrying the affine as sform (code 1, scanner anatomical), pixdim = column lengths, in mm, and
+/// spinedrr's name and version in `descrip`.
 fn header_for<T: Copy>(vol: &Volume<T>) -> NiftiHeader {
     let m = vol.index_to_world;
     let row = |r: usize| {
@@ -406,5 +407,9 @@ fn header_for<T: Copy>(vol: &Volume<T>) -> NiftiHeader {
     h.pixdim[1] = s.x as f32;
     h.pixdim[2] = s.y as f32;
     h.pixdim[3] = s.z as f32;
+    // `descrip` names the writer: how a later run tells the file for spinedrr's own (crate::io::check_ours).
+    let text = format!("{} {}", crate::io::TOOL, crate::VERSION);
+    h.descrip = vec![0; 80];
+    h.descrip[..text.len()].copy_from_slice(text.as_bytes());
     h
 }

@@ -81,6 +81,8 @@ struct MarkupOut {
 struct PointOut {
     id: String,
     label: String,
+    /// [`crate::io::SLICER_DESCRIPTION`]: how a later run tells the file for spinedrr's own.
+    description: &'static str,
     position: [f64; 3],
     position_status: &'static str,
 }
@@ -245,6 +247,7 @@ pub fn slicer_to_json(sets: &[Landmarks]) -> Result<String> {
                 .map(|(i, (name, p))| PointOut {
                     id: (i + 1).to_string(),
                     label: name.clone(),
+                    description: crate::io::SLICER_DESCRIPTION,
                     position: System::Lps.to_ras(*p).to_array(),
                     position_status: "defined",
                 })

@@ -330,6 +330,7 @@ pub fn run_intensity_problem(loaded: &LoadedIntensityProblem) -> Result<Value> {
         "converged": r.converged,
         "levels": loaded.options.levels,
         "stages": r.stages,
+        "tool": crate::io::TOOL,
     });
     if let Some(truth) = loaded.truth {
         let t = &loaded.problem.targets;
