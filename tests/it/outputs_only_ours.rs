@@ -193,3 +193,50 @@ fn mesh_calibrate_and_register_replace_only_their_own_files() {
     ok(&register);
     ok(&register);
 }
+
+/// What each writer writes is what the ownership check takes for spinedrr's own: the round trip from
+/// every mesh format, both landmark formats, a record and a NIfTI volume to the check reading the bytes.
+#[test]
+fn every_writer_leaves_what_the_check_knows_for_its_own() {
+    use spinedrr::anatomy::{Landmarks, MeshFormat, TriMesh, write_landmarks, write_mesh_as};
+    use spinedrr::io::{check_ours, check_ours_landmarks};
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let cube = TriMesh::cuboid("c", glam::DVec3::splat(-5.0), glam::DVec3::splat(5.0));
+    for (name, format) in [
+        ("b.stl", MeshFormat::StlBinary),
+        ("c.obj", MeshFormat::Obj),
+        ("d.ply", MeshFormat::PlyBinary),
+        ("e.ply", MeshFormat::PlyAscii),
+    ] {
+        let p = dir.join(name);
+        write_mesh_as(&p, &cube, format).unwrap();
+        check_ours(&p).unwrap_or_else(|e| panic!("{name}: {e}"));
+    }
+    let lm = Landmarks {
+        level: "L3".into(),
+        points: [("center".to_string(), glam::DVec3::new(1.0, 2.0, 3.0))].into(),
+    };
+    for name in ["L3_landmarks.json", "L3_landmarks.mrk.json"] {
+        let p = dir.join(name);
+        write_landmarks(&p, std::slice::from_ref(&lm)).unwrap();
+        check_ours_landmarks(&p).unwrap_or_else(|e| panic!("{name}: {e}"));
+        // Landmarks are no record: a sidecar or metrics.json never replaces them.
+        assert!(check_ours(&p).is_err(), "{name}");
+        // And they read back as they were written.
+        let back = spinedrr::anatomy::read_landmarks(&p).unwrap();
+        assert_eq!(back.len(), 1);
+        assert!((back[0].points["center"] - lm.points["center"]).length() < 1e-9);
+    }
+    // The phantom's CT and label map (NIfTI, plain and gzip) and its meshes and landmarks.
+    ok(&phantom_args(dir));
+    for name in [
+        "ct.nii",
+        "seg.nii.gz",
+        "L3_cortical.stl",
+        "L3_cancellous.stl",
+    ] {
+        check_ours(&dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+    }
+    check_ours_landmarks(&dir.join("landmarks.json")).unwrap();
+}

@@ -71,7 +71,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<TriMesh> {
 }
 
 pub fn write(w: &mut impl Write, m: &TriMesh) -> io::Result<()> {
-    writeln!(w, "# spinedrr {}, millimetres", crate::VERSION)?;
+    writeln!(w, "# {} {}, millimetres", crate::io::TOOL, crate::VERSION)?;
     writeln!(w, "o {}", m.name.replace(char::is_whitespace, "_"))?;
     for v in &m.vertices {
         // `{}` prints the shortest string that parses back to the same f64.

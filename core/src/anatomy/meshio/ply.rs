@@ -263,7 +263,8 @@ pub fn write(w: &mut impl Write, m: &TriMesh, binary: bool) -> io::Result<()> {
     };
     writeln!(
         w,
-        "ply\nformat {format} 1.0\ncomment spinedrr {} millimetres",
+        "ply\nformat {format} 1.0\ncomment {} {} millimetres",
+        crate::io::TOOL,
         crate::VERSION
     )?;
     writeln!(w, "element vertex {}", m.vertices.len())?;

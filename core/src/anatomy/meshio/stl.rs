@@ -119,7 +119,7 @@ fn normal(m: &TriMesh, i: usize) -> DVec3 {
 
 pub fn write_binary(w: &mut impl Write, m: &TriMesh) -> io::Result<()> {
     let mut header = [b' '; 80];
-    let text = format!("spinedrr {} {}", crate::VERSION, m.name);
+    let text = format!("{} {} {}", crate::io::TOOL, crate::VERSION, m.name);
     let n = text.len().min(80);
     header[..n].copy_from_slice(&text.as_bytes()[..n]);
     w.write_all(&header)?;
