@@ -31,7 +31,8 @@ pub struct Args {
     /// Landmark JSON {"landmarks": {"name": [x, y, z]}} (world mm), projected with each sidecar's view.
     #[arg(long)]
     landmarks: Option<PathBuf>,
-    /// Output directory (created if missing).
+    /// Output directory (created if missing). Its files (metrics.json, absdiff.tiff, heatmap.png and their
+    /// sidecars) replace only files spinedrr wrote; any other file of those names is refused, nothing written.
     #[arg(long)]
     out: PathBuf,
 }

@@ -245,7 +245,7 @@ intensity_trials = 1
     }
     assert!(crate::common::assert_figures_legible(&out.join("figures")) >= 4);
     assert!(crate::common::assert_figures_inside_canvas(&out.join("figures")) >= 4);
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     assert!(
         report.contains("Calibration in the loop"),
         "report lacks the section"
@@ -331,7 +331,7 @@ det_dz_mm = [10.0]
             "{r:?}"
         );
     }
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     // Nothing the table lacks is described as run: no Dice, no intensity registration in any row.
     assert!(
         t.calibration

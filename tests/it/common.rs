@@ -319,3 +319,30 @@ pub fn refused_untouched(dir: &Path, args: &[String], needles: &[&str]) {
     }
     assert_eq!(snapshot(dir), before, "{args:?} changed the folder");
 }
+
+/// `OUT/report.md`, checked to link each entry of its `## Contents` to a section of that title: a study
+/// whose experiments write no such section (no Findings in a study of intensity registration alone)
+/// lists none.
+pub fn read_report(out: &Path) -> String {
+    let md = std::fs::read_to_string(out.join("report.md"))
+        .unwrap_or_else(|e| panic!("{}: {e}", out.join("report.md").display()));
+    let headings: Vec<&str> = md.lines().filter_map(|l| l.strip_prefix("## ")).collect();
+    let contents = md
+        .split("## Contents\n")
+        .nth(1)
+        .and_then(|rest| rest.split("\n## ").next())
+        .expect("a ## Contents section");
+    let entries: Vec<&str> = contents
+        .lines()
+        .filter_map(|l| l.strip_prefix("- ["))
+        .filter_map(|l| l.split("](#").next())
+        .collect();
+    assert!(!entries.is_empty(), "empty contents");
+    for title in entries {
+        assert!(
+            headings.contains(&title),
+            "the contents list {title:?}, but the report has no such section (sections: {headings:?})"
+        );
+    }
+    md
+}

@@ -246,7 +246,7 @@ fn a_study_on_the_gpu_backend_matches_the_raster() {
             }
         }
     }
-    let report = std::fs::read_to_string(gpu.join("report.md")).unwrap();
+    let report = crate::common::read_report(&gpu);
     assert!(
         report.contains("gpu backend") && report.contains("GPU backend"),
         "{report}"

@@ -286,7 +286,7 @@ fn truncated_case_is_skipped_and_listed_or_stops_a_strict_run() {
         "{left}"
     );
     assert!(left.contains("truncated"), "{left}");
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     let section = &report[report.find("### Cases left out").expect("left-out table")..];
     assert!(section.contains("| syn | bad |"), "{section}");
     let units: Vec<String> = std::fs::read_dir(out.join("units"))

@@ -166,7 +166,7 @@ fn every_ct_target_has_rows_figures_and_a_report_section() {
         lm.iter()
             .any(|r| r.target == "syn-segment" && r.landmark == "L2/spinous_tip")
     );
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(out);
     assert!(report.contains("CT volume DRR") && report.contains("registration_syn-L2_rot.png"));
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert_eq!(
@@ -395,7 +395,7 @@ fn anatomical_alignment_undoes_a_scanner_tilt() {
         n += 1;
     }
     assert!(n >= 10, "{n} landmark rows compared");
-    let report = std::fs::read_to_string(study_out().join("report.md")).unwrap();
+    let report = crate::common::read_report(study_out());
     assert!(
         report.contains("`upright`, `tilt`: `anatomical`")
             && report.contains("`syn`, `given`: `none`"),

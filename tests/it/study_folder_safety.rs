@@ -71,7 +71,7 @@ fn a_folder_of_another_config_is_refused_and_cleared_only_on_start_over() {
         heatmaps(&out)
     );
     assert_eq!(units(&out), 2);
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     assert!(
         !report.contains("heatmap_"),
         "B's report links A's heatmaps"

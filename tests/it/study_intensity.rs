@@ -168,7 +168,7 @@ fn intensity_study_tables_agree_with_the_library_and_resume_byte_identically() {
     {
         assert!(s.optimum_spread_mm < 0.5, "{}", s.optimum_spread_mm);
     }
-    let report = std::fs::read_to_string(a.join("report.md")).unwrap();
+    let report = crate::common::read_report(&a);
     assert!(report.contains("## Intensity-based registration"));
     for f in ["intensity_mtre_L3.png", "intensity_success_L3.png"] {
         assert!(a.join("figures").join(f).is_file(), "{f}");
@@ -255,7 +255,7 @@ images = ["mono", "spectral", "spectral+screws"]
         screws.optimum_mtre_mm,
         spectral.optimum_mtre_mm
     );
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     assert!(report.contains("### Spectral fixed images: the spectrum and the screws"));
 }
 
@@ -360,7 +360,7 @@ det_dx_mm = [3.0]
     );
     // The in-plane detector shift is no rigid motion of the camera: its optimum is elsewhere.
     assert!(t.intensity_summary[1].landmark_mtre_mm > 0.5);
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     assert!(
         report.contains("| L3 | ap | mono | — | — | det_roll_deg = 1.5 | 1 |"),
         "{report}"

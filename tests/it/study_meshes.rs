@@ -93,7 +93,7 @@ fn mesh_target_study_obeys_the_homography_law() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     // The provenance names each input file by its BLAKE3 digest (as b3sum computes it), and
     // inputs.csv beside the report lists them with their paths and sizes.
-    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let md = crate::common::read_report(&out);
     let line = md
         .lines()
         .find(|l| l.starts_with(spinedrr::study::report::PROVENANCE))
@@ -140,7 +140,7 @@ fn mesh_target_study_obeys_the_homography_law() {
     assert!(zero.rot_err_deg_mean < 1e-6);
     // Without observation noise every trial of a cell converges to one answer: one value in the report.
     assert!(tables.registration_summary.iter().all(|r| r.deterministic));
-    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let md = crate::common::read_report(&out);
     assert!(
         md.contains("(all 2 agree)"),
         "no one-value cell in the report"
@@ -173,7 +173,7 @@ fn a_target_cut_by_the_detector_edge_is_flagged_in_the_setup() {
     let out = dir.path().join("out");
     let o = run_study(&cfg, &out, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let md = crate::common::read_report(&out);
     let row = |view: &str| {
         md.lines()
             .find(|l| l.starts_with(&format!("| box | {view} |")))
@@ -339,7 +339,7 @@ fn observation_noise_gives_each_cell_a_confidence_interval_that_shrinks_with_n()
                 s.trans_err_mm_ci95
             );
         }
-        let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+        let md = crate::common::read_report(&out);
         assert!(!md.contains(" agree)"), "a noisy cell shown as one value");
         half.push(
             t.registration_summary

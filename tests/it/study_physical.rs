@@ -64,7 +64,7 @@ fn physical_cells_have_their_own_table_analytic_cameras_and_a_report_section() {
         }
         assert!(r.dice < 1.0 && r.dice > 0.5, "{r:?}");
     }
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     assert!(report.contains("## Physical geometry errors"));
     assert!(
         report.contains(
@@ -149,7 +149,7 @@ fn a_physical_grid_needs_a_geometry_with_a_known_sdd() {
     std::fs::remove_dir_all(dir.path().join("out")).ok();
     let (ok, err) = study(dir.path(), &config);
     assert!(ok, "{err}");
-    let report = std::fs::read_to_string(dir.path().join("out/report.md")).unwrap();
+    let report = crate::common::read_report(&dir.path().join("out"));
     let section = &report[report
         .find("## The literature beside ours")
         .expect("literature")..];
@@ -173,7 +173,7 @@ fn the_literature_section_prints_this_runs_tracking_cells() {
     assert!(ok, "{err}");
     let out = dir.path().join("out");
     let t = StudyTables::load(&out).unwrap();
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     let section = report
         .split("## The literature beside ours")
         .nth(1)
@@ -295,7 +295,7 @@ fn a_detector_roll_registers_one_view_to_the_pose_turned_about_its_central_ray()
         .find(|r| r.method.name() == "direct-lat" && r.key == "det_roll_deg")
         .unwrap();
     assert!(lat.trans_err_mm > 0.5, "{lat:?}");
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     assert!(
         report.contains("### Landmark registration of L1 under the physical errors"),
         "{report}"

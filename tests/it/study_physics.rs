@@ -81,7 +81,7 @@ fn quick_study_writes_every_table_figure_and_report() {
         let img = image::open(out.join("figures").join(&f)).unwrap_or_else(|e| panic!("{f}: {e}"));
         assert!(img.width() > 100 && img.height() > 100, "{f}");
     }
-    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md");
+    let report = crate::common::read_report(out);
     assert!(report.contains("dice_vs_perturbation.png") && report.contains("paper"));
     assert!(report.contains("registration_L1_trans.png"));
     assert!(report.contains("## Where the time goes"));
@@ -227,7 +227,7 @@ fn lat_over_ap_shift_ratio_is_the_ratio_of_distances_from_the_piercing_point() {
         (measured / predicted - 1.0).abs() < 0.01,
         "{measured} vs {predicted}"
     );
-    let md = std::fs::read_to_string(quick_out().join("report.md")).unwrap();
+    let md = crate::common::read_report(quick_out());
     let row = md
         .lines()
         .find(|l| l.starts_with("| L1 | ") && l.contains(" | 500 ("))

@@ -83,7 +83,7 @@ fn every_figure_keeps_its_titles_inside_the_canvas() {
 /// y/z over a convex outline lies at a vertex), to within a pixel.
 #[test]
 fn the_setup_drawing_places_each_target_where_its_drr_shows_it() {
-    let report = read(&quick_out().join("report.md"));
+    let report = crate::common::read_report(quick_out());
     let fig = report.find("![Each view drawn to scale](figures/setup_geometry.png)");
     let findings = report.find("## Findings").expect("findings");
     assert!(fig.is_some_and(|f| f < findings), "the drawing is in Setup");
@@ -300,7 +300,7 @@ fn the_quick_report_is_small_and_self_contained() {
         "report.html is {} bytes",
         html.len()
     );
-    let md = read(&quick_out().join("report.md"));
+    let md = crate::common::read_report(quick_out());
     for f in [
         "heatmap_panel_L1.png",
         "landmarks_L1.png",
@@ -324,7 +324,7 @@ fn the_quick_report_is_small_and_self_contained() {
 /// `study.toml` beside the report, a date of this run and a thread count.
 #[test]
 fn the_report_states_its_provenance() {
-    let md = read(&quick_out().join("report.md"));
+    let md = crate::common::read_report(quick_out());
     let line = md
         .lines()
         .find(|l| l.starts_with(spinedrr::study::report::PROVENANCE))
@@ -402,7 +402,7 @@ fn the_report_states_its_provenance() {
 /// 1350 mm; 0.3 mm pixels, here binned 2× to 0.6 mm and fx 2250 px) and every target and view.
 #[test]
 fn the_setup_states_the_geometry_before_the_findings() {
-    let md = read(&quick_out().join("report.md"));
+    let md = crate::common::read_report(quick_out());
     let (setup, findings) = (
         md.find("## Setup").unwrap(),
         md.find("## Findings").unwrap(),
@@ -463,7 +463,7 @@ pixel_scale = []\n",
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let md = read(&out.join("report.md"));
+    let md = crate::common::read_report(&out);
     for v in ["AP", "LAT"] {
         let row = md
             .lines()

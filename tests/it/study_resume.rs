@@ -57,7 +57,7 @@ fn interrupted_and_resumed_run_equals_uninterrupted_runs_at_any_thread_count() {
     assert!(tb == tc, "1 and 2 threads differ");
     // Everything but the timing section (a measurement of the invocation, not of the data).
     let report = |d: &Path| {
-        let md = std::fs::read_to_string(d.join("report.md")).unwrap();
+        let md = crate::common::read_report(d);
         let cut = md.find("## Where the time goes").expect("timing section");
         // The provenance line holds this invocation's date and thread count.
         let p = spinedrr::study::report::PROVENANCE;

@@ -161,7 +161,7 @@ fn drawn_screws_obey_the_projection_laws_and_navigated_ones_the_tracking_experim
     for n in &t.screw_navigation {
         assert!(n.converged && n.axis_deg >= 0.0 && n.residual_px >= 0.0);
     }
-    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let report = crate::common::read_report(&out);
     assert!(report.contains("## Pedicle screws drawn and navigated with the wrong geometry"));
     assert!(report.contains("figures/screws_L1.png"));
     let png = image::open(out.join("figures/screws_L1.png")).unwrap();

@@ -104,6 +104,38 @@ fn success_panel(rows: &[&IntensityBinRow], views: &str, reached: bool) -> Panel
     }
 }
 
+/// How the panels of the view sets `sets` are laid out and scaled (panels that differ only by their one
+/// view share a y scale: [`super::charts::panel_chart`]).
+fn panels_clause(sets: &[String]) -> String {
+    let upper: Vec<String> = sets.iter().map(|v| v.to_uppercase()).collect();
+    let (single, several): (Vec<&String>, Vec<&String>) =
+        upper.iter().partition(|v| !v.contains('+'));
+    let join = |v: &[&String]| {
+        v.iter()
+            .map(|s| s.as_str())
+            .collect::<Vec<_>>()
+            .join(" and ")
+    };
+    match (single.len(), several.len()) {
+        (0, 1) | (1, 0) => format!("one panel, {}", upper.join("")),
+        (0, _) => format!(
+            "a panel per view set ({}, each at its own y scale)",
+            join(&several)
+        ),
+        (_, 0) => format!("a panel per view ({} at one y scale)", join(&single)),
+        _ => format!(
+            "a panel per view set ({} at one y scale, {} at {})",
+            join(&single),
+            join(&several),
+            if several.len() == 1 {
+                "its own"
+            } else {
+                "their own"
+            }
+        ),
+    }
+}
+
 /// Writes `intensity_mtre_<target>.png` and `intensity_success_<target>.png` for every target of the
 /// intensity tables; returns their manifest entries.
 pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<FigureEntry>> {
@@ -138,12 +170,12 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
             &file,
             &title,
             &format!(
-                "monochromatic fixed images; a panel per view set (AP and LAT at one y scale, AP+LAT at \
-                 its own); per piercing shift the mTRE of the intensity optimum (registration \
+                "monochromatic fixed images; {}; per piercing shift the mTRE of the intensity optimum (registration \
                  started at the truth), the median final mTRE over {trials} starts, the mTRE of the \
                  landmark registration under the same assumed K, and the mTRE between the two optima \
                  (equal biases can be different poses); the physical errors are in the table, not on \
-                 this focal axis"
+                 this focal axis",
+                panels_clause(&sets)
             ),
             true,
         ));
@@ -180,4 +212,23 @@ pub fn figures(figs: &Path, tables: &StudyTables, c: &Conditions) -> Result<Vec<
         ));
     }
     Ok(entries)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::panels_clause;
+
+    #[test]
+    fn the_caption_names_the_panels_there_are() {
+        let sets = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(panels_clause(&sets(&["ap+lat"])), "one panel, AP+LAT");
+        assert_eq!(
+            panels_clause(&sets(&["ap", "lat"])),
+            "a panel per view (AP and LAT at one y scale)"
+        );
+        assert_eq!(
+            panels_clause(&sets(&["ap", "ap+lat", "lat"])),
+            "a panel per view set (AP and LAT at one y scale, AP+LAT at its own)"
+        );
+    }
 }

@@ -87,7 +87,38 @@ configuration is `study.toml`.\n",
         (!tables.screws.is_empty(), screws::HEADING),
         (!tables.tracking.is_empty(), literature::HEADING),
     ];
-    let mut headings = vec![setup::HEADING.to_string(), "Findings".to_string()];
+    // The findings first: the contents list their section only when there is one (a study of
+    // intensity registration alone has none).
+    let mut findings_md = String::new();
+    let piercing: std::collections::BTreeMap<String, (f64, f64)> = cfg
+        .carm()
+        .map(|c| {
+            c.views
+                .iter()
+                .map(|v| (v.name.clone(), (v.intrinsics.cx, v.intrinsics.cy)))
+                .collect()
+        })
+        .unwrap_or_default();
+    let ratios = shift_ratio::ratios(&tables.landmarks, &piercing);
+    let at = |v: &str| piercing.get(v).map_or([f64::NAN; 2], |c| [c.0, c.1]);
+    findings::section(
+        &mut findings_md,
+        tables,
+        &findings::Context {
+            out,
+            paper: &paper,
+            first: &first,
+            ratios: &ratios,
+            piercing: [at("ap"), at("lat")],
+            noise_px: cfg.registration.noise_px,
+            calibration_trials: cfg.calibration.trials,
+            pitch: grid::Pitch::of(cfg).0,
+        },
+    )?;
+    let mut headings = vec![setup::HEADING.to_string()];
+    if !findings_md.is_empty() {
+        headings.push("Findings".to_string());
+    }
     if !cfg.anatomy.dataset.is_empty() {
         headings.push(cohort::HEADING.to_string());
     }
@@ -108,31 +139,7 @@ configuration is `study.toml`.\n",
         ),
         (&figs, &mut n),
     );
-    let piercing: std::collections::BTreeMap<String, (f64, f64)> = cfg
-        .carm()
-        .map(|c| {
-            c.views
-                .iter()
-                .map(|v| (v.name.clone(), (v.intrinsics.cx, v.intrinsics.cy)))
-                .collect()
-        })
-        .unwrap_or_default();
-    let ratios = shift_ratio::ratios(&tables.landmarks, &piercing);
-    let at = |v: &str| piercing.get(v).map_or([f64::NAN; 2], |c| [c.0, c.1]);
-    findings::section(
-        &mut md,
-        tables,
-        &findings::Context {
-            out,
-            paper: &paper,
-            first: &first,
-            ratios: &ratios,
-            piercing: [at("ap"), at("lat")],
-            noise_px: cfg.registration.noise_px,
-            calibration_trials: cfg.calibration.trials,
-            pitch: grid::Pitch::of(cfg).0,
-        },
-    )?;
+    md.push_str(&findings_md);
     let pitch = grid::Pitch::of(cfg);
     shift_ratio::table(&mut md, &ratios, pitch);
     cohort::section(&mut md, out, cfg, (tables, &ratios), (&figs, &mut n));
