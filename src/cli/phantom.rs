@@ -178,5 +178,48 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(ct_path) = &a.ct {
         write_synthetic_ct(&phantom, &a, ct_path)?;
     }
+    let written: Vec<PathBuf> = meshes.iter().map(|(stem, _)| mesh_path(stem)).collect();
+    let earlier = earlier_phantom_meshes(&a.out, &written);
+    if !earlier.is_empty() {
+        eprintln!(
+            "warning: {} also holds {} from an earlier phantom run, which this run did not write \
+             (other levels, discs, soft tissue or --format): they are not this phantom's, and \
+             landmarks.json now describes this run's levels alone; remove them before using the \
+             folder as one phantom",
+            a.out.display(),
+            earlier.join(", ")
+        );
+    }
     Ok(())
+}
+
+/// The meshes in `dir` named as `spinedrr phantom` names them (`<level>_cortical`, `<level>_cancellous`,
+/// `<a>-<b>_disc`, `soft_tissue`; STL, OBJ or PLY) and written by spinedrr, other than `written`: a
+/// phantom of an earlier run beside this one's.
+fn earlier_phantom_meshes(dir: &Path, written: &[PathBuf]) -> Vec<String> {
+    let phantom_name = |name: &str| {
+        let Some((stem, ext)) = name.rsplit_once('.') else {
+            return false;
+        };
+        ["stl", "obj", "ply"].contains(&ext)
+            && (stem == "soft_tissue"
+                || stem.ends_with("_cortical")
+                || stem.ends_with("_cancellous")
+                || stem.ends_with("_disc"))
+    };
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| !written.contains(p))
+        .filter(|p| {
+            p.file_name()
+                .is_some_and(|n| phantom_name(&n.to_string_lossy()))
+        })
+        .filter(|p| spinedrr::io::check_ours(p).is_ok())
+        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect();
+    names.sort();
+    names
 }

@@ -77,6 +77,25 @@ fn phantom_replaces_only_its_own_files() {
         "a second phantom run over its own files"
     );
 
+    // A run of other levels into the same folder says which meshes of the earlier run it left.
+    let l2 = args(&[
+        "phantom",
+        "--levels",
+        "L2",
+        "--no-discs",
+        "--voxel-mm",
+        "1.5",
+        "--out",
+        &s(dir),
+    ]);
+    let (done, err) = run(&l2);
+    assert!(done, "{err}");
+    assert!(
+        err.contains("L3_cancellous.stl, L3_cortical.stl from an earlier phantom run"),
+        "{err}"
+    );
+    assert!(!err.contains("L2_cortical.stl, "), "{err}");
+
     // The same CT without spinedrr's name in its NIfTI `descrip` (bytes 148–227) is someone's CT.
     let ct = dir.join("ct.nii");
     let mut bytes = std::fs::read(&ct).unwrap();
