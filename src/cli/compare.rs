@@ -13,8 +13,8 @@ use spinedrr::analysis::{
     Comparison, MaskPair, abs_difference, compare, read_landmarks, read_mask_png,
 };
 use spinedrr::io::{
-    ImageF32, Sidecar, check_output_paths, check_spares_inputs, difference_set_paths,
-    read_with_sidecar, sidecar_path, write_difference_set,
+    ImageF32, Sidecar, check_output_set, check_spares_inputs, difference_set_kind,
+    difference_set_paths, read_with_sidecar, sidecar_path, write_difference_set,
 };
 
 #[derive(clap::Args)]
@@ -165,7 +165,7 @@ struct Inputs {
 /// `metrics.json`.
 #[derive(Serialize)]
 struct Metrics {
-    /// `spinedrr` (what [`check_output_paths`] recognises as its own file).
+    /// `spinedrr` (what [`spinedrr::io::check_ours`] recognises as its own file).
     tool: &'static str,
     kind: &'static str,
     #[serde(flatten)]
@@ -264,7 +264,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     check_spares_inputs(&outputs(&a.out), &inputs_of(&a, &specs))?;
     spinedrr::io::create_output_dir(&a.out, "--out")?;
-    check_output_paths(&difference_set_paths(&a.out))?;
+    check_output_set(&difference_set_paths(&a.out), difference_set_kind)?;
     let size = (ra.width, ra.height);
     let masks = specs
         .iter()
@@ -296,7 +296,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let metrics = Metrics {
         tool: "spinedrr",
-        kind: "metrics",
+        kind: spinedrr::io::kind::METRICS,
         inputs: inputs.clone(),
         view: sa.view,
         perturbation_reference: sa.perturbation_spec,

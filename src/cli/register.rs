@@ -68,6 +68,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &[("the --problem file".to_string(), a.problem.clone())],
     )?;
     spinedrr::io::check_ours(&a.out)?;
+    spinedrr::io::check_kind(&a.out, spinedrr::io::kind::REGISTRATION)?;
     if a.intensity {
         return run_intensity(&a);
     }

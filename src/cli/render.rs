@@ -8,8 +8,8 @@ use serde_json::json;
 use spinedrr::anatomy::{PhantomOptions, build_phantom, parse_levels, read_mesh};
 use spinedrr::geometry::{CArm, Perturbation};
 use spinedrr::io::{
-    DrrProducts, DrrValues, XrayModel, check_output_paths, check_spares_inputs, drr_set_paths,
-    write_drr_set,
+    DrrProducts, DrrValues, XrayModel, check_output_set, check_spares_inputs, drr_set_kind,
+    drr_set_paths, write_drr_set,
 };
 use spinedrr::render::{
     Backend, RenderScene, SceneMesh, ThicknessDrr, ThicknessOptions, orient_outward_warning,
@@ -211,7 +211,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .map(|p| ("--out".to_string(), p.clone()))
         .collect();
     check_spares_inputs(&outputs, &render_inputs(&a)?)?;
-    check_output_paths(&set)?;
+    check_output_set(&set, |p| drr_set_kind(&a.out, p))?;
     let run = RenderRun {
         view: &view,
         rendered: &rendered,

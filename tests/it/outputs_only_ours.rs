@@ -211,6 +211,54 @@ fn mesh_calibrate_and_register_replace_only_their_own_files() {
     std::fs::remove_file(&result).unwrap();
     ok(&register);
     ok(&register);
+
+    // A record of spinedrr's is replaced only by a record of its kind: a render named after the
+    // registration's result or the calibration's record would have replaced them with its sidecar.
+    let render = |out: &Path| {
+        args(&[
+            "render",
+            "--phantom",
+            "L3",
+            "--view",
+            "ap",
+            "--out",
+            &s(out),
+        ])
+    };
+    refused(
+        dir,
+        &render(&dir.join("R.tiff")),
+        &["R.json", "registration record"],
+    );
+    refused(
+        &cal,
+        &render(&cal.join("phantom.tiff")),
+        &["phantom.json", "calibration record"],
+    );
+    // And a mask's sidecar of one render is not the sidecar of another.
+    let img = dir.join("img");
+    std::fs::create_dir(&img).unwrap();
+    ok(&[render(&img.join("a.tiff")), args(&["--masks"])].concat());
+    refused(
+        &img,
+        &render(&img.join("a_mask.tiff")),
+        &["a_mask.json", "mask record"],
+    );
+    // A comparison's metrics.json likewise.
+    ok(&args(&[
+        "compare",
+        "--reference",
+        &s(&img.join("a.tiff")),
+        "--perturbed",
+        &s(&img.join("a.tiff")),
+        "--out",
+        &s(&img.join("cmp")),
+    ]));
+    refused(
+        &img.join("cmp"),
+        &render(&img.join("cmp/metrics.tiff")),
+        &["metrics.json", "metrics record"],
+    );
 }
 
 /// What each writer writes is what the ownership check takes for spinedrr's own: the round trip from

@@ -86,6 +86,8 @@ pub fn rows_of(trial: usize, carm: &CArm, r: &TrialResult) -> Vec<CalibrationRow
 pub struct PhantomRecord {
     /// `spinedrr` ([`crate::io::TOOL`]).
     pub tool: &'static str,
+    /// `calibration` ([`crate::io::kind::CALIBRATION`]).
+    pub kind: &'static str,
     /// The other file of the output set (`calibrations.csv`), which this record vouches for as
     /// spinedrr's own when a later run replaces it ([`crate::io::check_output_paths`]).
     pub companions: Vec<String>,
@@ -228,6 +230,7 @@ pub fn run_request(
     let k = req.carm.views[0].intrinsics;
     let record = PhantomRecord {
         tool: crate::io::TOOL,
+        kind: crate::io::kind::CALIBRATION,
         companions: vec![CSV_NAME.to_string()],
         phantom: req.phantom.clone(),
         k: k.matrix_rows(),
@@ -294,7 +297,9 @@ pub fn check_outcome_paths(out: &Path) -> Result<()> {
         // The refusal of an output folder that is a file, by name.
         return crate::io::create_output_dir(out, "--out");
     }
-    crate::io::check_output_paths(&product_paths(out))
+    crate::io::check_output_set(&product_paths(out), |p| {
+        (p.extension()? == "json").then_some(crate::io::kind::CALIBRATION)
+    })
 }
 
 /// Writes `calibrations.csv` and then its record `phantom.json` into `out` (created if absent), each

@@ -9,7 +9,7 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use super::ownership::{companions_of, foreign, refusal};
+use super::ownership::{check_kind, companions_of, foreign, refusal};
 use crate::{Error, Result};
 
 /// The folder `path` is written into (`.` for a bare file name).
@@ -25,6 +25,20 @@ pub(super) fn folder_of(path: &Path) -> &Path {
 /// ([`super::ownership`]: a sidecar never replaces a landmarks file, a preview never the user's photo).
 /// Nothing is written when any check fails (a probe file is created and removed in each folder).
 pub fn check_output_paths(paths: &[PathBuf]) -> Result<()> {
+    check_output_set(paths, |_| None)
+}
+
+/// [`check_output_paths`] of a set whose JSON records have kinds: an existing spinedrr record at a path
+/// for which `kind_of` gives a kind must be of that kind ([`check_kind`]).
+pub fn check_output_set(
+    paths: &[PathBuf],
+    kind_of: impl Fn(&Path) -> Option<&'static str>,
+) -> Result<()> {
+    for p in paths {
+        if let Some(kind) = kind_of(p) {
+            check_kind(p, kind)?;
+        }
+    }
     let listed = paths
         .last()
         .map(|marker| companions_of(marker))

@@ -76,6 +76,22 @@ pub(super) fn foreign(path: &Path) -> Option<&'static str> {
     }
 }
 
+/// Refuses to replace the spinedrr record at `path` with a record of `kind` when it is a record of
+/// another kind (a render's sidecar over a comparison's `metrics.json`, a registration's `R.json` or a
+/// calibration's `phantom.json`). A record that states no kind (an earlier version's) passes.
+pub fn check_kind(path: &Path, kind: &str) -> Result<()> {
+    let found = read_json(path)
+        .filter(|v| v.get("tool").and_then(Value::as_str) == Some(TOOL))
+        .and_then(|v| v.get("kind").and_then(Value::as_str).map(str::to_string));
+    match found {
+        Some(found) if found != kind => Err(refusal(
+            path,
+            &format!("spinedrr's {found} record, which a {kind} record does not replace"),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// The `companions` of the spinedrr record at `path` (an output set's marker), empty when there is no
 /// such record.
 pub(super) fn companions_of(path: &Path) -> Vec<String> {
@@ -338,6 +354,26 @@ mod tests {
             foreign(&dir.join("b.tiff")).is_some(),
             "b.json is not spinedrr's"
         );
+    }
+
+    #[test]
+    fn a_record_is_replaced_only_by_one_of_its_kind() {
+        let d = tempfile::tempdir().unwrap();
+        let metrics = write(
+            d.path(),
+            "metrics.json",
+            br#"{"tool": "spinedrr", "kind": "metrics"}"#,
+        );
+        assert!(check_kind(&metrics, "metrics").is_ok());
+        let err = check_kind(&metrics, "drr").unwrap_err().to_string();
+        assert!(
+            err.contains("metrics.json") && err.contains("metrics record"),
+            "{err}"
+        );
+        // No kind (an earlier version's record), or not spinedrr's (judged by check_ours): passes here.
+        let old = write(d.path(), "old.json", br#"{"tool": "spinedrr"}"#);
+        assert!(check_kind(&old, "drr").is_ok());
+        assert!(check_kind(&d.path().join("absent.json"), "drr").is_ok());
     }
 
     #[test]

@@ -11,7 +11,7 @@ use serde_json::json;
 use super::output_set::{Staging, file_names, folder_of};
 use super::xray::XrayModel;
 use super::{
-    ImageF32, Sidecar, check_output_paths, kind, remove_stale_temporaries, sidecar_path, units,
+    ImageF32, Sidecar, check_output_set, kind, remove_stale_temporaries, sidecar_path, units,
     write_heatmap_png, write_mask_png, write_preview_png, write_tiff_f32,
 };
 use crate::geometry::{Perturbation, View};
@@ -108,12 +108,27 @@ pub fn drr_set_paths(out: &Path, silhouettes: &[Silhouette], depth: bool) -> Vec
     paths
 }
 
+/// The kind of the record at `path` in the DRR set of `out` (its sidecar `drr`, the depth map's `depth`,
+/// a mask's `mask`; `None` for an image): an existing spinedrr record of another kind there is refused
+/// ([`super::check_output_set`]).
+pub fn drr_set_kind(out: &Path, path: &Path) -> Option<&'static str> {
+    if path.extension()? != "json" {
+        None
+    } else if path == sidecar_path(out) {
+        Some(kind::DRR)
+    } else if path == sidecar_path(&sibling(out, "depth", "tiff")) {
+        Some(kind::DEPTH)
+    } else {
+        Some(kind::MASK)
+    }
+}
+
 /// Writes the output set of a DRR of `view` (reference geometry) rendered under `perturbation`: the
 /// masks and the depth map (each with its sidecar), `out` (float TIFF of the values), `OUT.png` (an 8-bit
 /// preview of the line integral) and, last, `OUT.json` (kind `drr`, the producer's `details`, `I0` for an
 /// intensity image, and `companions`: the other files of the set).
 ///
-/// Every path is checked first ([`check_output_paths`]): when one cannot be written, nothing is. Then
+/// Every path is checked first ([`check_output_set`]): when one cannot be written, nothing is. Then
 /// temporaries of killed runs are removed and the set is written aside and committed
 /// ([`super::output_set::Staging`]): a run that fails while writing leaves the previous set whole, and a
 /// set without `OUT.json` is one a run did not finish committing.
@@ -133,7 +148,7 @@ pub fn write_drr_set(
         DrrValues::LineIntegral => {}
     }
     let paths = drr_set_paths(out, products.silhouettes, products.depth.is_some());
-    check_output_paths(&paths)?;
+    check_output_set(&paths, |p| drr_set_kind(out, p))?;
     let folder = folder_of(out);
     remove_stale_temporaries(folder);
     let stem = out.file_name().unwrap_or_default().to_string_lossy();
@@ -287,6 +302,17 @@ pub fn difference_set_paths(dir: &Path) -> Vec<PathBuf> {
     .to_vec()
 }
 
+/// The kind of the record at `path` in `compare`'s output set (`absdiff.json`, `heatmap.json`,
+/// `metrics.json`).
+pub fn difference_set_kind(path: &Path) -> Option<&'static str> {
+    match path.file_name()?.to_str()? {
+        "absdiff.json" => Some(kind::ABS_DIFFERENCE),
+        "heatmap.json" => Some(kind::HEATMAP),
+        "metrics.json" => Some(kind::METRICS),
+        _ => None,
+    }
+}
+
 /// Writes [`write_difference`]'s images and then `marker` (the set's record, e.g. `metrics.json`, a JSON
 /// object given `companions`: the other files) under the protocol of [`write_drr_set`]: every path checked
 /// first, stale temporaries and the previous marker removed, the marker last.
@@ -298,7 +324,7 @@ pub fn write_difference_set(
     marker: serde_json::Map<String, serde_json::Value>,
 ) -> Result<()> {
     let paths = difference_set_paths(dir);
-    check_output_paths(&paths)?;
+    check_output_set(&paths, difference_set_kind)?;
     remove_stale_temporaries(dir);
     let (marker_path, companions) = paths
         .split_last()

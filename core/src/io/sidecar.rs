@@ -22,6 +22,12 @@ pub mod kind {
     pub const ABS_DIFFERENCE: &str = "abs_difference";
     /// A colour map of values (a difference) with a colour bar.
     pub const HEATMAP: &str = "heatmap";
+    /// `compare`'s record, `metrics.json`.
+    pub const METRICS: &str = "metrics";
+    /// `register`'s result, `R.json`.
+    pub const REGISTRATION: &str = "registration";
+    /// `calibrate`'s record, `phantom.json`.
+    pub const CALIBRATION: &str = "calibration";
 }
 
 /// Units of pixel values (the sidecar's `units`), one spelling each.

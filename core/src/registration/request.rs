@@ -152,6 +152,7 @@ pub fn run_request(loaded: LoadedProblem, req: &RegisterRequest) -> Result<Regis
         "method": req.method,
         "views": problem.views.iter().map(|v| v.view.name.clone()).collect::<Vec<_>>(),
         "tool": crate::io::TOOL,
+        "kind": crate::io::kind::REGISTRATION,
     });
     if let Some(why) = implausible {
         record["implausible"] = json!(why);

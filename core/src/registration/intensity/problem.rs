@@ -331,6 +331,7 @@ pub fn run_intensity_problem(loaded: &LoadedIntensityProblem) -> Result<Value> {
         "levels": loaded.options.levels,
         "stages": r.stages,
         "tool": crate::io::TOOL,
+        "kind": crate::io::kind::REGISTRATION,
     });
     if let Some(truth) = loaded.truth {
         let t = &loaded.problem.targets;
