@@ -225,24 +225,39 @@ fn mesh_calibrate_and_register_replace_only_their_own_files() {
             &s(out),
         ])
     };
-    refused(
+    refused_untouched(
         dir,
         &render(&dir.join("R.tiff")),
-        &["R.json", "registration record"],
+        &[
+            "R.json",
+            "registration record",
+            "with a drr record",
+            "nothing was written",
+        ],
     );
-    refused(
+    refused_untouched(
         &cal,
         &render(&cal.join("phantom.tiff")),
-        &["phantom.json", "calibration record"],
+        &[
+            "phantom.json",
+            "calibration record",
+            "with a drr record",
+            "nothing was written",
+        ],
     );
     // And a mask's sidecar of one render is not the sidecar of another.
     let img = dir.join("img");
     std::fs::create_dir(&img).unwrap();
     ok(&[render(&img.join("a.tiff")), args(&["--masks"])].concat());
-    refused(
+    refused_untouched(
         &img,
         &render(&img.join("a_mask.tiff")),
-        &["a_mask.json", "mask record"],
+        &[
+            "a_mask.json",
+            "mask record",
+            "with a drr record",
+            "nothing was written",
+        ],
     );
     // A comparison's metrics.json likewise.
     ok(&args(&[
@@ -254,10 +269,15 @@ fn mesh_calibrate_and_register_replace_only_their_own_files() {
         "--out",
         &s(&img.join("cmp")),
     ]));
-    refused(
+    refused_untouched(
         &img.join("cmp"),
         &render(&img.join("cmp/metrics.tiff")),
-        &["metrics.json", "metrics record"],
+        &[
+            "metrics.json",
+            "metrics record",
+            "with a drr record",
+            "nothing was written",
+        ],
     );
 }
 

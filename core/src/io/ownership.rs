@@ -84,9 +84,12 @@ pub fn check_kind(path: &Path, kind: &str) -> Result<()> {
         .filter(|v| v.get("tool").and_then(Value::as_str) == Some(TOOL))
         .and_then(|v| v.get("kind").and_then(Value::as_str).map(str::to_string));
     match found {
-        Some(found) if found != kind => Err(refusal(
-            path,
-            &format!("spinedrr's {found} record, which a {kind} record does not replace"),
+        Some(found) if found != kind => Err(Error::invalid(
+            format!("output {}", path.display()),
+            format!(
+                "would replace spinedrr's {found} record there with a {kind} record (another product \
+                 of the same name); nothing was written (choose another output name)"
+            ),
         )),
         _ => Ok(()),
     }
