@@ -81,18 +81,56 @@ fn links(text: &str) -> String {
     h
 }
 
-/// Markdown's `**bold**` as `<strong>`, pair by pair; an unpaired `**` stays as written.
+/// Markdown's `**bold**` as `<strong>`, pair by pair; an unpaired `**` stays as written. Each piece's
+/// `*emphasis*` becomes `<em>` ([`emphasis`]).
 fn strong(text: &str) -> String {
     let parts: Vec<&str> = text.split("**").collect();
     if parts.len().is_multiple_of(2) {
-        return text.to_string();
+        return emphasis(text);
     }
     let mut h = String::with_capacity(text.len() + 8 * parts.len());
     for (i, part) in parts.iter().enumerate() {
         if i % 2 == 1 {
-            let _ = write!(h, "<strong>{part}</strong>");
+            let _ = write!(h, "<strong>{}</strong>", emphasis(part));
         } else {
-            h.push_str(part);
+            h.push_str(&emphasis(part));
+        }
+    }
+    h
+}
+
+/// Markdown's `*emphasis*` as `<em>`: an opening `*` at the start, after a space or an opening bracket
+/// or quote (`;` ends an escaped `&quot;`) and before a letter or digit; the closing one after a
+/// character other than a space and before the end, a space or punctuation. Any other `*` (a glob such
+/// as `opencv-*`) stays as written.
+fn emphasis(text: &str) -> String {
+    let chars: Vec<char> = text.chars().collect();
+    let opens = |i: usize| {
+        (i == 0 || chars[i - 1].is_whitespace() || "([\"';".contains(chars[i - 1]))
+            && chars.get(i + 1).is_some_and(|c| c.is_alphanumeric())
+    };
+    let closes = |i: usize| {
+        i > 0
+            && !chars[i - 1].is_whitespace()
+            && chars[i - 1] != '*'
+            && chars
+                .get(i + 1)
+                .is_none_or(|c| c.is_whitespace() || ".,;:!?)]'\"&-—–".contains(*c))
+    };
+    let mut h = String::with_capacity(text.len());
+    let mut i = 0;
+    while i < chars.len() {
+        if chars[i] == '*'
+            && opens(i)
+            && let Some(end) = (i + 1..chars.len()).find(|&j| chars[j] == '*' && closes(j))
+        {
+            h.push_str("<em>");
+            h.extend(&chars[i + 1..end]);
+            h.push_str("</em>");
+            i = end + 1;
+        } else {
+            h.push(chars[i]);
+            i += 1;
         }
     }
     h
@@ -244,6 +282,21 @@ mod tests {
             "<strong>L3, ap+lat.</strong> the <strong>assumed</strong> K (<a href=\"t.csv\">t</a>)"
         );
         assert_eq!(inline("a ** b"), "a ** b");
+    }
+
+    #[test]
+    fn emphasis_becomes_em_and_a_glob_stays() {
+        assert_eq!(
+            inline(
+                "(opencv-*) cannot (see *Physical geometry errors: focal*); the *nominal* poses"
+            ),
+            "(opencv-*) cannot (see <em>Physical geometry errors: focal</em>); the <em>nominal</em> poses"
+        );
+        assert_eq!(
+            inline("**a *b* c** and *Spectral fixed images* below, `*_detector`"),
+            "<strong>a <em>b</em> c</strong> and <em>Spectral fixed images</em> below, <code>*_detector</code>"
+        );
+        assert_eq!(inline("2 * 3 and a*b"), "2 * 3 and a*b");
     }
 
     #[test]
