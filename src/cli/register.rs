@@ -45,8 +45,9 @@ pub struct Args {
     /// Iteration cap of the direct solver.
     #[arg(long, default_value_t = 100, value_parser = super::values::whole::<usize>)]
     max_iterations: usize,
-    /// Output JSON: {"R", "t", "residual_px", "iterations", "converged", "tool"} (+ errors when truth is
-    /// known). An existing file there is replaced only if spinedrr wrote it (its `tool`); any other is refused.
+    /// Output JSON: {"R", "t", "residual_px", "iterations", "converged", "tool", "kind"} (+ errors when
+    /// truth is known). An existing file there is replaced only if it is a registration result spinedrr
+    /// wrote (its `tool` and `kind` say so); any other file is refused, and nothing is written.
     #[arg(long)]
     out: PathBuf,
     /// Accept a solve that did not converge: still warn on stderr, but exit 0. Without it a
