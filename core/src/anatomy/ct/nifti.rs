@@ -409,7 +409,8 @@ fn header_for<T: Copy>(vol: &Volume<T>) -> NiftiHeader {
     h.pixdim[3] = s.z as f32;
     // `descrip` names the writer: how a later run tells the file for spinedrr's own (crate::io::check_ours).
     let text = format!("{} {}", crate::io::TOOL, crate::VERSION);
+    let n = text.len().min(80);
     h.descrip = vec![0; 80];
-    h.descrip[..text.len()].copy_from_slice(text.as_bytes());
+    h.descrip[..n].copy_from_slice(&text.as_bytes()[..n]);
     h
 }
