@@ -39,10 +39,39 @@ pub fn check_output_set(
             check_kind(p, kind)?;
         }
     }
-    let listed = paths
-        .last()
-        .map(|marker| companions_of(marker))
-        .unwrap_or_default();
+    // Another run committing a set here removes its record first and renames it into place last (under
+    // the set's lock): meanwhile its images stand without their sidecar. Wait for that commit, as the
+    // commit itself would ([`SetLock::WAIT`]), before judging whose files they are.
+    let start = std::time::Instant::now();
+    let judge = || {
+        let listed = paths
+            .last()
+            .map(|marker| companions_of(marker))
+            .unwrap_or_default();
+        paths.iter().find_map(|p| {
+            let name = p.file_name().unwrap_or_default().to_string_lossy();
+            (!p.is_dir() && !listed.iter().any(|c| *c == name))
+                .then(|| foreign(p).map(|what| (p, what)))
+                .flatten()
+        })
+    };
+    let committing = || paths.iter().any(|p| commit_in_progress(folder_of(p)));
+    let foreign_file = loop {
+        let found = judge();
+        if found.is_none() || start.elapsed() > SetLock::WAIT {
+            break found;
+        }
+        if committing() {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            continue;
+        }
+        // No commit now: the one that made the file look foreign may have ended just before; judge
+        // again, and refuse only what is still foreign with no commit under way.
+        let again = judge();
+        if again.is_none() || !committing() {
+            break again;
+        }
+    };
     if let Some(p) = paths.iter().find(|p| p.is_dir()) {
         return Err(Error::invalid(
             format!("output {}", p.display()),
@@ -50,13 +79,10 @@ pub fn check_output_set(
         ));
     }
     let mut folders = BTreeSet::new();
+    if let Some((p, what)) = foreign_file {
+        return Err(refusal(p, what));
+    }
     for p in paths {
-        let name = p.file_name().unwrap_or_default().to_string_lossy();
-        if !listed.iter().any(|c| *c == name)
-            && let Some(what) = foreign(p)
-        {
-            return Err(refusal(p, what));
-        }
         let dir = folder_of(p);
         if !dir.is_dir() {
             return Err(Error::invalid(
@@ -256,6 +282,21 @@ impl SetLock {
             }
         }
     }
+}
+
+/// Whether a live run holds a set's lock (`.STEM.lock`) in `folder`: it is committing that set.
+fn commit_in_progress(folder: &Path) -> bool {
+    std::fs::read_dir(folder)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| {
+            let n = e.file_name().to_string_lossy().into_owned();
+            n.starts_with('.') && n.ends_with(".lock")
+        })
+        .filter_map(|e| std::fs::read_to_string(e.path()).ok())
+        .filter_map(|t| t.trim().parse::<u32>().ok())
+        .any(super::process_running)
 }
 
 impl Drop for SetLock {
