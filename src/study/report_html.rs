@@ -1,13 +1,14 @@
 //! `report.html`: the Markdown report rendered as one self-contained page: a table of contents whose
 //! links resolve to the sections' ids, each figure embedded as a base64 PNG preview at display size
 //! (at most [`PREVIEW_WIDTH_PX`] wide) linking to the full-resolution file, with its caption, tables as
-//! HTML tables; so the page can be mailed or archived as a single file. Writing to a `String` cannot
-//! fail, so `writeln!` results are discarded.
+//! HTML tables; so the page can be mailed or archived as a single file. The Markdown is read by
+//! pulldown-cmark (CommonMark and GFM tables, as GitHub reads `report.md`), so the page and the file
+//! say the same thing.
 
-use std::fmt::Write as _;
 use std::path::Path;
 
 use base64::Engine as _;
+use pulldown_cmark::{Event, HeadingLevel, Options, Parser, Tag, TagEnd, html};
 
 use super::report::slug;
 use crate::io::{png_preview, write_atomic_bytes};
@@ -22,127 +23,12 @@ margin-top:2em}table{border-collapse:collapse;margin:0.6em 0}td,th{border:1px so
 th{background:#eee}figure{margin:1.2em 0}img{max-width:100%;height:auto;border:1px solid #ddd}\
 figcaption{font-size:0.9em;color:#444}nav ul{columns:2}";
 
+/// `s` escaped for an HTML attribute value.
 fn escape(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
         .replace('"', "&quot;")
-}
-
-/// `(text, target)` of a line that is one Markdown link `[text](target)` or image `![text](target)`.
-fn link(item: &str) -> Option<(&str, &str)> {
-    let item = item.trim_start_matches('!');
-    let close = item.find("](")?;
-    Some((item.get(1..close)?, item.get(close + 2..item.len() - 1)?))
-}
-
-/// `text` escaped, with Markdown code spans as `<code>`, links `[a](b)` as `<a href="b">a</a>` and
-/// `**bold**` as `<strong>`.
-fn inline(text: &str) -> String {
-    // Code spans first (Markdown gives them precedence): `x` pair by pair; an unpaired backtick stays.
-    let parts: Vec<&str> = text.split('`').collect();
-    if parts.len() > 1 && parts.len() % 2 == 1 {
-        return parts
-            .iter()
-            .enumerate()
-            .map(|(i, p)| {
-                if i % 2 == 1 {
-                    format!("<code>{}</code>", escape(p))
-                } else {
-                    links(p)
-                }
-            })
-            .collect();
-    }
-    links(text)
-}
-
-/// Links and bold of a text without code spans.
-fn links(text: &str) -> String {
-    let mut h = String::new();
-    let mut rest = text;
-    while let Some(open) = rest.find('[') {
-        let Some((label, target, len)) = rest[open..].find("](").and_then(|close| {
-            let after = &rest[open + close + 2..];
-            let end = after.find(')')?;
-            Some((
-                &rest[open + 1..open + close],
-                &after[..end],
-                close + 2 + end + 1,
-            ))
-        }) else {
-            break;
-        };
-        h.push_str(&strong(&escape(&rest[..open])));
-        let _ = write!(h, "<a href=\"{}\">{}</a>", escape(target), escape(label));
-        rest = &rest[open + len..];
-    }
-    h.push_str(&strong(&escape(rest)));
-    h
-}
-
-/// Markdown's `**bold**` as `<strong>`, pair by pair; an unpaired `**` stays as written. Each piece's
-/// `*emphasis*` becomes `<em>` ([`emphasis`]).
-fn strong(text: &str) -> String {
-    let parts: Vec<&str> = text.split("**").collect();
-    if parts.len().is_multiple_of(2) {
-        return emphasis(text);
-    }
-    let mut h = String::with_capacity(text.len() + 8 * parts.len());
-    for (i, part) in parts.iter().enumerate() {
-        if i % 2 == 1 {
-            let _ = write!(h, "<strong>{}</strong>", emphasis(part));
-        } else {
-            h.push_str(&emphasis(part));
-        }
-    }
-    h
-}
-
-/// Markdown's `*emphasis*` as `<em>`: an opening `*` at the start, after a space or an opening bracket
-/// or quote (`;` ends an escaped `&quot;`) and before a letter or digit; the closing one after a
-/// character other than a space and before the end, a space or punctuation. Any other `*` (a glob such
-/// as `opencv-*`) stays as written.
-fn emphasis(text: &str) -> String {
-    let chars: Vec<char> = text.chars().collect();
-    let opens = |i: usize| {
-        (i == 0 || chars[i - 1].is_whitespace() || "([\"';".contains(chars[i - 1]))
-            && chars.get(i + 1).is_some_and(|c| c.is_alphanumeric())
-    };
-    let closes = |i: usize| {
-        i > 0
-            && !chars[i - 1].is_whitespace()
-            && chars[i - 1] != '*'
-            && chars
-                .get(i + 1)
-                .is_none_or(|c| c.is_whitespace() || ".,;:!?)]'\"&-—–".contains(*c))
-    };
-    let mut h = String::with_capacity(text.len());
-    let mut i = 0;
-    while i < chars.len() {
-        if chars[i] == '*'
-            && opens(i)
-            && let Some(end) = (i + 1..chars.len()).find(|&j| chars[j] == '*' && closes(j))
-        {
-            h.push_str("<em>");
-            h.extend(&chars[i + 1..end]);
-            h.push_str("</em>");
-            i = end + 1;
-        } else {
-            h.push(chars[i]);
-            i += 1;
-        }
-    }
-    h
-}
-
-fn table_row(line: &str, cell: &str) -> String {
-    let cells: Vec<String> = line
-        .trim_matches('|')
-        .split('|')
-        .map(|c| format!("<{cell}>{}</{cell}>", inline(c.trim())))
-        .collect();
-    format!("<tr>{}</tr>\n", cells.join(""))
 }
 
 /// `data:image/png;base64,…` of the PNG at `path`, downscaled to [`PREVIEW_WIDTH_PX`] wide if wider and
@@ -158,98 +44,146 @@ fn preview_uri(path: &Path) -> Result<String> {
 /// Levels per channel of the embedded previews.
 pub const PREVIEW_LEVELS: u32 = 16;
 
-/// The caption of an italic `_Figure …_` line.
-fn caption(line: Option<&&str>) -> Option<String> {
-    let l = line?.trim();
-    l.strip_prefix("_Figure ")
-        .and_then(|c| c.strip_suffix('_'))
-        .map(|c| format!("Figure {c}"))
+/// The index of the event that closes the one opened at `events[start]` (tags nest; every start has
+/// its end).
+fn end_of(events: &[Event], start: usize) -> usize {
+    let mut depth = 0usize;
+    for (i, e) in events.iter().enumerate().skip(start) {
+        match e {
+            Event::Start(_) => depth += 1,
+            Event::End(_) => {
+                depth -= 1;
+                if depth == 0 {
+                    return i;
+                }
+            }
+            _ => {}
+        }
+    }
+    events.len() - 1
 }
 
-/// What block the renderer is inside.
-#[derive(PartialEq)]
-enum Block {
-    None,
-    Table,
-    List,
-    Nav,
+/// The text of `events` as a reader sees it (text and code spans; markup dropped).
+fn plain_text(events: &[Event]) -> String {
+    events
+        .iter()
+        .filter_map(|e| match e {
+            Event::Text(t) | Event::Code(t) => Some(t.as_ref()),
+            Event::SoftBreak | Event::HardBreak => Some(" "),
+            _ => None,
+        })
+        .collect()
 }
 
-/// Renders the subset of Markdown that `report.md` uses: headings (`##`, `###` with their [`slug`] as
-/// id), paragraphs with links, lists (the one under "Contents" as the page's `<nav>`), tables, and
-/// figures (an image line and its caption line).
+/// A figure from the events inside a paragraph that starts with an image: the image's preview linking
+/// to its file, and as caption the rest of the paragraph (the report's italic `_Figure n. …_` line,
+/// without its italics), or the image's alt text where there is no rest.
+fn figure<'a>(inner: &[Event<'a>], out: &Path, page: &mut Vec<Event<'a>>) -> Result<()> {
+    let Event::Start(Tag::Image { dest_url, .. }) = &inner[0] else {
+        return Err(Error::Internal(
+            "a figure that does not start with an image".into(),
+        ));
+    };
+    let close = end_of(inner, 0);
+    let alt = plain_text(&inner[1..close]);
+    let mut rest = &inner[close + 1..];
+    while let [Event::SoftBreak | Event::HardBreak, tail @ ..] = rest {
+        rest = tail;
+    }
+    if matches!(rest.first(), Some(Event::Start(Tag::Emphasis)))
+        && end_of(rest, 0) == rest.len() - 1
+    {
+        rest = &rest[1..rest.len() - 1];
+    }
+    let uri = preview_uri(&out.join(dest_url.as_ref()))?;
+    page.push(Event::Html(
+        format!(
+            "<figure><a href=\"{}\"><img alt=\"{}\" src=\"{uri}\"></a><figcaption>",
+            escape(dest_url),
+            escape(&alt)
+        )
+        .into(),
+    ));
+    if rest.is_empty() {
+        page.push(Event::Text(alt.into()));
+    } else {
+        page.extend(rest.iter().cloned());
+    }
+    page.push(Event::Html("</figcaption></figure>\n".into()));
+    Ok(())
+}
+
+/// Renders `report.md` as CommonMark with GFM tables (pulldown-cmark: what GitHub shows of the same
+/// file), with the page's additions: each `##`/`###` heading's id its [`slug`] (the targets of the
+/// contents' links), the list right under `## Contents` as the page's `<nav>`, each table in a
+/// horizontally scrolling box, and each paragraph that starts with an image as a captioned
+/// [`figure`] embedding the image's preview. `out` is the folder the report's links are relative to.
 pub fn markdown_to_html(md: &str, out: &Path) -> Result<String> {
+    let events: Vec<Event> = Parser::new_ext(md, Options::ENABLE_TABLES).collect();
+    let mut page: Vec<Event> = Vec::with_capacity(events.len() + 64);
+    // Whether the last block was the `## Contents` heading; whether its list (the `<nav>`) is open.
+    let mut after_contents = false;
+    let mut nav = false;
+    let mut lists = 0usize;
+    let mut i = 0;
+    while i < events.len() {
+        let block_start = lists == 0 && matches!(&events[i], Event::Start(_));
+        match &events[i] {
+            Event::Start(Tag::Heading { level, .. }) => {
+                let end = end_of(&events, i);
+                let text = plain_text(&events[i + 1..end]);
+                let id = (*level != HeadingLevel::H1).then(|| slug(&text).into());
+                after_contents = *level == HeadingLevel::H2 && text == "Contents";
+                page.push(Event::Start(Tag::Heading {
+                    level: *level,
+                    id,
+                    classes: Vec::new(),
+                    attrs: Vec::new(),
+                }));
+                page.extend(events[i + 1..=end].iter().cloned());
+                i = end + 1;
+                continue;
+            }
+            Event::Start(Tag::Paragraph)
+                if matches!(events.get(i + 1), Some(Event::Start(Tag::Image { .. }))) =>
+            {
+                let end = end_of(&events, i);
+                figure(&events[i + 1..end], out, &mut page)?;
+                i = end + 1;
+                after_contents = false;
+                continue;
+            }
+            Event::Start(Tag::Table(_)) => page.push(Event::Html("<div class=\"wide\">".into())),
+            Event::Start(Tag::List(_)) => {
+                if lists == 0 && after_contents {
+                    page.push(Event::Html("<nav>".into()));
+                    nav = true;
+                }
+                lists += 1;
+            }
+            _ => {}
+        }
+        if block_start {
+            after_contents = false;
+        }
+        page.push(events[i].clone());
+        match &events[i] {
+            Event::End(TagEnd::Table) => page.push(Event::Html("</div>\n".into())),
+            Event::End(TagEnd::List(_)) => {
+                lists -= 1;
+                if lists == 0 && std::mem::take(&mut nav) {
+                    page.push(Event::Html("</nav>\n".into()));
+                }
+            }
+            _ => {}
+        }
+        i += 1;
+    }
     let mut h = format!(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>spinedrr study</title>\n\
 <style>{STYLE}</style></head><body>\n"
     );
-    let mut block = Block::None;
-    let lines: Vec<&str> = md.lines().collect();
-    let mut i = 0;
-    while i < lines.len() {
-        let line = lines[i];
-        i += 1;
-        let close = match block {
-            Block::Table if !line.starts_with('|') => "</table></div>\n",
-            Block::List if !line.starts_with("- ") => "</ul>\n",
-            Block::Nav if !line.starts_with("- ") => "</ul></nav>\n",
-            _ => "",
-        };
-        if !close.is_empty() {
-            h.push_str(close);
-            block = Block::None;
-        }
-        if let Some(t) = line.strip_prefix("### ") {
-            let _ = writeln!(h, "<h3 id=\"{}\">{}</h3>", slug(t), escape(t));
-        } else if let Some(t) = line.strip_prefix("## ") {
-            let _ = writeln!(h, "<h2 id=\"{}\">{}</h2>", slug(t), escape(t));
-        } else if let Some(t) = line.strip_prefix("# ") {
-            let _ = writeln!(h, "<h1>{}</h1>", escape(t));
-        } else if line.starts_with("|---") {
-            continue;
-        } else if line.starts_with('|') {
-            if block == Block::Table {
-                h.push_str(&table_row(line, "td"));
-            } else {
-                h.push_str("<div class=\"wide\"><table>\n");
-                h.push_str(&table_row(line, "th"));
-                block = Block::Table;
-            }
-        } else if let Some(item) = line.strip_prefix("- ") {
-            if block == Block::None {
-                // The list right under "Contents" is the page's navigation.
-                if h.trim_end().ends_with("id=\"contents\">Contents</h2>") {
-                    h.push_str("<nav><ul>\n");
-                    block = Block::Nav;
-                } else {
-                    h.push_str("<ul>\n");
-                    block = Block::List;
-                }
-            }
-            let _ = writeln!(h, "<li>{}</li>", inline(item));
-        } else if let Some((alt, target)) = line.starts_with("![").then(|| link(line)).flatten() {
-            let cap = caption(lines.get(i));
-            if cap.is_some() {
-                i += 1;
-            }
-            let uri = preview_uri(&out.join(target))?;
-            let _ = writeln!(
-                h,
-                "<figure><a href=\"{0}\"><img alt=\"{1}\" src=\"{uri}\"></a><figcaption>{2}</figcaption></figure>",
-                escape(target),
-                escape(alt),
-                cap.map_or_else(|| escape(alt), |c| inline(&c))
-            );
-        } else if !line.trim().is_empty() {
-            let _ = writeln!(h, "<p>{}</p>", inline(line));
-        }
-    }
-    h.push_str(match block {
-        Block::Table => "</table></div>\n",
-        Block::List => "</ul>\n",
-        Block::Nav => "</ul></nav>\n",
-        Block::None => "",
-    });
+    html::push_html(&mut h, page.into_iter());
     h.push_str("</body></html>\n");
     Ok(h)
 }
@@ -264,47 +198,83 @@ pub fn write(out: &Path) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::inline;
+    use super::markdown_to_html;
 
-    #[test]
-    fn inline_links_become_anchors_and_text_is_escaped() {
-        assert_eq!(
-            inline("a < b ([t.csv](tables/t.csv), [f](figures/f.png))."),
-            "a &lt; b (<a href=\"tables/t.csv\">t.csv</a>, <a href=\"figures/f.png\">f</a>)."
-        );
-        assert_eq!(inline("no [link here"), "no [link here");
+    /// The page's body for `md` (no figures: `out` is never read).
+    fn body(md: &str) -> String {
+        let h = markdown_to_html(md, std::path::Path::new("/nonexistent")).expect("html");
+        let start = h.find("<body>\n").expect("body") + 7;
+        h[start..h.len() - "</body></html>\n".len()].to_string()
     }
 
     #[test]
-    fn bold_becomes_strong_and_an_unpaired_marker_stays() {
+    fn inline_markup_follows_commonmark() {
         assert_eq!(
-            inline("**L3, ap+lat.** the **assumed** K ([t](t.csv))"),
-            "<strong>L3, ap+lat.</strong> the <strong>assumed</strong> K (<a href=\"t.csv\">t</a>)"
+            body("a < b ([t.csv](tables/t.csv), [f](figures/f.png)). no [link here"),
+            "<p>a &lt; b (<a href=\"tables/t.csv\">t.csv</a>, <a href=\"figures/f.png\">f</a>). no [link here</p>\n"
         );
-        assert_eq!(inline("a ** b"), "a ** b");
+        assert_eq!(
+            body("**L3, ap+lat.** the *nominal* poses, `a<b>**c**`, 2 * 3 (`opencv-*`, opencv-*)"),
+            "<p><strong>L3, ap+lat.</strong> the <em>nominal</em> poses, \
+             <code>a&lt;b&gt;**c**</code>, 2 * 3 (<code>opencv-*</code>, opencv-*)</p>\n"
+        );
+        // CommonMark pairs two bare `*` that touch words (`opencv-*` … `a*b`): the report writes
+        // globs in code spans.
+        assert_eq!(
+            body("(opencv-*) and a*b"),
+            "<p>(opencv-<em>) and a</em>b</p>\n"
+        );
     }
 
     #[test]
-    fn emphasis_becomes_em_and_a_glob_stays() {
+    fn headings_get_their_slug_and_the_contents_list_is_the_nav() {
+        let h = body(
+            "# Study\n\n## Contents\n\n- [Findings](#findings)\n- [Where the time goes](#where-the-time-goes)\n\n\
+             ## Findings\n\n- a finding\n\n## Where the time goes\n",
+        );
         assert_eq!(
-            inline(
-                "(opencv-*) cannot (see *Physical geometry errors: focal*); the *nominal* poses"
+            h,
+            "<h1>Study</h1>\n<h2 id=\"contents\">Contents</h2>\n<nav>\n<ul>\n\
+             <li><a href=\"#findings\">Findings</a></li>\n\
+             <li><a href=\"#where-the-time-goes\">Where the time goes</a></li>\n</ul>\n</nav>\n\
+             <h2 id=\"findings\">Findings</h2>\n<ul>\n<li>a finding</li>\n</ul>\n\
+             <h2 id=\"where-the-time-goes\">Where the time goes</h2>\n"
+        );
+    }
+
+    #[test]
+    fn tables_scroll_in_their_box() {
+        let h = body("| a | b |\n|---|---|\n| `x` | 2 |\n");
+        assert!(h.starts_with("<div class=\"wide\"><table>"), "{h}");
+        assert!(h.ends_with("</table>\n</div>\n"), "{h}");
+        assert!(
+            h.contains("<th>a</th>") && h.contains("<td><code>x</code></td>"),
+            "{h}"
+        );
+    }
+
+    #[test]
+    fn an_image_and_its_caption_line_are_one_figure() {
+        let dir = tempfile::tempdir().expect("dir");
+        std::fs::create_dir(dir.path().join("figures")).expect("figures");
+        image::RgbImage::from_pixel(4, 3, image::Rgb([200, 10, 10]))
+            .save(dir.path().join("figures/f.png"))
+            .expect("png");
+        let md = "![Shift vs Δf](figures/f.png)\n_Figure 1. The *shift* ([PNG](figures/f.png))_\n\n\
+                  ![Alone](figures/f.png)\n";
+        let h = markdown_to_html(md, dir.path()).expect("html");
+        let figures: Vec<&str> = h.split("<figure>").skip(1).collect();
+        assert_eq!(figures.len(), 2, "{h}");
+        assert!(figures[0].starts_with(
+            "<a href=\"figures/f.png\"><img alt=\"Shift vs Δf\" src=\"data:image/png;base64,"
+        ));
+        assert!(
+            figures[0].contains(
+                "<figcaption>Figure 1. The <em>shift</em> (<a href=\"figures/f.png\">PNG</a>)</figcaption></figure>"
             ),
-            "(opencv-*) cannot (see <em>Physical geometry errors: focal</em>); the <em>nominal</em> poses"
+            "{h}"
         );
-        assert_eq!(
-            inline("**a *b* c** and *Spectral fixed images* below, `*_detector`"),
-            "<strong>a <em>b</em> c</strong> and <em>Spectral fixed images</em> below, <code>*_detector</code>"
-        );
-        assert_eq!(inline("2 * 3 and a*b"), "2 * 3 and a*b");
-    }
-
-    #[test]
-    fn code_spans_become_code_and_keep_their_markup_literal() {
-        assert_eq!(
-            inline("the `study.toml` (**B** `a<b>**c**`)"),
-            "the <code>study.toml</code> (<strong>B</strong> <code>a&lt;b&gt;**c**</code>)"
-        );
-        assert_eq!(inline("one ` tick"), "one ` tick");
+        assert!(figures[1].contains("<figcaption>Alone</figcaption>"), "{h}");
+        assert!(!h.contains("<p><figure>") && !h.contains("<p></p>"), "{h}");
     }
 }

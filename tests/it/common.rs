@@ -338,6 +338,29 @@ pub fn read_report(out: &Path) -> String {
         .filter_map(|l| l.split("](#").next())
         .collect();
     assert!(!entries.is_empty(), "empty contents");
+    // One block per line or run of lines, each after a blank line: CommonMark (GitHub, report.html)
+    // joins two lines of text into one paragraph, and takes text right after a list item or a table
+    // row into it. Headings stand alone; an image and its caption line are one figure.
+    let kind = |l: &str| match l {
+        _ if l.trim().is_empty() => "blank",
+        _ if l.starts_with('#') => "heading",
+        _ if l.starts_with('|') => "table",
+        _ if l.starts_with("- ") => "list",
+        _ if l.starts_with("![") => "image",
+        _ if l.starts_with("_Figure ") => "caption",
+        _ => "text",
+    };
+    for (a, b) in md.lines().zip(md.lines().skip(1)) {
+        let (ka, kb) = (kind(a), kind(b));
+        let apart = ["blank", "heading"].contains(&ka) || ["blank", "heading"].contains(&kb);
+        let one_block =
+            (ka == kb && ["table", "list"].contains(&ka)) || (ka, kb) == ("image", "caption");
+        let joined = !apart && !one_block;
+        assert!(
+            !joined,
+            "report.md: a {ka} line and a {kb} line with no blank line between (CommonMark joins them):\n{a}\n{b}"
+        );
+    }
     for title in entries {
         assert!(
             headings.contains(&title),

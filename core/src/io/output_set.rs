@@ -260,11 +260,8 @@ impl SetLock {
             match super::create_new_with(&path, std::process::id().to_string().as_bytes()) {
                 Ok(true) => return Ok(SetLock(path)),
                 Ok(false) => {
-                    let holder: Option<u32> = std::fs::read_to_string(&path)
-                        .ok()
-                        .and_then(|t| t.trim().parse().ok());
-                    let dead = holder.is_some_and(|pid| !super::process_running(pid));
-                    if dead {
+                    let holder = lock_holder(&path);
+                    if holder.is_some_and(|pid| !super::process_running(pid)) {
                         let _ = std::fs::remove_file(&path);
                         continue;
                     }
@@ -284,6 +281,11 @@ impl SetLock {
     }
 }
 
+/// The PID a set's lock at `path` holds (written whole before the lock appears, [`super::create_new_with`]).
+fn lock_holder(path: &Path) -> Option<u32> {
+    std::fs::read_to_string(path).ok()?.trim().parse().ok()
+}
+
 /// Whether a live run holds a set's lock (`.STEM.lock`) in `folder`: it is committing that set.
 fn commit_in_progress(folder: &Path) -> bool {
     std::fs::read_dir(folder)
@@ -294,8 +296,7 @@ fn commit_in_progress(folder: &Path) -> bool {
             let n = e.file_name().to_string_lossy().into_owned();
             n.starts_with('.') && n.ends_with(".lock")
         })
-        .filter_map(|e| std::fs::read_to_string(e.path()).ok())
-        .filter_map(|t| t.trim().parse::<u32>().ok())
+        .filter_map(|e| lock_holder(&e.path()))
         .any(super::process_running)
 }
 

@@ -413,7 +413,7 @@ fn registration_section(
         let _ = write!(md, "{}", t.to_markdown());
         let _ = writeln!(
             md,
-            "\nSingle-view methods (direct-ap, direct-lat, opencv-*) cannot separate a focal error from depth: \
+            "\nSingle-view methods (`direct-ap`, `direct-lat`, `opencv-*`) cannot separate a focal error from depth: \
 their translation error is about z·Δf/f along the central ray (see registration_summary.csv). \
 Landmarks whose marker falls off the detector (far levels of the segment in LAT) have NaN measurements in landmarks.csv.\n"
         );

@@ -248,7 +248,7 @@ errors of the Δf = 0, piercing 0 rows above (where the grid has them); a physic
             .collect();
         let _ = writeln!(
             md,
-            "Cells (target × error) whose mean largest pedicle error exceeds 1 mm and 2 mm, a pedicle \
+            "\nCells (target × error) whose mean largest pedicle error exceeds 1 mm and 2 mm, a pedicle \
 screw's margin: {}.",
             parts.join("; ")
         );
