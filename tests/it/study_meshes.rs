@@ -463,3 +463,62 @@ fn landmark_names_with_commas_and_quotes_survive_the_tables() {
     assert!(out.join("figures/landmark_overlay_box_lat.png").is_file());
     assert!(out.join("report.html").is_file());
 }
+
+/// A landmark 100 mm beside the box, near the detector's edge in AP: its marker is cut by the edge in
+/// some perturbed views, so those rows of `landmarks.csv` are NaN, and the report's sentence about them
+/// states the counts a reader gets from the CSV (per target, view and landmark; the reference whole).
+#[test]
+fn unmeasured_landmarks_are_counted_in_the_report_as_in_the_table() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cfg_path = box_study(dir.path());
+    let lm_path = dir.path().join("box-landmarks.json");
+    let mut lm: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&lm_path).unwrap()).unwrap();
+    lm["landmarks"]["edge"] = serde_json::json!([100.0, 0.0, 0.0]);
+    std::fs::write(&lm_path, lm.to_string()).unwrap();
+    let out = dir.path().join("out");
+    let o = run_study(&cfg_path, &out, &["--quick"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut rdr = csv::Reader::from_path(out.join("tables/landmarks.csv")).expect("landmarks.csv");
+    let header = rdr.headers().expect("header").clone();
+    let col = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (view_c, name_c, ref_c, shift_c) = (
+        col("view"),
+        col("landmark"),
+        col("ref_u_px"),
+        col("shift_px"),
+    );
+    let mut total = 0;
+    let mut missing = std::collections::BTreeMap::<(String, String), usize>::new();
+    for rec in rdr.records() {
+        let rec = rec.expect("record");
+        total += 1;
+        if rec[shift_c].parse::<f64>().unwrap().is_nan() {
+            assert!(rec[ref_c].parse::<f64>().unwrap().is_finite(), "{rec:?}");
+            *missing
+                .entry((rec[view_c].to_string(), rec[name_c].to_string()))
+                .or_default() += 1;
+        }
+    }
+    let n: usize = missing.values().sum();
+    assert!(n > 0, "no marker was cut: the test lost its case");
+    assert_eq!(
+        missing
+            .keys()
+            .map(|(v, l)| (v.as_str(), l.as_str()))
+            .collect::<Vec<_>>(),
+        [("ap", "edge")],
+        "only the edge landmark in AP is near the detector's edge: {missing:?}"
+    );
+    let cells = missing[&("ap".to_string(), "edge".to_string())];
+    let md = crate::common::read_report(&out);
+    let expected = format!(
+        "{n} of {total} rows of landmarks.csv have NaN measurements, box AP: edge in {cells} cell{} \
+         (each whole in the reference view and cut in the perturbed one).",
+        if cells == 1 { "" } else { "s" }
+    );
+    assert!(
+        md.contains(&expected),
+        "{expected}\nnot in the report:\n{md}"
+    );
+}
