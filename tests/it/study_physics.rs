@@ -302,3 +302,45 @@ fn registration_is_exact_at_zero_perturbation_and_degrades_with_focal_offset() {
         }
     }
 }
+
+/// A single view cannot tell a focal error from depth: at Δf the pose slides along the central ray by
+/// about z·Δf/f. The report states each single-view method's translation error at the largest Δf beside
+/// that prediction; both are checked here, the prediction from the view's depth of the world origin (where
+/// the level sits) and its fx, the measurement from `registration_summary.csv`.
+#[test]
+fn single_view_translation_error_is_the_depth_slide_the_report_states() {
+    let out = quick_out();
+    let cfg = spinedrr::study::StudyConfig::from_file(&out.join("study.toml"))
+        .expect("config")
+        .with_quick_grid();
+    let carm = cfg.carm().expect("C-arm");
+    let md = crate::common::read_report(out);
+    let t = &tables().registration_summary;
+    let df = t.iter().map(|r| r.df_px).fold(0.0, f64::max);
+    for m in [
+        RegistrationMethod::DirectAp,
+        RegistrationMethod::DirectLat,
+        RegistrationMethod::OpencvAp,
+        RegistrationMethod::OpencvLat,
+    ] {
+        let r = t
+            .iter()
+            .find(|r| r.method == m && r.df_px == df && r.piercing_px == 0.0)
+            .unwrap_or_else(|| panic!("no {m} cell at Δf {df}"));
+        let view = carm.view(m.views()[0]).expect("view");
+        let z = view.depth(glam::DVec3::ZERO);
+        let f = view.intrinsics.fx;
+        let predicted = z * df / f;
+        assert!(
+            (r.trans_err_mm_mean - predicted).abs() < 0.03 * predicted,
+            "{m}: {} mm against z·Δf/f = {predicted} mm",
+            r.trans_err_mm_mean
+        );
+        let text = format!(
+            "{m} {:.3} mm against {} {z:.0} × {df:.0} / {f:.0} = {predicted:.1} mm",
+            r.trans_err_mm_mean,
+            m.views()[0].to_uppercase()
+        );
+        assert!(md.contains(&text), "{text:?} not in the report");
+    }
+}

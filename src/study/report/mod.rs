@@ -164,6 +164,10 @@ configuration is `study.toml`.\n",
             &paper,
             &first,
             (cfg.registration.noise_px, pitch),
+            &carm
+                .as_ref()
+                .map(|c| cfg.studied_views(c).collect::<Vec<_>>())
+                .unwrap_or_default(),
         );
     }
     calibration::section(&mut md, (cfg, &first), tables, &figs, &mut n);
@@ -452,6 +456,7 @@ fn registration_section(
     paper: &PaperResults,
     first: &str,
     (noise_px, pitch): (f64, grid::Pitch),
+    views: &[&crate::geometry::View],
 ) {
     let rows = &tables.registration_summary;
     if !rows.is_empty() {
@@ -461,11 +466,10 @@ fn registration_section(
         let t = registration::cells_table(rows, first, noise_px, pitch);
         let _ = writeln!(md, "\n### {}\n", t.caption);
         let _ = write!(md, "{}", t.to_markdown());
-        let _ = writeln!(
-            md,
-            "\nSingle-view methods (`direct-ap`, `direct-lat`, `opencv-*`) cannot separate a focal error from depth: \
-their translation error is about z·Δf/f along the central ray (see registration_summary.csv).\n"
-        );
+        let _ = writeln!(md);
+        if let Some(note) = registration::single_view_note(rows, first, views) {
+            let _ = writeln!(md, "{note}\n");
+        }
     }
     registration::physical_section(md, &tables.registration_physical, first, noise_px);
 }

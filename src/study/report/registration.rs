@@ -3,6 +3,7 @@
 
 use std::fmt::Write as _;
 
+use crate::geometry::View;
 use crate::study::config::RegistrationMethod;
 use crate::study::schema::{
     RegistrationPhysicalRow, RegistrationSummaryRow, SOLVER_SPREAD, ci95_half_width, mean_sd,
@@ -18,6 +19,45 @@ pub fn cell_text(r: &RegistrationSummaryRow, mean: f64, ci95: f64) -> String {
         return "failed".into();
     }
     mean_text(mean, ci95, r.n, r.deterministic)
+}
+
+/// The focal–depth ambiguity of the single-view methods the study ran, checked on `target`: at the
+/// largest Δf with piercing 0, each one's mean translation error beside `z·Δf/f` of its view (z the
+/// source–aim distance, f its fx, [`View::aim`]). `None` when no single-view method ran there.
+pub fn single_view_note(
+    rows: &[RegistrationSummaryRow],
+    target: &str,
+    views: &[&View],
+) -> Option<String> {
+    let mine: Vec<&RegistrationSummaryRow> = rows
+        .iter()
+        .filter(|r| r.target == target && r.piercing_px == 0.0 && r.method.single_view())
+        .collect();
+    let df = mine.iter().map(|r| r.df_px).fold(0.0, f64::max);
+    let parts: Vec<String> = mine
+        .iter()
+        .filter(|r| r.df_px == df && df > 0.0 && r.n > 0)
+        .filter_map(|r| {
+            let view = views.iter().find(|v| v.name == r.method.views()[0])?;
+            let (z, f) = (view.aim().1, view.intrinsics.fx);
+            Some(format!(
+                "{} {:.3} mm against {} {z:.0} × {df:.0} / {f:.0} = {:.1} mm",
+                r.method,
+                r.trans_err_mm_mean,
+                view.name.to_uppercase(),
+                z * df / f
+            ))
+        })
+        .collect();
+    if parts.is_empty() {
+        return None;
+    }
+    Some(format!(
+        "Single-view methods cannot separate a focal error from depth: the pose they find slides along \
+the central ray by about z·Δf/f (z the view's source–aim distance, f its focal length). For {target} at \
+Δf = {df:.0} px, piercing 0, the mean translation error (registration_summary.csv) is {}.",
+        parts.join("; ")
+    ))
 }
 
 /// The cells of `target` at piercing 0, Δf 0 (noise only) and the largest Δf, every method.
