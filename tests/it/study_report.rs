@@ -596,3 +596,51 @@ fn report_html_renders_in_headless_chromium() {
         img.pixels().step_by(97).map(|p| p.0).collect();
     assert!(distinct.len() > 50, "{} colours", distinct.len());
 }
+
+/// The Setup's sentences about the geometry follow from its own views table: the magnification ratio and
+/// the aims' distances from the detector (SDD − source–aim), which of the paper's two statements about
+/// its LAT vertebra hold, and how far the level's body centre (the world origin) is from each aim.
+#[test]
+fn the_setup_prose_follows_from_its_views_table() {
+    let md = crate::common::read_report(quick_out());
+    // | view | source | aim | source–aim | SDD | magnification | …
+    let row = |view: &str| -> (String, f64, f64) {
+        let line = md
+            .lines()
+            .find(|l| l.starts_with(&format!("| {view} | (")))
+            .unwrap_or_else(|| panic!("no {view} row in the Setup's views table"));
+        let cells: Vec<&str> = line.split(" | ").collect();
+        (
+            cells[2].to_string(),
+            cells[3].parse().unwrap(),
+            cells[4].parse().unwrap(),
+        )
+    };
+    let ((_, ap_src, ap_sdd), (lat_aim, lat_src, lat_sdd)) = (row("AP"), row("LAT"));
+    let ratio = (lat_sdd / lat_src) / (ap_sdd / ap_src);
+    assert!(ratio > 1.0, "the built-in LAT magnifies more");
+    let expected = format!(
+        "LAT magnifies its aim {ratio:.2} times as much as AP: in AP the aim is {ap_src:.0} mm from the \
+         source and {:.0} mm from the detector, in LAT the aim is {lat_src:.0} mm from the source and \
+         {:.0} mm from the detector.",
+        ap_sdd - ap_src,
+        lat_sdd - lat_src
+    );
+    assert!(md.contains(&expected), "{expected}");
+    // One SDD: LAT nearer the source is farther from the detector, so only "larger" holds.
+    assert_eq!(ap_sdd, lat_sdd);
+    assert!(
+        md.contains("with one SDD these cannot both hold, and this geometry follows \"larger\".")
+    );
+    let aim: Vec<f64> = lat_aim
+        .trim_matches(|c| c == '(' || c == ')')
+        .split(", ")
+        .map(|x| x.parse().unwrap())
+        .collect();
+    let off = (aim[0] * aim[0] + aim[1] * aim[1] + aim[2] * aim[2]).sqrt();
+    let expected = format!(
+        "Each single level's body centre sits at the world origin: on AP's central ray, {off:.1} mm from \
+         LAT's aim {lat_aim}."
+    );
+    assert!(md.contains(&expected), "{expected}");
+}

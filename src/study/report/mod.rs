@@ -276,7 +276,7 @@ whatever the anatomy does.",
 integral of μ(HU) through the CT, masked to the level's label), as the paper renders DRRs; \
 silhouettes and contours from a thickness render of the label's closed surface (its ray-hit mask); \
 landmarks are automatic landmarks of that surface unless a landmarks file is given. Each CT target is \
-translated so its body centre sits where the views aim. The label surface is split into the phantom's \
+moved so its body centre sits at the world origin, as the phantom's levels (see Setup). The label surface is split into the phantom's \
 structures from its automatic landmark frame, so structures.csv has per-structure rows for CT targets too.",
             names.join(", ")
         );

@@ -92,6 +92,140 @@ fn footprint(out: &Path, target: &str, view: &str) -> Option<Footprint> {
     })
 }
 
+/// A view's aim: its distances from the source and (SDD) to the detector, in mm.
+struct Aim {
+    view: String,
+    source_mm: f64,
+    sdd_mm: f64,
+}
+
+impl Aim {
+    fn magnification(&self) -> f64 {
+        self.sdd_mm / self.source_mm
+    }
+
+    fn to_detector_mm(&self) -> f64 {
+        self.sdd_mm - self.source_mm
+    }
+}
+
+/// How two views magnify their aims, and where the aims are; for AP and LAT, which of the paper's
+/// two statements about its LAT vertebra ("closer to the detector" and "larger" than in AP) hold here.
+fn magnification_text(a: &Aim, b: &Aim) -> String {
+    let (big, small) = if b.magnification() > a.magnification() {
+        (b, a)
+    } else {
+        (a, b)
+    };
+    let ratio = big.magnification() / small.magnification();
+    let mut text = if ratio - 1.0 < 5e-3 {
+        format!(
+            "{} and {} magnify their aims alike",
+            a.view.to_uppercase(),
+            b.view.to_uppercase()
+        )
+    } else {
+        format!(
+            "{} magnifies its aim {ratio:.2} times as much as {}",
+            big.view.to_uppercase(),
+            small.view.to_uppercase()
+        )
+    };
+    let place = |v: &Aim| {
+        format!(
+            "in {} the aim is {} mm from the source and {} mm from the detector",
+            v.view.to_uppercase(),
+            num(v.source_mm, 0),
+            num(v.to_detector_mm(), 0)
+        )
+    };
+    let _ = write!(text, ": {}, {}.", place(a), place(b));
+    let (Some(ap), Some(lat)) = (
+        [a, b].into_iter().find(|v| v.view == "ap"),
+        [a, b].into_iter().find(|v| v.view == "lat"),
+    ) else {
+        return text;
+    };
+    let larger = lat.magnification() > ap.magnification() * (1.0 + 5e-3);
+    let closer = lat.to_detector_mm() < ap.to_detector_mm() - 0.5;
+    let one_sdd = (lat.sdd_mm - ap.sdd_mm).abs() < 0.5;
+    let verdict = match (larger, closer) {
+        (true, true) => "here both hold",
+        (true, false) => "this geometry follows \"larger\"",
+        (false, true) => "this geometry follows \"closer to the detector\"",
+        (false, false) => "neither holds here",
+    };
+    let _ = write!(
+        text,
+        " The paper says its LAT vertebra is both \"closer to the detector\" and \"larger\" than in AP; {}{verdict}.",
+        if one_sdd && !(larger && closer) {
+            "with one SDD these cannot both hold, and "
+        } else {
+            ""
+        }
+    );
+    text
+}
+
+/// Where the phantom's and CT levels sit: each level's body centre at the world origin, on or off each
+/// view's central ray; the phantom's segment moved along z to the views' mean aim height, and whether its reference
+/// silhouettes are whole on the detector.
+fn placement_text(
+    cfg: &StudyConfig,
+    carm: &crate::geometry::CArm,
+    targets: &[String],
+    out: &Path,
+) -> String {
+    let from_aim: Vec<String> = cfg
+        .studied_views(carm)
+        .map(|v| {
+            let (aim, _) = v.aim();
+            if aim.length() < 0.05 {
+                format!("on {}'s central ray", v.name.to_uppercase())
+            } else {
+                format!(
+                    "{} mm from {}'s aim {}",
+                    num(aim.length(), 1),
+                    v.name.to_uppercase(),
+                    mm(aim)
+                )
+            }
+        })
+        .collect();
+    let a = &cfg.anatomy;
+    let whose = match (a.levels.is_empty(), a.ct.is_empty() && a.dataset.is_empty()) {
+        (false, false) => "Each phantom level's and CT level's body centre",
+        (false, true) => "Each single level's body centre",
+        _ => {
+            "Each CT level's body centre (its `center` landmark; a CT segment's: its middle level's)"
+        }
+    };
+    let mut text = format!("{whose} sits at the world origin: {}.", from_aim.join(", "));
+    if targets.iter().any(|t| t == SEGMENT_TARGET) {
+        let z: Vec<f64> = cfg.studied_views(carm).map(|v| v.aim().0.z).collect();
+        let cut: Vec<String> = cfg
+            .studied_views(carm)
+            .filter(|v| cut_by_edge(out, SEGMENT_TARGET, &v.name))
+            .map(|v| v.name.to_uppercase())
+            .collect();
+        let whole = if cut.is_empty() {
+            "whole on the detector in every reference view".to_string()
+        } else {
+            format!(
+                "cut by the detector's edge even so in {}",
+                cut.join(" and ")
+            )
+        };
+        let _ = write!(
+            text,
+            " The segment, taller than a vertebra, is moved along z so that its levels' mean body-centre \
+             height is the views' mean aim height, z = {} mm: {whole}.",
+            num(z.iter().sum::<f64>() / z.len().max(1) as f64, 1)
+        );
+    }
+    text
+}
+
 /// Writes the section: the views table, then the targets table.
 pub fn section(
     md: &mut String,
@@ -129,7 +263,11 @@ pub fn section(
         let k = &view.intrinsics;
         let (point, dist) = view.aim();
         if let Some(s) = sp {
-            magnification.push((view.name.clone(), k.fx * s[0] / dist));
+            magnification.push(Aim {
+                view: view.name.clone(),
+                source_mm: dist,
+                sdd_mm: k.fx * s[0],
+            });
         }
         let sdd = sp.map(|s| k.fx * s[0]);
         let _ = writeln!(
@@ -156,36 +294,14 @@ pub fn section(
             k.skew
         );
     }
-    if let [(a, ma), (b, mb)] = magnification.as_slice() {
-        let (big, small, ratio) = if mb > ma {
-            (b, a, mb / ma)
-        } else {
-            (a, b, ma / mb)
-        };
-        let _ = writeln!(
-            md,
-            "\n{} magnifies its aim {ratio:.2} times as much as {}: the anatomy there is nearer the \
-             source (and so farther from the detector) in {} than in {}, and drawn larger. The paper says \
-             its LAT vertebra is both \"closer to the detector\" and \"larger\"; with one SDD these \
-             cannot both hold, and this geometry follows \"larger\" in {}.",
-            big.to_uppercase(),
-            small.to_uppercase(),
-            big.to_uppercase(),
-            small.to_uppercase(),
-            big.to_uppercase()
-        );
+    if let [a, b] = magnification.as_slice() {
+        let _ = writeln!(md, "\n{}", magnification_text(a, b));
     }
     let _ = writeln!(md);
     super::layout::figures(md, figs, Section::Setup, n);
-    if targets.iter().any(|t| t == SEGMENT_TARGET) {
-        let z: Vec<f64> = cfg.studied_views(&carm).map(|v| v.aim().0.z).collect();
-        let _ = writeln!(
-            md,
-            "\nEach single level sits where the views aim (its body centre at the world origin); the \
-             segment, taller than a vertebra, is moved along z so that its levels' mean body-centre height \
-             is the views' mean aim height, z = {} mm, keeping it whole on the detector in both views.",
-            num(z.iter().sum::<f64>() / z.len().max(1) as f64, 1)
-        );
+    let a = &cfg.anatomy;
+    if !a.levels.is_empty() || !a.ct.is_empty() || !a.dataset.is_empty() {
+        let _ = writeln!(md, "\n{}", placement_text(cfg, &carm, targets, out));
     }
     // The grid of `[perturbations]`, where an experiment that steps through it ran.
     if let Some(v) = cfg.studied_views(&carm).next().filter(|_| grid_used) {
@@ -245,4 +361,55 @@ pub fn section(
          extent (px) | extent (mm at detector) | on the detector |\n|---|---|---|---|---|---|---|---|\n\
          {table}"
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Aim, magnification_text};
+
+    fn aim(view: &str, source_mm: f64, sdd_mm: f64) -> Aim {
+        Aim {
+            view: view.into(),
+            source_mm,
+            sdd_mm,
+        }
+    }
+
+    #[test]
+    fn the_papers_two_statements_are_checked_against_the_geometry() {
+        // The built-in geometry: one SDD of 1350 mm, LAT's aim 100 mm nearer the source.
+        assert_eq!(
+            magnification_text(&aim("ap", 1000.0, 1350.0), &aim("lat", 900.0, 1350.0)),
+            "LAT magnifies its aim 1.11 times as much as AP: in AP the aim is 1000 mm from the source \
+             and 350 mm from the detector, in LAT the aim is 900 mm from the source and 450 mm from the \
+             detector. The paper says its LAT vertebra is both \"closer to the detector\" and \"larger\" \
+             than in AP; with one SDD these cannot both hold, and this geometry follows \"larger\"."
+        );
+        // A shorter SDD in LAT: 1100 / 800 = 1.375 > 1.35, 300 mm < 350 mm from the detector.
+        let both = magnification_text(&aim("ap", 1000.0, 1350.0), &aim("lat", 800.0, 1100.0));
+        assert!(
+            both.starts_with("LAT magnifies its aim 1.02 times as much as AP"),
+            "{both}"
+        );
+        assert!(both.ends_with("than in AP; here both hold."), "{both}");
+        // LAT farther from the source with one SDD: closer to the detector and smaller.
+        let closer = magnification_text(&aim("lat", 1100.0, 1350.0), &aim("ap", 1000.0, 1350.0));
+        assert!(
+            closer.starts_with("AP magnifies its aim 1.10 times as much as LAT: in LAT"),
+            "{closer}"
+        );
+        assert!(
+            closer.ends_with(
+                "cannot both hold, and this geometry follows \"closer to the detector\"."
+            ),
+            "{closer}"
+        );
+        // Views of other names: no word about the paper's AP and LAT.
+        let other = magnification_text(&aim("pa", 1000.0, 1350.0), &aim("obl", 1000.0, 1350.0));
+        assert_eq!(
+            other,
+            "PA and OBL magnify their aims alike: in PA the aim is 1000 mm from the source and 350 mm \
+             from the detector, in OBL the aim is 1000 mm from the source and 350 mm from the detector."
+        );
+    }
 }
