@@ -246,7 +246,7 @@ fn registration_table(md: &mut String, rows: &[CalibrationRow]) {
 the trials that also ran the intensity-based registration (the first n of each cell) — and of the \
 intensity-based registration, when the navigation system uses the calibrated geometry. The intensity \
 registration is local (it starts at the true pose): where the calibrated geometry's optimum lies beyond \
-its capture range (some 10–20 mm), it stops short and its mTRE understates the bias.\n"
+its capture range (not measured in this experiment), it stops short and its mTRE understates the bias.\n"
     );
     let _ = writeln!(
         md,

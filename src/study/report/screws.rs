@@ -166,10 +166,10 @@ how well the overlay seems to fit. Each cell is the largest over the levels' scr
     segment(md, views, (rows, nav), (&drawn, &navs), pitch);
 }
 
-/// The segment's screws (each level at its place in the stack, the views aimed at the stack's centre),
+/// The segment's screws (each level at its place in the stack, the stack at the views' mean aim height),
 /// beside the single levels', under the largest focal offset of the grid: the scaling about the
 /// principal point draws a tip in proportion to its distance from it, which the single levels at the
-/// isocentre do not show. Every number is a row of the two tables.
+/// world origin do not show. Every number is a row of the two tables.
 fn segment(
     md: &mut String,
     views: &[String],
@@ -229,12 +229,20 @@ fn segment(
         ),
         _ => String::new(),
     };
+    let mut levels: Vec<&str> = seg
+        .iter()
+        .filter_map(|r| r.screw.split_once('/').map(|(level, _)| level))
+        .collect();
+    levels.sort_unstable();
+    levels.dedup();
     let _ = writeln!(
         md,
-        "In the L1–L5 segment — the same screws, each level at its place in the stack, the views aimed at \
-the stack's centre (`{}` rows of the tables, not in the table above) — a focal error draws a tip in \
-proportion to its distance from the principal point, so the screws far from it are drawn further: under {} \
-the largest drawn tip offset is {}, against {} px for the levels alone at the isocentre.{navigated}\n",
+        "In the segment ({}) — the same screws, each level at its place in the stack, the stack moved to the \
+views' mean aim height (see Setup; `{}` rows of the tables, not in the table above) — a focal error draws \
+a tip in proportion to its distance from the principal point, so the screws far from it are drawn \
+further: under {} the largest drawn tip offset is {}, against {} px for the levels alone (each at the \
+world origin).{navigated}\n",
+        levels.join(", "),
         seg[0].target,
         pitch.df_words(df),
         parts.join(" and "),
@@ -387,6 +395,7 @@ mod tests {
             Pitch(None),
         );
         for want in [
+            "In the segment (L1, L5) — ",
             "40 px in AP (8 mm at the screw; L1's right screw)",
             "45 px in LAT (9 mm at the screw; L5's left screw)",
             "against 5 and 20 px",
