@@ -11,7 +11,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::{Error, Result};
 
@@ -248,6 +248,56 @@ pub fn to_csv(rows: &[TimingRow]) -> Result<Vec<u8>> {
         .map_err(|e| Error::encode("timings.csv", e))?;
     }
     w.into_inner().map_err(|e| Error::encode("timings.csv", e))
+}
+
+/// A shard's work as its timing table (`timings-shard-I-of-N.csv`) states it: the work units it ran,
+/// their wall time, and its whole invocation's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShardTiming {
+    pub file: String,
+    pub units: u64,
+    pub units_wall_s: f64,
+    pub total_wall_s: f64,
+}
+
+/// One line of a timing table as read back.
+#[derive(Deserialize)]
+struct TimingRecord {
+    phase: String,
+    seconds: f64,
+    count: u64,
+}
+
+/// The shards' timing tables in `out` (`timings-shard-I-of-N.csv`, by name), each read through the csv
+/// crate; a table that cannot be read is named with its error.
+pub fn shard_timings(out: &std::path::Path) -> Vec<std::result::Result<ShardTiming, String>> {
+    let mut files: Vec<String> = std::fs::read_dir(out)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("timings-shard-") && n.ends_with(".csv"))
+        .collect();
+    files.sort();
+    let (units_phase, ..) = Phase::Units.describe();
+    files
+        .into_iter()
+        .map(|file| {
+            let records: Vec<TimingRecord> = csv::Reader::from_path(out.join(&file))
+                .and_then(|mut r| r.deserialize().collect())
+                .map_err(|e| format!("{file}: {e}"))?;
+            let find = |phase: &str| records.iter().find(|r| r.phase == phase);
+            let (Some(units), Some(total)) = (find(units_phase), find("total")) else {
+                return Err(format!("{file}: no '{units_phase}' or 'total' row"));
+            };
+            Ok(ShardTiming {
+                units: units.count,
+                units_wall_s: units.seconds,
+                total_wall_s: total.seconds,
+                file,
+            })
+        })
+        .collect()
 }
 
 /// A Markdown table of `rows` (used by the report and by `--timings`).

@@ -125,13 +125,40 @@ fn shards_in_any_order_assemble_to_the_unsharded_tables() {
     let names: Vec<&String> = a.iter().map(|(n, _)| n).collect();
     assert_eq!(a.len(), 13, "the tables of --quick: {names:?}");
     assert!(a == b, "sharded tables differ from the unsharded run's");
+    // The assembled report says it ran no unit and lists the shards' timing tables, each with the
+    // units and seconds its CSV states (read here with the csv crate).
+    let md = crate::common::read_report(&sharded);
+    assert!(
+        md.contains(&format!(
+            "None of the {} work units ran in this invocation: every result was already in the folder",
+            units.len()
+        )),
+        "{md}"
+    );
+    let mut listed = Vec::new();
+    let mut shard_units = 0;
     for i in 0..4 {
-        assert!(
-            sharded
-                .join(format!("timings-shard-{i}-of-4.csv"))
-                .is_file()
-        );
+        let file = format!("timings-shard-{i}-of-4.csv");
+        let mut rdr = csv::Reader::from_path(sharded.join(&file)).expect("shard timings");
+        let rows: Vec<csv::StringRecord> = rdr.records().map(|r| r.expect("row")).collect();
+        let row = |phase: &str| rows.iter().find(|r| &r[0] == phase).expect(phase).clone();
+        let (work, total) = (row("work units (parallel)"), row("total"));
+        let n: usize = work[3].parse().unwrap();
+        shard_units += n;
+        let secs = |r: &csv::StringRecord| r[2].parse::<f64>().unwrap();
+        listed.push(format!(
+            "[{file}]({file}) ({n} unit{} in {:.1} s of wall time, {:.1} s in all)",
+            if n == 1 { "" } else { "s" },
+            secs(&work),
+            secs(&total)
+        ));
     }
+    assert_eq!(shard_units, units.len(), "the shards ran every unit once");
+    let expected = format!(
+        "The shards' own timing tables are in this folder: {}.",
+        listed.join(", ")
+    );
+    assert!(md.contains(&expected), "{expected}\nnot in\n{md}");
 }
 
 /// Inside a Slurm array task (SLURM_ARRAY_TASK_ID / SLURM_ARRAY_TASK_COUNT set, no --shard) only that

@@ -10,6 +10,8 @@ mod findings;
 mod grid;
 mod intensity;
 mod intensity_spectral;
+mod invocation;
+mod landmarks;
 pub mod latex;
 mod layout;
 pub mod literature;
@@ -33,8 +35,8 @@ pub use provenance::{INPUTS_CSV, PROVENANCE};
 use super::config::StudyConfig;
 use super::figures::{self, Section};
 use super::identity::InputFile;
-use super::schema::{LandmarkRow, ProjectionRow, StudyTables};
-use super::timings::{RunFacts, TimingRow, to_markdown};
+use super::schema::{ProjectionRow, StudyTables};
+use super::timings::{RunFacts, TimingRow};
 use super::units::targets;
 use crate::Result;
 use crate::io::write_atomic_bytes;
@@ -151,7 +153,7 @@ configuration is `study.toml`.\n",
     if !tables.landmarks.is_empty() {
         let _ = writeln!(md, "## {LANDMARKS}\n");
         layout::figures(&mut md, &figs, Section::Landmarks, &mut n);
-        landmark_section(&mut md, &tables.landmarks, &paper, &first, pitch);
+        landmarks::section(&mut md, &tables.landmarks, &paper, &first, pitch);
     }
     let carm = cfg.carm().ok();
     physical::section(&mut md, &tables.physical, carm.as_ref(), &first);
@@ -187,7 +189,7 @@ configuration is `study.toml`.\n",
     // The .tex tables first: the products list names what is on disk.
     write_latex_tables(out, tables, &paper, &first, pitch)?;
     layout::products(&mut md, out)?;
-    timings_section(&mut md, rows, run);
+    invocation::section(&mut md, out, rows, run);
     write_atomic_bytes(&out.join("report.md"), md.as_bytes())
 }
 
@@ -346,30 +348,6 @@ reference DRRs' sidecars)"
     note
 }
 
-/// Where this invocation's time went.
-fn timings_section(md: &mut String, rows: &[TimingRow], run: &RunFacts) {
-    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-    let _ = writeln!(md, "## {TIMINGS}\n");
-    let _ = writeln!(
-        md,
-        "{} of {} work units ran in this invocation ({} reused from an earlier one), on {} worker \
-threads ({cores} cores available). Wall-clock phases are elapsed time; the indented unit phases are summed \
-over worker threads, so together they are about threads × the units' wall time. Report writing itself is \
-in timings.csv.\n",
-        run.ran_units,
-        run.total_units,
-        run.total_units - run.ran_units,
-        run.threads
-    );
-    // The report's own writing time is not known yet: it is in timings.csv.
-    let rows: Vec<TimingRow> = rows
-        .iter()
-        .filter(|r| !r.phase.starts_with("report"))
-        .cloned()
-        .collect();
-    let _ = writeln!(md, "{}", to_markdown(&rows));
-}
-
 fn silhouette_section(
     md: &mut String,
     rows: &[ProjectionRow],
@@ -386,68 +364,6 @@ fn silhouette_section(
 falls even for a vertebra on the central ray; the paper's AP Dice > 0.997 cannot come from this model. We report \
 what the model gives rather than tuning to the paper.\n"
     );
-}
-
-fn landmark_section(
-    md: &mut String,
-    rows: &[LandmarkRow],
-    paper: &PaperResults,
-    first: &str,
-    pitch: grid::Pitch,
-) {
-    let t = comparison::landmark_table(rows, paper, first, pitch);
-    let _ = writeln!(md, "### {}\n", t.caption);
-    let _ = writeln!(md, "{}", t.to_markdown());
-    if let Some(text) = unmeasured_landmarks(rows) {
-        let _ = writeln!(md, "{text}\n");
-    }
-}
-
-/// Which rows of `landmarks.csv` have no measurement (a marker whose search disc is not wholly on the
-/// detector, [`crate::analysis::marker_centroid`]), per target and view, landmark by landmark with its
-/// number of cells; `None` when every landmark was measured.
-fn unmeasured_landmarks(rows: &[LandmarkRow]) -> Option<String> {
-    let missing: Vec<&LandmarkRow> = rows.iter().filter(|r| !r.shift_px.is_finite()).collect();
-    if missing.is_empty() {
-        return None;
-    }
-    // Per (target, view), the cells of each landmark.
-    let mut groups: std::collections::BTreeMap<
-        (&str, &str),
-        std::collections::BTreeMap<&str, usize>,
-    > = std::collections::BTreeMap::new();
-    for r in &missing {
-        *groups
-            .entry((r.target.as_str(), r.view.as_str()))
-            .or_default()
-            .entry(r.landmark.as_str())
-            .or_default() += 1;
-    }
-    let parts: Vec<String> = groups
-        .into_iter()
-        .map(|((target, view), names)| {
-            let mut names: Vec<(&str, usize)> = names.into_iter().collect();
-            names.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
-            let names: Vec<String> = names
-                .iter()
-                .map(|(n, c)| format!("{n} in {c} cell{}", if *c == 1 { "" } else { "s" }))
-                .collect();
-            format!("{target} {}: {}", view.to_uppercase(), names.join(", "))
-        })
-        .collect();
-    let in_reference = missing.iter().filter(|r| !r.ref_u_px.is_finite()).count();
-    let where_cut = if in_reference == 0 {
-        "each whole in the reference view and cut in the perturbed one".to_string()
-    } else {
-        format!("{in_reference} of them already cut in the reference view")
-    };
-    Some(format!(
-        "A marker whose search disc is not wholly on the detector is not measured (a cut blob's centroid \
-is biased): {} of {} rows of landmarks.csv have NaN measurements, {} ({where_cut}).",
-        missing.len(),
-        rows.len(),
-        parts.join("; ")
-    ))
 }
 
 fn registration_section(
@@ -472,59 +388,4 @@ fn registration_section(
         }
     }
     registration::physical_section(md, &tables.registration_physical, first, noise_px);
-}
-
-#[cfg(test)]
-mod tests {
-    use super::unmeasured_landmarks;
-    use crate::study::config::Family;
-    use crate::study::schema::LandmarkRow;
-
-    fn row(target: &str, view: &str, landmark: &str, reference: f64, measured: f64) -> LandmarkRow {
-        LandmarkRow {
-            target: target.into(),
-            view: view.into(),
-            family: Family::Focal,
-            df_px: 100.0,
-            dcx_px: 0.0,
-            dcy_px: 0.0,
-            landmark: landmark.into(),
-            ref_u_px: reference,
-            ref_v_px: reference,
-            meas_u_px: measured,
-            meas_v_px: measured,
-            shift_px: measured - reference,
-            pred_u_px: 0.0,
-            pred_v_px: 0.0,
-            pred_shift_px: 0.0,
-            pred_error_px: 0.0,
-        }
-    }
-
-    #[test]
-    fn unmeasured_landmarks_are_counted_per_target_view_and_landmark() {
-        let nan = f64::NAN;
-        let mut rows = vec![row("L1", "ap", "L1/center", 500.0, 501.0); 5];
-        assert_eq!(unmeasured_landmarks(&rows), None);
-        rows.push(row("segment", "lat", "L5/tip", 1000.0, nan));
-        rows.push(row("segment", "lat", "L5/corner", 1000.0, nan));
-        rows.push(row("segment", "lat", "L5/tip", 1000.0, nan));
-        let text = unmeasured_landmarks(&rows).expect("three rows unmeasured");
-        assert!(
-            text.contains(
-                "3 of 8 rows of landmarks.csv have NaN measurements, segment LAT: L5/tip in 2 cells, \
-                 L5/corner in 1 cell (each whole in the reference view and cut in the perturbed one)."
-            ),
-            "{text}"
-        );
-        rows.push(row("L2", "ap", "L2/tip", nan, nan));
-        let text = unmeasured_landmarks(&rows).expect("four rows unmeasured");
-        assert!(
-            text.contains(
-                "4 of 9 rows of landmarks.csv have NaN measurements, L2 AP: L2/tip in 1 cell; segment LAT: \
-                 L5/tip in 2 cells, L5/corner in 1 cell (1 of them already cut in the reference view)."
-            ),
-            "{text}"
-        );
-    }
 }
