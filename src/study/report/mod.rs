@@ -2,6 +2,7 @@
 //! made, the products, and the paper's reported figures (`reference/paper-results.toml`, embedded)
 //! beside ours. Writing to a `String` cannot fail, so `writeln!` results are discarded (`let _`).
 
+mod beside_landmarks;
 mod calibration;
 mod calibration_physical;
 pub mod cohort;
@@ -175,6 +176,7 @@ configuration is `study.toml`.\n",
     calibration::section(&mut md, (cfg, &first), tables, &figs, &mut n);
     calibration_physical::section(&mut md, &tables.calibration_physical, &tables.calibration);
     intensity::section(&mut md, cfg, tables, &figs, &mut n);
+    beside_landmarks::section(&mut md, &tables.intensity_summary, pitch);
     intensity_spectral::section(&mut md, cfg, &tables.intensity_summary, pitch);
     tracking::section(&mut md, cfg, &tables.tracking, &first);
     screws::section(
