@@ -119,7 +119,14 @@ fn figure<'a>(inner: &[Event<'a>], out: &Path, page: &mut Vec<Event<'a>>) -> Res
 /// horizontally scrolling box, and each paragraph that starts with an image as a captioned
 /// [`figure`] embedding the image's preview. `out` is the folder the report's links are relative to.
 pub fn markdown_to_html(md: &str, out: &Path) -> Result<String> {
-    let events: Vec<Event> = Parser::new_ext(md, Options::ENABLE_TABLES).collect();
+    // HTML in the Markdown is shown as text: the report's names (targets, landmarks, files) are the
+    // user's, and a `<L1>` must read as written, never become markup.
+    let events: Vec<Event> = Parser::new_ext(md, Options::ENABLE_TABLES)
+        .map(|e| match e {
+            Event::Html(t) | Event::InlineHtml(t) => Event::Text(t),
+            e => e,
+        })
+        .collect();
     let mut page: Vec<Event> = Vec::with_capacity(events.len() + 64);
     // Whether the last block was the `## Contents` heading; whether its list (the `<nav>`) is open.
     let mut after_contents = false;
@@ -223,6 +230,18 @@ mod tests {
         assert_eq!(
             body("(opencv-*) and a*b"),
             "<p>(opencv-<em>) and a</em>b</p>\n"
+        );
+    }
+
+    #[test]
+    fn html_in_the_markdown_is_shown_as_text() {
+        assert_eq!(
+            body("landmark <L1> and <img src=x onerror=alert(1)> in a name"),
+            "<p>landmark &lt;L1&gt; and &lt;img src=x onerror=alert(1)&gt; in a name</p>\n"
+        );
+        assert_eq!(
+            body("<div>\nblock\n</div>\n"),
+            "&lt;div&gt;\nblock\n&lt;/div&gt;\n"
         );
     }
 

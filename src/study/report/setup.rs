@@ -168,8 +168,8 @@ fn magnification_text(a: &Aim, b: &Aim) -> String {
 }
 
 /// Where the phantom's and CT levels sit: each level's body centre at the world origin, on or off each
-/// view's central ray; the phantom's segment moved along z to the views' mean aim height, and whether its reference
-/// silhouettes are whole on the detector.
+/// view's central ray; the phantom's segment moved along z to the views' mean aim height, and whether
+/// its reference silhouettes are whole on the detector.
 fn placement_text(
     cfg: &StudyConfig,
     carm: &crate::geometry::CArm,
