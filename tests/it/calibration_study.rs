@@ -251,6 +251,41 @@ intensity_trials = 1
         "report lacks the section"
     );
     assert!(report.contains("Tolerance: how good must the calibration be?"));
+    // The intensity registration under the two protocols is compared cell by cell (same phantom, σ and
+    // trial), as recomputed here from the CSV (one view's rows: each trial repeats per view).
+    let view0 = rows[0][col("view")].to_string();
+    let ireg_of = |phantom: &str, noise: &str, protocol: &str| {
+        ireg.iter()
+            .find(|r| {
+                r[col("view")] == *view0
+                    && &r[col("phantom")] == phantom
+                    && &r[col("noise_px")] == noise
+                    && &r[col("protocol")] == protocol
+            })
+            .map(|r| f(r, "ireg_mtre_mm"))
+            .expect("an intensity registration per cell")
+    };
+    let mut left = Vec::new();
+    for r in ireg
+        .iter()
+        .filter(|r| r[col("view")] == *view0 && &r[col("protocol")] == "intrinsic")
+    {
+        let (ph, noise) = (&r[col("phantom")], &r[col("noise_px")]);
+        left.push(100.0 * ireg_of(ph, noise, "full") / ireg_of(ph, noise, "intrinsic"));
+    }
+    let (lo, hi) = left
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+    let span = if format!("{lo:.1}") == format!("{hi:.1}") {
+        format!("{lo:.1} %")
+    } else {
+        format!("{lo:.1}–{hi:.1} %")
+    };
+    let expected = format!(
+        "the full geometry leaves {span} of the intrinsic-only mTRE over the {} cells",
+        left.len()
+    );
+    assert!(report.contains(&expected), "{expected}");
     // The section says what ran, as the table shows it: trial 0 of the 6 with a silhouette (finite
     // Dice) and an intensity registration (finite mTRE), on L1.
     let ran = |c: &str| {
