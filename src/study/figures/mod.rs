@@ -137,7 +137,7 @@ pub fn write_all(out: &Path, cfg: &StudyConfig, tables: &StudyTables) -> Result<
 central ray (dashed) to the piercing point, the detector (black bar, its extent along v at the SDD), the \
 beam's fan to the detector's edges, the aim (cross) and each target's outline where the study placed it \
 (the convex hull of its surface in the view's camera frame; one colour per target as in the other \
-figures; the single levels each sit at the aim, so their outlines overlap); horizontal is depth from the source along the central ray, vertical the offset along the \
+figures; the single levels all sit at the world origin, so their outlines overlap); horizontal is depth from the source along the central ray, vertical the offset along the \
 detector's v axis, up = the top row",
             true,
         ));
