@@ -49,7 +49,8 @@ pub struct CtArgs {
     /// Trilinear step (mm), capped at half the smallest voxel spacing (with --method trilinear).
     #[arg(long, conflicts_with_all = ["mesh", "phantom"])]
     pub step_mm: Option<f64>,
-    /// What of the CT is moved (translated) to the world origin, where the views aim: auto (the
+    /// What of the CT is moved (translated) to the world origin (the built-in AP's central ray passes
+    /// through it, LAT's 32 mm from it): auto (the
     /// label's centre with --label, else the volume's centre), label-centre (centroid of the rendered
     /// label voxels), volume-centre (centre of the volume's box, as DiffDRR centres a CT), or keep (the
     /// file's world coordinates, for a geometry that aims at the scanner's coordinates). The sidecar

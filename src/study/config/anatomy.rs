@@ -67,7 +67,7 @@ pub struct CtTarget {
     /// Also study the levels together as target `<name>-segment`.
     #[serde(default)]
     pub segment: bool,
-    /// How each level is oriented where the views aim: `none` (moved to its body centre only, the
+    /// How each level is oriented at the world origin: `none` (moved to its body centre only, the
     /// scanner's axes kept) or `anatomical` (also rotated into its automatic-landmark frame, so AP and
     /// LAT are a tilted vertebra's true AP and LAT).
     #[serde(default, with = "super::kinds::alignment")]

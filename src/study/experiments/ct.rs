@@ -13,9 +13,9 @@
 //! * **landmarks** are marker spheres at the level's landmarks (automatic landmarks of the label surface,
 //!   or the given JSON), rendered alone and measured by blob centroid, as for every target.
 //!
-//! The views aim at the world origin, so each target is moved rigidly to put its body centre there: the
-//! `center` landmark of the level, or for the segment that of its middle listed level (the phantom's
-//! placement rule). With `align = "none"` (the default) the motion is that translation alone — the NIfTI
+//! The views aim at the world origin (AP's central ray through it, the built-in LAT's 32 mm from it), so
+//! each target is moved rigidly to put its body centre there: the `center` landmark of the level, or for
+//! the segment that of its middle listed level (the phantom's placement rule). With `align = "none"` (the default) the motion is that translation alone — the NIfTI
 //! world is RAS+ like the phantom's, so AP and LAT are the scanner's; with `align = "anatomical"` the
 //! level is also rotated so its automatic-landmark frame (right, anterior, superior) becomes the world's
 //! axes, and AP and LAT are a tilted vertebra's true AP and LAT (see [`crate::anatomy::ct::placement`]).
@@ -315,7 +315,7 @@ fn level_surface(
     })
 }
 
-/// The placement that puts a level's body centre where the views aim, aligned as the entry asks.
+/// The placement that puts a level's body centre at the world origin, aligned as the entry asks.
 fn level_placement(s: &LevelSurface, align: Alignment) -> Result<Placed> {
     let centre = Some(body_centre(s));
     Placed::new("body-centre", centre, align, s.frame.as_ref()).map_err(|e| {

@@ -151,7 +151,7 @@ pub struct Target {
     /// 1–2 mm margin is measured against.
     pub clinical: Vec<(String, DVec3)>,
     pub markers: Vec<Marker>,
-    /// How a CT target was moved where the views aim (recorded in its reference sidecars).
+    /// How a CT target was moved to the world origin (recorded in its reference sidecars).
     pub placement: Option<crate::anatomy::ct::Placed>,
     /// A phantom target in its materials with its planned pedicle screws (when the screws experiment
     /// runs): the spectral radiographs of the screw figure.
@@ -198,7 +198,7 @@ impl Context {
         pool: &rayon::ThreadPool,
     ) -> Result<Context> {
         let carm = cfg.carm()?;
-        // Each level alone is built on its own, so it sits where the views aim (the world origin), as in
+        // Each level alone is built on its own, so its body centre is the world origin, as in
         // the paper's single-vertebra experiments; the segment is the whole stack.
         let phantom_of = |levels: Vec<Level>| {
             build_phantom(&PhantomOptions {
@@ -362,7 +362,7 @@ impl Context {
 
 /// How far the segment is moved along the world z axis (mm) by [`segment_placed`]: from the mean height
 /// of its levels' body centres to the mean height of the studied views' aims (each central ray's point
-/// nearest the world origin). A single level sits where the views aim; a segment of several levels is
+/// nearest the world origin). A single level sits at the world origin; a segment of several levels is
 /// taller than a vertebra, so it is centred between the views' aim heights instead of on its middle
 /// level, which keeps it whole on the detector in both views of the default geometry.
 pub fn segment_shift_mm(phantom: &Phantom, carm: &crate::geometry::CArm, views: &[String]) -> f64 {

@@ -1,7 +1,7 @@
 //! *Pedicle screws*: `screws.csv` and `screw_navigation.csv` in the report — per assumed geometry, the
 //! largest on-screen offset of a planned screw's tip drawn with the wrong calibration in each view (px and
 //! mm at the screw), the largest drawn axis rotation, and where a navigation system registered with that
-//! calibration puts the screw in 3-D. The table has the single levels (each built where the views aim);
+//! calibration puts the screw in 3-D. The table has the single levels (each built at the world origin);
 //! a paragraph sets the L1–L5 segment's screws beside them under the largest focal offset. Every number
 //! is a row of the two tables, the largest over the screws it names.
 
