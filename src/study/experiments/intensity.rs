@@ -30,7 +30,7 @@ use crate::study::timings::{Phase, Timings};
 use crate::study::units::derive_seed;
 use crate::{Error, Result};
 
-/// The truth: the phantom is built where the views aim.
+/// The truth: the phantom is built at the world origin.
 const TRUTH: RigidTransform = RigidTransform::IDENTITY;
 
 /// One level prepared for intensity registration.

@@ -29,7 +29,7 @@ use crate::anatomy::auto_landmarks::VertebraFrame;
 use crate::geometry::RigidTransform;
 use crate::{Error, Result};
 
-/// What of a CT is moved to the world origin, where the views aim.
+/// What of a CT is moved to the world origin (near which the views aim).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Placement {
     /// The file's world coordinates, unchanged.
@@ -191,7 +191,7 @@ pub fn move_volume<T: Copy>(vol: &mut Volume<T>, motion: &RigidTransform) {
     vol.index_to_world = motion.to_mat4() * vol.index_to_world;
 }
 
-/// How a study target's level is oriented where the views aim.
+/// How a study target's level is oriented at the world origin.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Alignment {
     /// Translation only: the scanner's axes stay the world's (RAS+), a tilted vertebra stays tilted.
