@@ -15,6 +15,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::{Error, Result};
 
+/// The timing table's last row: the invocation's whole wall time.
+const TOTAL: &str = "total";
+
 /// A timed phase.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Phase {
@@ -209,7 +212,7 @@ impl Timings {
         };
         rows.insert(Phase::UnitThreads.index() + 1, all);
         rows.push(TimingRow {
-            phase: "total",
+            phase: TOTAL,
             clock: "wall",
             seconds: total.as_secs_f64(),
             count: 0,
@@ -287,8 +290,8 @@ pub fn shard_timings(out: &std::path::Path) -> Vec<std::result::Result<ShardTimi
                 .and_then(|mut r| r.deserialize().collect())
                 .map_err(|e| format!("{file}: {e}"))?;
             let find = |phase: &str| records.iter().find(|r| r.phase == phase);
-            let (Some(units), Some(total)) = (find(units_phase), find("total")) else {
-                return Err(format!("{file}: no '{units_phase}' or 'total' row"));
+            let (Some(units), Some(total)) = (find(units_phase), find(TOTAL)) else {
+                return Err(format!("{file}: no '{units_phase}' or '{TOTAL}' row"));
             };
             Ok(ShardTiming {
                 units: units.count,

@@ -10,6 +10,7 @@ use std::path::Path;
 use glam::DVec3;
 
 use super::layout::num;
+use crate::geometry::View;
 use crate::io::read_tiff_f32;
 use crate::study::config::{SEGMENT_TARGET, StudyConfig};
 use crate::study::experiments::reference_image_path;
@@ -174,7 +175,7 @@ fn placement_text(
     cfg: &StudyConfig,
     carm: &crate::geometry::CArm,
     targets: &[String],
-    out: &Path,
+    feet: &[(&String, &View, Footprint)],
 ) -> String {
     let from_aim: Vec<String> = cfg
         .studied_views(carm)
@@ -203,10 +204,10 @@ fn placement_text(
     let mut text = format!("{whose} sits at the world origin: {}.", from_aim.join(", "));
     if targets.iter().any(|t| t == SEGMENT_TARGET) {
         let z: Vec<f64> = cfg.studied_views(carm).map(|v| v.aim().0.z).collect();
-        let cut: Vec<String> = cfg
-            .studied_views(carm)
-            .filter(|v| cut_by_edge(out, SEGMENT_TARGET, &v.name))
-            .map(|v| v.name.to_uppercase())
+        let cut: Vec<String> = feet
+            .iter()
+            .filter(|(t, _, f)| *t == SEGMENT_TARGET && f.touches_edge)
+            .map(|(_, v, _)| v.name.to_uppercase())
             .collect();
         let whole = if cut.is_empty() {
             "whole on the detector in every reference view".to_string()
@@ -262,14 +263,11 @@ pub fn section(
     for view in cfg.studied_views(&carm) {
         let k = &view.intrinsics;
         let (point, dist) = view.aim();
-        if let Some(s) = sp {
-            magnification.push(Aim {
-                view: view.name.clone(),
-                source_mm: dist,
-                sdd_mm: k.fx * s[0],
-            });
-        }
-        let sdd = sp.map(|s| k.fx * s[0]);
+        let aim = sp.map(|s| Aim {
+            view: view.name.clone(),
+            source_mm: dist,
+            sdd_mm: k.fx * s[0],
+        });
         let _ = writeln!(
             md,
             "| {} | {} | {} | {:.0} | {} | {} | {} | {} × {} | {} | {:.1}, {:.1}, {:.1}, {:.1}, {:.2} |",
@@ -277,8 +275,10 @@ pub fn section(
             mm(view.source_world()),
             mm(point),
             dist,
-            sdd.map_or("n/a (K given)".into(), |s| format!("{s:.0}")),
-            sdd.map_or("n/a".into(), |s| format!("{:.3}", s / dist)),
+            aim.as_ref()
+                .map_or("n/a (K given)".into(), |a| format!("{:.0}", a.sdd_mm)),
+            aim.as_ref()
+                .map_or("n/a".into(), |a| format!("{:.3}", a.magnification())),
             sp.map_or("n/a".into(), |s| format!("{} × {}", s[0], s[1])),
             k.width,
             k.height,
@@ -293,15 +293,22 @@ pub fn section(
             k.cy,
             k.skew
         );
+        magnification.extend(aim);
     }
     if let [a, b] = magnification.as_slice() {
         let _ = writeln!(md, "\n{}", magnification_text(a, b));
     }
     let _ = writeln!(md);
     super::layout::figures(md, figs, Section::Setup, n);
+    // Each target's reference silhouette per view, read once for the placement and the targets table.
+    let feet: Vec<(&String, &View, Footprint)> = targets
+        .iter()
+        .flat_map(|t| cfg.studied_views(&carm).map(move |v| (t, v)))
+        .filter_map(|(t, v)| footprint(out, t, &v.name).map(|f| (t, v, f)))
+        .collect();
     let a = &cfg.anatomy;
     if !a.levels.is_empty() || !a.ct.is_empty() || !a.dataset.is_empty() {
-        let _ = writeln!(md, "\n{}", placement_text(cfg, &carm, targets, out));
+        let _ = writeln!(md, "\n{}", placement_text(cfg, &carm, targets, &feet));
     }
     // The grid of `[perturbations]`, where an experiment that steps through it ran.
     if let Some(v) = cfg.studied_views(&carm).next().filter(|_| grid_used) {
@@ -310,37 +317,30 @@ pub fn section(
         super::grid::table(md, &cfg.perturbations, &v.intrinsics, sp, sdd);
     }
     let mut table = String::new();
-    let mut rows = 0;
-    for t in targets {
-        for view in cfg.studied_views(&carm) {
-            let k = &view.intrinsics;
-            let Some(f) = footprint(out, t, &view.name) else {
-                continue;
-            };
-            rows += 1;
-            let (du, dv) = (f.centroid.0 - k.cx, f.centroid.1 - k.cy);
-            let d = du.hypot(dv);
-            let at_detector = |px_u: f64, px_v: f64| {
-                sp.map_or("n/a".into(), |s| {
-                    format!("{} × {}", num(px_u * s[0], 1), num(px_v * s[1], 1))
-                })
-            };
-            let _ = writeln!(
-                table,
-                "| {t} | {} | ({}, {}) | {:.1} | {} | {} × {} | {} | {} |",
-                view.name.to_uppercase(),
-                one_decimal(du),
-                one_decimal(dv),
-                d,
-                sp.map_or("n/a".into(), |s| num(du.hypot(dv * s[1] / s[0]) * s[0], 1)),
-                f.size_px.0,
-                f.size_px.1,
-                at_detector(f64::from(f.size_px.0), f64::from(f.size_px.1)),
-                on_detector(f.touches_edge, projection, t, &view.name)
-            );
-        }
+    for (t, view, f) in &feet {
+        let k = &view.intrinsics;
+        let (du, dv) = (f.centroid.0 - k.cx, f.centroid.1 - k.cy);
+        let d = du.hypot(dv);
+        let at_detector = |px_u: f64, px_v: f64| {
+            sp.map_or("n/a".into(), |s| {
+                format!("{} × {}", num(px_u * s[0], 1), num(px_v * s[1], 1))
+            })
+        };
+        let _ = writeln!(
+            table,
+            "| {t} | {} | ({}, {}) | {:.1} | {} | {} × {} | {} | {} |",
+            view.name.to_uppercase(),
+            one_decimal(du),
+            one_decimal(dv),
+            d,
+            sp.map_or("n/a".into(), |s| num(du.hypot(dv * s[1] / s[0]) * s[0], 1)),
+            f.size_px.0,
+            f.size_px.1,
+            at_detector(f64::from(f.size_px.0), f64::from(f.size_px.1)),
+            on_detector(f.touches_edge, projection, t, &view.name)
+        );
     }
-    if rows == 0 {
+    if feet.is_empty() {
         let _ = writeln!(
             md,
             "\nWhere each target lies on the detector is measured on its reference DRRs, which the \
